@@ -180,7 +180,7 @@ def fig1_scalar(a: float = 2.0) -> Plant:
 
 
 def random_structured(n: int, num_agents: int, *, num_sources: int | None = None,
-                      outputs_per_source: int = 1, spectral_radius: float = 1.2,
+                      outputs_per_source: int | None = None, spectral_radius: float = 1.2,
                       rng: np.random.Generator | int | None = None,
                       max_tries: int = 100) -> Plant:
     """A random observable plant in which each sensing agent sees only part of the state.
@@ -197,8 +197,9 @@ def random_structured(n: int, num_agents: int, *, num_sources: int | None = None
         State dimension and number of agents N.
     num_sources : int, optional
         How many agents own a substate; default ``min(n, max(2, N // 2))``.
-    outputs_per_source : int
-        Rows of each sensing agent's ``C_i``.
+    outputs_per_source : int, optional
+        Rows of each sensing agent's ``C_i``; default ``ceil(n_j / 4)`` for a block of
+        size ``n_j`` (single outputs make large blocks numerically near-unobservable).
     spectral_radius : float
         Largest eigenvalue modulus of ``A``.
     rng : Generator or int, optional
@@ -230,8 +231,9 @@ def random_structured(n: int, num_agents: int, *, num_sources: int | None = None
         owners.sort()
         C_bar = [np.zeros((0, n)) for _ in range(num_agents)]
         for j, agent in enumerate(owners):
-            Cj = np.zeros((outputs_per_source, n))
-            Cj[:, : offs[j + 1]] = rng.standard_normal((outputs_per_source, offs[j + 1]))
+            rows = outputs_per_source or int(np.ceil(sizes[j] / 4))
+            Cj = np.zeros((rows, n))
+            Cj[:, : offs[j + 1]] = rng.standard_normal((rows, offs[j + 1]))
             C_bar[agent] = Cj
         T, _ = np.linalg.qr(rng.standard_normal((n, n)))
         A = T @ A_bar @ T.T

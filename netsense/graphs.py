@@ -1,0 +1,428 @@
+"""Switching directed communication graphs and the joint strong-connectivity check.
+
+Conventions. A graph on ``N`` nodes is a boolean adjacency array ``adj`` of shape
+``(N, N)`` with ``adj[i, l] = True`` when ``l`` can send to ``i`` at that step (``l`` is
+an in-neighbour of ``i``, ``l ∈ N_i[k]``); the diagonal is always ``False``. A graph
+sequence is an array ``(K, N, N)``.
+
+A :class:`GraphProcess` is a frozen description; ``process.sample(rng, K, state)``
+returns the next ``K`` graphs and the process state to continue from, so long runs can
+be generated in chunks and a run is reproducible from its seed.
+
+Assumption 1 (joint strong connectivity): there is ``T`` such that the union graph over
+every interval ``[kT, (k+1)T)`` is strongly connected; :func:`check_joint_connectivity`
+tests it on a finite sequence and :func:`smallest_period` finds the smallest such ``T``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import networkx as nx
+import numpy as np
+
+
+# ----------------------------------------------------------------------------- helpers
+def as_adjacency(graph, num_nodes: int | None = None) -> np.ndarray:
+    """Convert an edge list ``[(l, i), ...]`` (``l -> i``), a networkx DiGraph or an
+    adjacency array into the ``(N, N)`` boolean in-neighbour adjacency."""
+    if isinstance(graph, nx.DiGraph):
+        N = graph.number_of_nodes() if num_nodes is None else num_nodes
+        adj = np.zeros((N, N), dtype=bool)
+        for l, i in graph.edges():
+            adj[i, l] = True
+    elif isinstance(graph, np.ndarray) and graph.ndim == 2:
+        adj = graph.astype(bool).copy()
+        if adj.shape[0] != adj.shape[1]:
+            raise ValueError(f"adjacency must be square, got shape {adj.shape}")
+    else:
+        if num_nodes is None:
+            raise ValueError("num_nodes is required for an edge list")
+        adj = np.zeros((num_nodes, num_nodes), dtype=bool)
+        for e in graph:
+            l, i = (int(v) for v in e)
+            if not (0 <= l < num_nodes and 0 <= i < num_nodes):
+                raise ValueError(f"edge {e} names a node outside 0..{num_nodes - 1}")
+            adj[i, l] = True
+    np.fill_diagonal(adj, False)
+    return adj
+
+
+def to_networkx(adj: np.ndarray) -> nx.DiGraph:
+    """DiGraph with an edge ``l -> i`` for every ``adj[i, l]``."""
+    g = nx.DiGraph()
+    g.add_nodes_from(range(adj.shape[0]))
+    i, l = np.nonzero(adj)
+    g.add_edges_from(zip(l.tolist(), i.tolist(), strict=True))
+    return g
+
+
+def is_strongly_connected(adj: np.ndarray) -> bool:
+    """Whether the directed graph ``adj`` is strongly connected (networkx)."""
+    return bool(nx.is_strongly_connected(to_networkx(adj)))
+
+
+def in_neighbor_slots(adj: np.ndarray, max_degree: int | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """In-neighbours of every node as padded slots, in increasing node order.
+
+    Parameters
+    ----------
+    adj : (..., N, N) bool
+        Adjacency (``adj[..., i, l]``: ``l -> i``).
+    max_degree : int, optional
+        Number of slots ``D``; default the largest in-degree present.
+
+    Returns
+    -------
+    nbr : (..., N, D) int
+        Slot ``d`` of node ``i`` holds its ``d``-th smallest in-neighbour, or ``-1``.
+    valid : (..., N, D) bool
+        Which slots hold a neighbour.
+
+    Raises
+    ------
+    ValueError
+        If some node has more in-neighbours than ``max_degree``.
+    """
+    adj = np.asarray(adj, dtype=bool)
+    N = adj.shape[-1]
+    deg = adj.sum(-1)
+    D = int(deg.max(initial=0)) if max_degree is None else int(max_degree)
+    if deg.size and deg.max() > D:
+        raise ValueError(f"a node has in-degree {int(deg.max())} > max_degree = {D}")
+    # Stable sort puts neighbours (True -> key 0) first, in increasing node order.
+    order = np.argsort(~adj, axis=-1, kind="stable")[..., :D]
+    valid = np.arange(D) < deg[..., None]
+    nbr = np.where(valid, order, -1)
+    if D > N:
+        raise ValueError(f"max_degree = {D} exceeds N - 1 = {N - 1}")
+    return nbr.astype(np.int64), valid
+
+
+# ----------------------------------------------------------------------------- processes
+class GraphProcess:
+    """Frozen description of a random or deterministic graph sequence."""
+
+    num_nodes: int
+
+    def initial_state(self, rng: np.random.Generator) -> Any:
+        """Process state at ``k = 0``."""
+        return 0
+
+    def sample(self, rng: np.random.Generator, num_steps: int, state: Any
+               ) -> tuple[np.ndarray, Any]:
+        """Next ``num_steps`` graphs ``(K, N, N)`` and the state to continue from."""
+        raise NotImplementedError  # pragma: no cover
+
+    @property
+    def max_in_degree(self) -> int:
+        """Upper bound on any node's in-degree (fixes the env's slot count)."""
+        return self.num_nodes - 1
+
+    def sequence(self, num_steps: int, rng: np.random.Generator | int | None = None
+                 ) -> np.ndarray:
+        """Convenience: ``num_steps`` graphs from a fresh start."""
+        rng = np.random.default_rng(rng)
+        seq, _ = self.sample(rng, num_steps, self.initial_state(rng))
+        return seq
+
+    def to_dict(self) -> dict:
+        raise NotImplementedError  # pragma: no cover
+
+
+@dataclass(frozen=True, eq=False)
+class PeriodicGraphs(GraphProcess):
+    """The graphs ``graphs[0], graphs[1], ...`` repeated with period ``len(graphs)``."""
+
+    graphs: tuple[np.ndarray, ...]
+    num_nodes: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        if len(self.graphs) == 0:
+            raise ValueError("PeriodicGraphs needs at least one graph")
+        first = np.asarray(self.graphs[0])
+        N = first.shape[0] if first.ndim == 2 else None
+        if N is None:
+            raise ValueError("give the graphs as (N, N) adjacency arrays "
+                             "(use as_adjacency for edge lists)")
+        gs = tuple(as_adjacency(np.asarray(g), N) for g in self.graphs)
+        if any(g.shape != (N, N) for g in gs):
+            raise ValueError("all graphs of a PeriodicGraphs must have the same size")
+        object.__setattr__(self, "graphs", gs)
+        object.__setattr__(self, "num_nodes", N)
+
+    @classmethod
+    def from_edges(cls, num_nodes: int, edge_lists: Sequence[Sequence[tuple[int, int]]]
+                   ) -> PeriodicGraphs:
+        """Build from edge lists ``[(l, i), ...]`` meaning ``l -> i``."""
+        return cls(tuple(as_adjacency(list(e), num_nodes) for e in edge_lists))
+
+    @property
+    def max_in_degree(self) -> int:
+        return int(max(g.sum(-1).max() for g in self.graphs))
+
+    def sample(self, rng, num_steps, state):
+        P = len(self.graphs)
+        idx = (state + np.arange(num_steps)) % P
+        return np.stack(self.graphs)[idx], int((state + num_steps) % P)
+
+    def to_dict(self) -> dict:
+        return {"kind": "periodic", "num_nodes": self.num_nodes,
+                "edges": [[[int(l), int(i)] for i, l in zip(*np.nonzero(g), strict=True)]
+                          for g in self.graphs]}
+
+
+def fig1_graphs() -> PeriodicGraphs:
+    """The two graphs of Fig. 1 (0-based nodes), alternating: (a) at even, (b) at odd steps.
+
+    The paper gives the graphs only as a picture; the text fixes them: at even steps node 2
+    hears node 1 (and node 3 hears node 2), at odd steps node 3 hears node 1 and node 2
+    hears node 3 ("at time-step 1, node 2 is better off rejecting the information from
+    node 3"). Each graph is a spanning tree rooted at node 1, their union is strongly
+    connected only with the return edges, so we add 2 -> 1 in (a) and 3 -> 1 in (b)
+    (they do not affect nodes 2 and 3). With 0-based labels: (a) 0->1, 1->2, 1->0;
+    (b) 0->2, 2->1, 2->0. Assumption 1 holds with ``T = 2``.
+    """
+    return PeriodicGraphs.from_edges(3, [[(0, 1), (1, 2), (1, 0)], [(0, 2), (2, 1), (2, 0)]])
+
+
+@dataclass(frozen=True)
+class RandomJointlyConnected(GraphProcess):
+    """Random graphs whose union over every window ``[kT, (k+1)T)`` is strongly connected.
+
+    Per window: a directed Hamiltonian cycle over a random permutation (strongly connected
+    by construction) plus each other ordered pair with probability ``extra_edge_prob``;
+    every edge of that union is then shown at one uniformly chosen step of the window.
+    """
+
+    num_nodes: int
+    period: int
+    extra_edge_prob: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.num_nodes < 2:
+            raise ValueError(f"num_nodes must be >= 2, got {self.num_nodes}")
+        if self.period < 1:
+            raise ValueError(f"period must be >= 1, got {self.period}")
+        if not 0 <= self.extra_edge_prob <= 1:
+            raise ValueError(f"extra_edge_prob must be in [0, 1], got {self.extra_edge_prob}")
+
+    def _window(self, rng: np.random.Generator) -> np.ndarray:
+        N, T = self.num_nodes, self.period
+        union = rng.random((N, N)) < self.extra_edge_prob
+        perm = rng.permutation(N)
+        union[perm[(np.arange(N) + 1) % N], perm] = True  # perm[m] -> perm[m+1]
+        np.fill_diagonal(union, False)
+        when = rng.integers(0, T, size=(N, N))
+        return union[None] & (when[None] == np.arange(T)[:, None, None])
+
+    def initial_state(self, rng):
+        return (0, None)
+
+    def sample(self, rng, num_steps, state):
+        pos, window = state
+        out = np.empty((num_steps, self.num_nodes, self.num_nodes), dtype=bool)
+        for k in range(num_steps):
+            if pos == 0:
+                window = self._window(rng)
+            out[k] = window[pos]
+            pos = (pos + 1) % self.period
+        return out, (pos, window)
+
+    def to_dict(self) -> dict:
+        return {"kind": "random_jsc", "num_nodes": self.num_nodes, "period": self.period,
+                "extra_edge_prob": self.extra_edge_prob}
+
+
+@dataclass(frozen=True, eq=False)
+class MarkovLinkFailures(GraphProcess):
+    """Each edge of a base graph fails and recovers as an independent two-state chain.
+
+    An up link goes down with probability ``p_fail`` per step; a down link comes back with
+    probability ``p_recover``. Links start in the stationary distribution. Joint strong
+    connectivity is *not* guaranteed; check it with :func:`check_joint_connectivity`.
+    """
+
+    base: np.ndarray
+    p_fail: float
+    p_recover: float
+    num_nodes: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        base = as_adjacency(np.asarray(self.base))
+        for name in ("p_fail", "p_recover"):
+            v = getattr(self, name)
+            if not 0 <= v <= 1:
+                raise ValueError(f"{name} must be in [0, 1], got {v}")
+        if self.p_fail + self.p_recover == 0:
+            raise ValueError("p_fail and p_recover cannot both be 0")
+        object.__setattr__(self, "base", base)
+        object.__setattr__(self, "num_nodes", base.shape[0])
+
+    @property
+    def max_in_degree(self) -> int:
+        return int(self.base.sum(-1).max())
+
+    def initial_state(self, rng):
+        p_up = self.p_recover / (self.p_fail + self.p_recover)
+        return (rng.random(self.base.shape) < p_up) & self.base
+
+    def sample(self, rng, num_steps, state):
+        out = np.empty((num_steps,) + self.base.shape, dtype=bool)
+        up = state
+        for k in range(num_steps):
+            out[k] = up
+            u = rng.random(self.base.shape)
+            up = np.where(up, u >= self.p_fail, u < self.p_recover) & self.base
+        return out, up
+
+    def to_dict(self) -> dict:
+        i, l = np.nonzero(self.base)
+        return {"kind": "markov", "num_nodes": self.num_nodes, "p_fail": self.p_fail,
+                "p_recover": self.p_recover,
+                "base_edges": [[int(a), int(b)] for a, b in zip(l, i, strict=True)]}
+
+
+@dataclass(frozen=True, eq=False)
+class Gossip(GraphProcess):
+    """One directed edge per step, drawn uniformly from a base graph's edges."""
+
+    base: np.ndarray
+    num_nodes: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        base = as_adjacency(np.asarray(self.base))
+        if not base.any():
+            raise ValueError("Gossip needs a base graph with at least one edge")
+        object.__setattr__(self, "base", base)
+        object.__setattr__(self, "num_nodes", base.shape[0])
+
+    @classmethod
+    def complete(cls, num_nodes: int) -> Gossip:
+        """Gossip over the complete directed graph."""
+        return cls(~np.eye(num_nodes, dtype=bool))
+
+    @property
+    def max_in_degree(self) -> int:
+        return 1
+
+    def sample(self, rng, num_steps, state):
+        i, l = np.nonzero(self.base)
+        pick = rng.integers(0, i.size, size=num_steps)
+        out = np.zeros((num_steps,) + self.base.shape, dtype=bool)
+        out[np.arange(num_steps), i[pick], l[pick]] = True
+        return out, state
+
+    def to_dict(self) -> dict:
+        i, l = np.nonzero(self.base)
+        return {"kind": "gossip", "num_nodes": self.num_nodes,
+                "base_edges": [[int(a), int(b)] for a, b in zip(l, i, strict=True)]}
+
+
+# ----------------------------------------------------------------------------- Assumption 1
+@dataclass(frozen=True)
+class JointConnectivityReport:
+    """Outcome of :func:`check_joint_connectivity`.
+
+    Attributes
+    ----------
+    holds : bool
+        Whether every complete window ``[kT, (k+1)T)`` of the sequence is strongly connected.
+    period : int
+        The ``T`` tested.
+    windows_checked : int
+        Number of complete windows in the sequence.
+    first_failure : tuple of int or None
+        ``(start, stop)`` of the first window (half-open) whose union is not strongly
+        connected.
+    """
+
+    holds: bool
+    period: int
+    windows_checked: int
+    first_failure: tuple[int, int] | None
+
+    def __str__(self) -> str:
+        if self.holds:
+            return (f"Assumption 1 holds with T = {self.period} on all "
+                    f"{self.windows_checked} windows")
+        a, b = self.first_failure  # type: ignore[misc]
+        return (f"Assumption 1 fails with T = {self.period}: the union over [{a}, {b}) "
+                f"is not strongly connected")
+
+
+def _check_seq(seq: np.ndarray) -> np.ndarray:
+    seq = np.asarray(seq, dtype=bool)
+    if seq.ndim != 3 or seq.shape[1] != seq.shape[2]:
+        raise ValueError(f"graph sequence must have shape (K, N, N), got {seq.shape}")
+    return seq
+
+
+def check_joint_connectivity(seq: np.ndarray, period: int) -> JointConnectivityReport:
+    """Test Assumption 1 with a given ``T`` on every complete window of ``seq``."""
+    seq = _check_seq(seq)
+    if period < 1:
+        raise ValueError(f"period must be >= 1, got {period}")
+    windows = seq.shape[0] // period
+    if windows == 0:
+        raise ValueError(f"sequence of length {seq.shape[0]} is shorter than T = {period}")
+    unions = seq[: windows * period].reshape(windows, period, *seq.shape[1:]).any(axis=1)
+    for w, union in enumerate(unions):
+        if not is_strongly_connected(union):
+            return JointConnectivityReport(False, period, windows,
+                                           (w * period, (w + 1) * period))
+    return JointConnectivityReport(True, period, windows, None)
+
+
+def smallest_period(seq: np.ndarray, max_period: int | None = None) -> int | None:
+    """Smallest ``T`` for which Assumption 1 holds on ``seq`` (``None`` if none does).
+
+    Only ``T`` with at least one complete window (``T <= K``) are tried.
+    """
+    seq = _check_seq(seq)
+    K = seq.shape[0]
+    for T in range(1, (K if max_period is None else min(K, max_period)) + 1):
+        if check_joint_connectivity(seq, T).holds:
+            return T
+    return None
+
+
+def graph_process_from_dict(spec: dict) -> GraphProcess:
+    """Build a graph process from its ``to_dict`` form (used by scenario files).
+
+    Raises
+    ------
+    ValueError
+        On an unknown ``kind`` or a missing/extra field (named in the message).
+    """
+    spec = dict(spec)
+    kind = spec.pop("kind", None)
+    fields = {
+        "periodic": {"num_nodes", "edges"},
+        "random_jsc": {"num_nodes", "period", "extra_edge_prob"},
+        "markov": {"num_nodes", "p_fail", "p_recover", "base_edges"},
+        "gossip": {"num_nodes", "base_edges"},
+    }
+    optional = {"random_jsc": {"extra_edge_prob"}, "gossip": {"base_edges"}}
+    if kind not in fields:
+        raise ValueError(f"graph kind must be one of {sorted(fields)}, got {kind!r}")
+    missing = fields[kind] - optional.get(kind, set()) - set(spec)
+    extra = set(spec) - fields[kind]
+    if missing or extra:
+        raise ValueError(f"graph kind {kind!r}: missing fields {sorted(missing)}, "
+                         f"unknown fields {sorted(extra)}")
+    N = int(spec["num_nodes"])
+    if kind == "periodic":
+        return PeriodicGraphs.from_edges(N, [[tuple(e) for e in g] for g in spec["edges"]])
+    if kind == "random_jsc":
+        return RandomJointlyConnected(N, int(spec["period"]),
+                                      float(spec.get("extra_edge_prob", 0.0)))
+    if kind == "markov":
+        return MarkovLinkFailures(as_adjacency([tuple(e) for e in spec["base_edges"]], N),
+                                  float(spec["p_fail"]), float(spec["p_recover"]))
+    if "base_edges" in spec:
+        return Gossip(as_adjacency([tuple(e) for e in spec["base_edges"]], N))
+    return Gossip.complete(N)
