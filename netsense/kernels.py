@@ -94,6 +94,27 @@ def advance_indices(tau: np.ndarray, src: np.ndarray) -> np.ndarray:
     return out
 
 
+def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
+                    transmit: np.ndarray | None = None) -> np.ndarray:
+    """Freshness indices at ``k+1`` after a uniform average (eq. (6)), ``(B, N, N)``.
+
+    The age of an average is that of its stalest contributor plus one: over ``i`` itself
+    and every transmitting in-neighbour, ``max tau + 1``, or omega if any contributor's
+    index is omega. Every source keeps ``tau_j^{(j)} = 0``. Companion of
+    :func:`uniform_mix` (the consensus baseline's bookkeeping of the age of information).
+    """
+    B, N, _ = tau.shape
+    seen = neighbor_indices(tau, nbr, valid, transmit)  # (B, N, D, N), omega if unused
+    used = valid if transmit is None else valid & np.take_along_axis(
+        transmit[:, None, :].repeat(N, 1), np.where(valid, nbr, 0), axis=2)
+    vals = np.where(used[..., None], seen, -2)  # -2: not a contributor
+    any_omega = (tau == OMEGA) | (vals == OMEGA).any(2)
+    out = np.where(any_omega, OMEGA, np.maximum(tau, vals.max(2, initial=-2)) + 1)
+    idx = np.arange(N)
+    out[:, idx, idx] = 0
+    return out
+
+
 def gather_substates(Z: np.ndarray, src: np.ndarray, block_of: np.ndarray) -> np.ndarray:
     """``Zg[b, i, c] = Z[b, src[b, i, block_of[c]], c]``: each substate from its chosen agent."""
     src_c = src[:, :, block_of]  # (B, N, n)

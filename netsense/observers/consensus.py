@@ -88,19 +88,6 @@ class ConsensusObserver(DistributedObserver):
             tau_next = kernels.advance_indices(tau, src)
         else:
             Z_sel = kernels.uniform_mix(Z, nbr, valid, tx)
-            seen = kernels.neighbor_indices(tau, nbr, valid, tx)  # (B, N, D, N)
-            used = np.concatenate([tau[:, :, None, :], seen], axis=2)
-            present = np.concatenate([np.ones(tau.shape[:2] + (1,), bool),
-                                      (seen != kernels.OMEGA).any(-1) | False], axis=2)
-            del present
             # age of a uniform average: its stalest contributor (omega if any is omega)
-            contrib = np.concatenate([np.ones(tau.shape[:2] + (1,), bool),
-                                      valid if tx is None else valid & np.take_along_axis(
-                                          tx[:, None, :].repeat(N, 1),
-                                          np.where(valid, nbr, 0), axis=2)], axis=2)
-            vals = np.where(contrib[..., None], used, -2)
-            any_omega = ((vals == kernels.OMEGA) & contrib[..., None]).any(2)
-            tau_next = np.where(any_omega, kernels.OMEGA, vals.max(2) + 1)
-            idx = np.arange(N)
-            tau_next[:, idx, idx] = 0
+            tau_next = kernels.average_indices(tau, nbr, valid, tx)
         return kernels.keep_own_blocks(Z_sel, Z, self.own_block), tau_next
