@@ -1,0 +1,79 @@
+"""Graph processes and the Assumption 1 checker."""
+
+import pickle
+
+import numpy as np
+import pytest
+
+from netsense.graphs import (
+    Gossip,
+    MarkovLinkFailures,
+    PeriodicGraphs,
+    RandomJointlyConnected,
+    as_adjacency,
+    check_joint_connectivity,
+    fig1_graphs,
+    graph_process_from_dict,
+    in_neighbor_slots,
+    smallest_period,
+)
+
+
+def test_fig1_alternates_and_satisfies_assumption1_with_T2():
+    seq = fig1_graphs().sequence(8)
+    assert seq[0][1, 0] and seq[1][2, 0]  # (a): 1 hears 0 ; (b): 2 hears 0
+    assert (seq[0] == seq[2]).all() and (seq[1] == seq[3]).all()
+    assert check_joint_connectivity(seq, 2).holds
+    assert not check_joint_connectivity(seq, 1).holds
+    assert smallest_period(seq) == 2
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_random_jsc_by_construction(seed):
+    rng = np.random.default_rng(seed)
+    N, T = int(rng.integers(2, 9)), int(rng.integers(1, 5))
+    seq = RandomJointlyConnected(N, T, 0.1).sequence(10 * T, seed)
+    assert check_joint_connectivity(seq, T).holds
+    assert not np.any(seq[:, np.arange(N), np.arange(N)])
+
+
+def test_first_failing_interval_is_named():
+    ring = as_adjacency([(0, 1), (1, 2), (2, 0)], 3)
+    empty = np.zeros((3, 3), bool)
+    seq = np.stack([ring, ring, empty, empty, ring, ring])
+    rep = check_joint_connectivity(seq, 2)
+    assert not rep.holds and rep.first_failure == (2, 4)
+    assert "[2, 4)" in str(rep)
+    assert smallest_period(seq) == 3
+
+
+def test_in_neighbor_slots():
+    adj = as_adjacency([(2, 0), (1, 0), (0, 2)], 3)
+    nbr, valid = in_neighbor_slots(adj)
+    assert nbr.tolist() == [[1, 2], [-1, -1], [0, -1]]
+    assert valid.tolist() == [[True, True], [False, False], [True, False]]
+    with pytest.raises(ValueError, match="in-degree"):
+        in_neighbor_slots(adj, 1)
+
+
+def test_markov_and_gossip_statistics():
+    base = ~np.eye(4, dtype=bool)
+    seq = MarkovLinkFailures(base, p_fail=0.2, p_recover=0.6).sequence(4000, 0)
+    up = seq[:, base].mean()
+    assert abs(up - 0.6 / 0.8) < 0.02  # stationary availability p_r / (p_f + p_r)
+    g = Gossip.complete(5).sequence(200, 1)
+    assert (g.sum((1, 2)) == 1).all()
+
+
+def test_roundtrip_dict_and_pickle():
+    for proc in [fig1_graphs(), RandomJointlyConnected(5, 3, 0.2),
+                 MarkovLinkFailures(~np.eye(3, dtype=bool), 0.1, 0.5), Gossip.complete(3)]:
+        again = graph_process_from_dict(proc.to_dict())
+        assert (again.sequence(12, 7) == proc.sequence(12, 7)).all()
+        assert (pickle.loads(pickle.dumps(proc)).sequence(5, 1) == proc.sequence(5, 1)).all()
+    with pytest.raises(ValueError, match="kind"):
+        graph_process_from_dict({"kind": "nope"})
+    with pytest.raises(ValueError, match="period"):
+        graph_process_from_dict({"kind": "random_jsc", "num_nodes": 3})
+    with pytest.raises(ValueError, match="same size"):
+        PeriodicGraphs((np.zeros((2, 2)), np.zeros((3, 3))))
