@@ -6,10 +6,10 @@ The estimator (4)-(5) has error ``x~ = x - x^`` and auxiliary error ``e = x~ - s
            x~_{k+1} = A_k x~_k + W_k w_k + \\nu_k + \\sum_{i \\le k} M_{(k,i)} (C_i e_i + V_i v_i),
 
 which stacked over the horizon is ``x~ = G [w; v; x~_0] + H nu + Upsilon s_0`` with
-``G = [Theta Psi Xi]`` of eq. (9) (:func:`error_map` builds it from the Appendix's stacked
-matrices). With ``L`` and ``s_0`` fixed, Proposition 1 at a fixed ``mu_1`` is a linear
-program (:func:`solve_fixed`); :func:`design` searches ``mu_1`` (bisection on feasibility,
-which is monotone, then a line search on the cost).
+``G = [Theta Psi Xi]`` of eq. (9) (:func:`netsense.observers.equalized.error_map` builds it
+from the Appendix's stacked matrices). With ``L`` and ``s_0`` fixed, Proposition 1 at a fixed
+``mu_1`` is a linear program (:func:`solve_fixed`); :func:`design` searches ``mu_1``
+(bisection on feasibility, which is monotone, then a line search on the cost).
 
 How the LP is laid out: the gains that act at step ``k`` and the error ``x~_k`` depend on
 the data seen up to step ``k-1`` only, so every node of the prefix tree of ``L^E'`` owns
