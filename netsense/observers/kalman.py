@@ -61,6 +61,37 @@ def _sym(M: np.ndarray) -> np.ndarray:
     return 0.5 * (M + np.swapaxes(M, -1, -2))
 
 
+def _T(M: np.ndarray) -> np.ndarray:
+    return np.swapaxes(M, -1, -2)
+
+
+def bmm(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """``X @ Y`` for stacks of small matrices (either may be a plain 2-D matrix).
+
+    numpy's stacked ``matmul`` costs about a microsecond per tiny matrix; for inner sizes up to
+    8 an explicit sum of broadcast outer products over the inner index is an order of
+    magnitude faster on thousands of Monte Carlo runs. The result is the same product.
+    """
+    if X.ndim == 2 and Y.ndim == 2:
+        return X @ Y
+    k = X.shape[-1]
+    if Y.ndim == 2:                       # constant right factor: one BLAS call
+        return (X.reshape(-1, k) @ Y).reshape(*X.shape[:-1], Y.shape[-1])
+    if k > 8:
+        return X @ Y
+    out = X[..., :, 0:1] * Y[..., 0:1, :]
+    for i in range(1, k):
+        out = out + X[..., :, i:i + 1] * Y[..., i:i + 1, :]
+    return out
+
+
+def spd_solve(G: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Solve ``G Z = X`` for a stack of symmetric positive definite ``G`` (division if 1x1)."""
+    if G.shape[-1] == 1:
+        return X / G
+    return np.linalg.solve(G, X)
+
+
 @dataclass(frozen=True, eq=False)
 class StateSpaceModel:
     """Nominal model ``(A_t, B_t, C_t, Q_t, R_t)`` of eq. (1) at ``eps = 0``.
@@ -239,7 +270,7 @@ class KalmanFilter:
 
     def _nominal_prior(self, t: int) -> tuple[np.ndarray, np.ndarray]:
         A, B, Q = (self.model.at(k, t) for k in ("A", "B", "Q"))
-        return self.x @ A.T, _sym(A @ self.P @ A.T + B @ Q @ B.T)
+        return self.x @ A.T, _sym(bmm(bmm(A, self.P), A.T) + B @ Q @ B.T)
 
     def step(self, y, gamma=None) -> np.ndarray:
         """Advance from ``t`` to ``t + 1`` with ``y_{t+1}`` and ``gamma_{t+1}``.
@@ -266,13 +297,13 @@ class KalmanFilter:
         # Measurement update, eq. (4)-(5): P_+ = (P_pred^-1 + C'R^-1 C)^-1,
         # x_+ = x_pred + P_+ C' R^-1 (y - C x_pred), written with the gain
         # K = P_pred C' (C P_pred C' + R)^-1 = P_+ C' R^-1 (no explicit inverses).
-        CP = C @ P_pred                                   # (b, m, n)
-        S_y = _sym(CP @ C.T + R)                          # (b, m, m)
-        K = np.swapaxes(np.linalg.solve(S_y, CP), -1, -2)  # (b, n, m)
+        CP = bmm(C, P_pred)                              # (b, m, n)
+        S_y = _sym(bmm(CP, C.T) + R)                     # (b, m, m)
+        K = _T(spd_solve(S_y, CP))                       # (b, n, m)
         innov = np.where(update[:, None], y, 0.0) - x_pred @ C.T
-        x_upd = x_pred + np.einsum("bij,bj->bi", K, innov)
-        I_KC = np.eye(self.model.n) - K @ C
-        P_upd = _sym(I_KC @ P_pred @ np.swapaxes(I_KC, -1, -2) + K @ R @ np.swapaxes(K, -1, -2))
+        x_upd = x_pred + np.sum(K * innov[:, None, :], axis=-1)
+        I_KC = np.eye(self.model.n) - bmm(K, C)         # Joseph form keeps P symmetric PSD
+        P_upd = _sym(bmm(bmm(I_KC, P_pred), _T(I_KC)) + bmm(bmm(K, R), _T(K)))
         if np.all(update):
             self.x, self.P = x_upd, P_upd
         else:

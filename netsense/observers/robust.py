@@ -32,7 +32,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from netsense.observers.kalman import KFIO, StateSpaceModel, _sym, check_matrix
+from netsense.observers.kalman import (
+    _T,
+    KFIO,
+    StateSpaceModel,
+    _sym,
+    bmm,
+    check_matrix,
+    spd_solve,
+)
 
 __all__ = ["RSEIO", "sensitivity_matrices"]
 
@@ -160,26 +168,30 @@ class RSEIO(KFIO):
         Returns a dict with ``P_hat`` (b, n, n), ``Q_hat`` (b, p, p), ``B_hat`` (b, n, p),
         ``A_hat`` (b, n, n) and the prior ``P_pred = A P_hat A' + B_hat Q_hat B_hat'``.
         """
-        lam = (1.0 - self.mu_at(t)) / self.mu_at(t)
+        mu = self.mu_at(t)
+        lam = (1.0 - mu) / mu
         A, B, Q = (self.model.at(k, t) for k in ("A", "B", "Q"))
         S, T = self.sensitivities(t)
-        q = S.shape[0]
-        Pt = np.swapaxes
-        SP = S @ P                                                # (b, q, n)
-        G = np.eye(q) + lam * SP @ S.T                            # I + lam S P S'
-        P_hat = _sym(P - lam * Pt(SP, -1, -2) @ np.linalg.solve(G, SP))
+        # Rows that are zero in both S and T change nothing (exactly); dropping them keeps the
+        # systems below as small as possible (1x1 for the section IV plant).
+        keep = np.any(S != 0, axis=1) | np.any(T != 0, axis=1)
+        keep[0] |= not keep.any()
+        S, T = S[keep], T[keep]
+        SP = bmm(S, P)                                            # (b, q, n)
+        G = _sym(np.eye(S.shape[0]) + lam * bmm(SP, S.T))         # I + lam S P S'
+        P_hat = _sym(P - lam * bmm(_T(SP), spd_solve(G, SP)))
         TQ = T @ Q                                                # (q, p)
-        H = G + lam * TQ @ T.T
-        Q_hat = _sym(Q - lam * TQ.T @ np.linalg.solve(H, np.broadcast_to(TQ, H.shape[:-2]
-                                                                         + TQ.shape)))
-        B_hat = B - lam * A @ P_hat @ S.T @ T
-        A_hat = ((A - lam * B_hat @ Q_hat @ T.T @ S)
-                 @ (np.eye(self.model.n) - lam * P_hat @ S.T @ S))
-        P_pred = _sym(A @ P_hat @ A.T + B_hat @ Q_hat @ Pt(B_hat, -1, -2))
+        H = _sym(G + lam * TQ @ T.T)                              # G + lam T Q T'
+        TQb = np.broadcast_to(TQ, H.shape[:-2] + TQ.shape)
+        Q_hat = _sym(Q - lam * bmm(TQ.T, spd_solve(H, TQb)))
+        B_hat = B - lam * bmm(bmm(A, P_hat), S.T @ T)
+        A_hat = bmm(A - lam * bmm(bmm(B_hat, Q_hat), T.T @ S),
+                    np.eye(self.model.n) - lam * bmm(P_hat, S.T @ S))
+        P_pred = _sym(bmm(bmm(A, P_hat), A.T) + bmm(bmm(B_hat, Q_hat), _T(B_hat)))
         return {"P_hat": P_hat, "Q_hat": Q_hat, "B_hat": B_hat, "A_hat": A_hat,
                 "P_pred": P_pred}
 
     def _prior(self, t: int, x_free: np.ndarray, P_free: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
         adj = self.adjusted(t, self.P)
-        return np.einsum("bij,bj->bi", adj["A_hat"], self.x), adj["P_pred"]
+        return np.sum(adj["A_hat"] * self.x[:, None, :], axis=-1), adj["P_pred"]
