@@ -1,0 +1,570 @@
+"""Batched simulation core of the netsense environment: ``B`` scenarios as one array program.
+
+:class:`BatchedCore` advances ``B`` independent copies of one scenario (own seeds, own
+graph, noise and drop realisations) with arrays shaped ``(B, N, ...)``. The PettingZoo
+environment (:class:`netsense.env.NetSenseEnv`) is the ``B = 1`` case of this class, and
+every update rule comes from :mod:`netsense.kernels` (freshness indices, gather, uniform
+mix, propagation) and the source estimator interface of
+:mod:`netsense.observers.source` (eq. (7)): there is no second copy of any rule here.
+
+Array API
+---------
+>>> core = BatchedCore(model, batch_size=B)
+>>> obs, mask = core.reset(seed)            # obs (B, N, obs_dim) float32, mask (B, N, M) int8
+>>> out = core.step(actions)                # actions (B, N, N + 1) int
+>>> out.obs, out.action_mask, out.reward, out.terminated, out.truncated
+
+``reset(seed)`` seeds member ``b`` with ``seed + b`` (or with ``seed[b]`` for a sequence),
+so member ``b`` of a batch equals a single environment reset with that seed, step by
+step. ``reset(seed, members=mask)`` re-initialises only the selected members (the hook
+for auto-reset in vector environments). The core never resets itself: members that are
+truncated or terminated keep stepping until the caller resets them.
+
+Timing protocol (one step, ``k -> k + 1``)
+------------------------------------------
+At time ``k`` every agent observes its measurement ``y_i[k]`` (if it arrived), its own
+freshness indices and estimate, and the *messages of step k*: the in-neighbours of
+``G[k]`` that transmitted at ``k`` (and whose link did not drop the message), with their
+indices ``tau_l[k]``. Its action then chooses, per substate, what to propagate
+(keep / adopt slot ``d`` / uniform average) **and whether to transmit at step k + 1**.
+So the transmit bit of the action at ``k`` is the message neighbours receive at
+``k + 1``; the transmit flags of step 0 come from the scenario (``initial_transmit``).
+This lets a policy act on the masks of exactly the messages it can use, and the freshness
+policy with transmit always on reproduces :class:`netsense.FreshnessObserver`.
+
+Action encoding (per agent, ``N + 1`` integers)
+-----------------------------------------------
+``a[j]`` for substate ``j < N``: ``0`` keep own estimate (open loop, eqs. (11)/(12),
+(14)); ``1..D`` adopt from in-neighbour slot ``d = a[j] - 1`` (eqs. (9)/(10)); ``D + 1``
+uniform average over self and every in-neighbour whose message arrived (eq. (6), index:
+stalest contributor + 1). ``a[N]``: transmit at the next step (0/1). The source's entry
+for its own substate must be 0 (update (7) is not an action).
+
+Bad actions: entries outside ``0..D+1`` (or a transmit bit outside ``{0, 1}``) always
+raise ``ValueError``; masked choices (adopting from an empty slot or from a neighbour
+whose message did not arrive, or anything but 0 on the own substate) raise too when
+``invalid_actions="raise"`` (default) and are replaced by 0 (keep) with
+``invalid_actions="keep"``. Validation happens before any state changes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from netsense import kernels
+from netsense.design import ObserverDesign
+from netsense.graphs import GraphProcess, in_neighbor_slots
+from netsense.observers.source import LuenbergerSource, SourceEstimator
+from netsense.sensing.arrivals import AlwaysArrive, ArrivalModel
+from netsense.sensing.noise import NoNoise
+from netsense.systems import Plant
+
+#: Steps of graphs, noise and arrivals drawn at once per member (fixed: it is part of how a
+#: seed maps to a realisation).
+CHUNK = 64
+_STREAMS = ("init", "graph", "process_noise", "measurement_noise", "measurement_arrivals",
+            "message_arrivals", "source")
+INVALID_ACTIONS = ("raise", "keep")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Reward weights (scenario section ``[reward]``).
+
+    Agent ``i``'s reward after step ``k -> k + 1`` is
+
+    .. math:: r_i = -w_e \\big((1 - w_t) e_i + w_t \\bar e\\big) - c\\, t_i,
+              \\qquad e_i = \\min\\Big(\\frac{\\|\\hat x_i[k+1] - x[k+1]\\|}
+              {\\max(\\|x[k+1]\\|, f)}, e_{\\max}\\Big),
+
+    with ``\\bar e`` the mean of ``e_i`` over agents and ``t_i`` the transmit bit chosen at
+    this step.
+
+    Attributes
+    ----------
+    error_weight : float
+        ``w_e``, weight of the normalised estimation error.
+    team_weight : float
+        ``w_t`` in ``[0, 1]``: 0 = individual errors, 1 = fully shared team error.
+    message_cost : float
+        ``c``, cost of one transmission.
+    error_floor : float
+        ``f > 0``, the smallest ``||x||`` used for normalising (keeps ``e`` finite at 0).
+    error_clip : float
+        ``e_max``, the normalised error is clipped there (bounded rewards).
+    """
+
+    error_weight: float = 1.0
+    team_weight: float = 0.0
+    message_cost: float = 0.0
+    error_floor: float = 1e-3
+    error_clip: float = 10.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.team_weight <= 1.0:
+            raise ValueError(f"reward.team_weight must be in [0, 1], got {self.team_weight}")
+        if self.error_floor <= 0:
+            raise ValueError(f"reward.error_floor must be > 0, got {self.error_floor}")
+        if self.error_clip <= 0:
+            raise ValueError(f"reward.error_clip must be > 0, got {self.error_clip}")
+        if self.message_cost < 0 or self.error_weight < 0:
+            raise ValueError("reward.message_cost and reward.error_weight must be >= 0")
+
+
+@dataclass(frozen=True, eq=False)
+class CoreModel:
+    """Everything that defines one scenario's dynamics (built by :mod:`netsense.scenarios`).
+
+    Attributes
+    ----------
+    plant : Plant
+        eqs. (1)-(2), with its noise models.
+    design : ObserverDesign
+        Lemma 1 decomposition and source gains.
+    graphs : GraphProcess
+        Switching communication graph ``G[k]``.
+    horizon : int
+        Episode length (truncation).
+    measurement_arrivals, message_arrivals : ArrivalModel
+        Whether ``y_i[k]`` arrives (shape ``(N,)`` per step) and whether the message on
+        link ``l -> i`` arrives (shape ``(N, N)`` per step, entry ``[i, l]``).
+    reward : RewardConfig
+    x0_std : float
+        ``x[0] ~ N(0, x0_std^2 I)``; every estimate starts at 0.
+    initial_transmit : bool
+        Transmit flags of step 0.
+    divergence_limit : float or None
+        Terminate a member when some agent's normalised error (before clipping) exceeds it.
+    source_estimator : callable returning a SourceEstimator, optional
+        Default :class:`LuenbergerSource` (eq. (7)).
+    """
+
+    plant: Plant
+    design: ObserverDesign
+    graphs: GraphProcess
+    horizon: int
+    measurement_arrivals: ArrivalModel = field(default_factory=AlwaysArrive)
+    message_arrivals: ArrivalModel = field(default_factory=AlwaysArrive)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    x0_std: float = 1.0
+    initial_transmit: bool = True
+    divergence_limit: float | None = None
+    source_estimator: Callable[[], SourceEstimator] | None = None
+
+    def __post_init__(self) -> None:
+        if self.horizon < 1:
+            raise ValueError(f"horizon must be >= 1, got {self.horizon}")
+        if self.graphs.num_nodes != self.plant.num_agents:
+            raise ValueError(f"graph process has {self.graphs.num_nodes} nodes but the plant "
+                             f"has {self.plant.num_agents} agents")
+        if self.design.num_agents != self.plant.num_agents:
+            raise ValueError("design and plant disagree on the number of agents")
+        if self.x0_std < 0:
+            raise ValueError(f"x0_std must be >= 0, got {self.x0_std}")
+
+
+@dataclass(frozen=True)
+class ObsLayout:
+    """Offsets of the flat per-agent observation vector (see :mod:`netsense.env`).
+
+    Every field is a ``slice`` into the last axis of ``obs``; block fields with two
+    dimensions are stored row-major (``slot_omega``: ``D x N``, slot first).
+    """
+
+    N: int
+    n: int
+    r: int
+    D: int
+    time: slice
+    y: slice
+    y_arrived: slice
+    own_omega: slice
+    own_age: slice
+    z_dir: slice
+    z_lognorm: slice
+    slot_arrived: slice
+    slot_id: slice
+    slot_omega: slice
+    slot_age: slice
+    size: int
+
+    @classmethod
+    def build(cls, N: int, n: int, r: int, D: int) -> ObsLayout:
+        sizes = [("time", 1), ("y", r), ("y_arrived", 1), ("own_omega", N), ("own_age", N),
+                 ("z_dir", n), ("z_lognorm", 1), ("slot_arrived", D), ("slot_id", D),
+                 ("slot_omega", D * N), ("slot_age", D * N)]
+        out, o = {}, 0
+        for name, s in sizes:
+            out[name] = slice(o, o + s)
+            o += s
+        return cls(N=N, n=n, r=r, D=D, size=o, **out)
+
+    def table(self) -> list[tuple[str, int, int]]:
+        """``(field, start, stop)`` rows, for documentation and rendering."""
+        names = ["time", "y", "y_arrived", "own_omega", "own_age", "z_dir", "z_lognorm",
+                 "slot_arrived", "slot_id", "slot_omega", "slot_age"]
+        return [(nm, getattr(self, nm).start, getattr(self, nm).stop) for nm in names]
+
+
+class StepResult(NamedTuple):
+    """What :meth:`BatchedCore.step` returns (all arrays have a leading batch axis)."""
+
+    obs: np.ndarray  #: (B, N, obs_dim) float32
+    action_mask: np.ndarray  #: (B, N, N * (D + 2) + 2) int8
+    reward: np.ndarray  #: (B, N) float64
+    terminated: np.ndarray  #: (B,) bool
+    truncated: np.ndarray  #: (B,) bool
+
+
+def symlog(v: np.ndarray) -> np.ndarray:
+    """``sign(v) log(1 + |v|)``: a monotone, scale-compressing encoding of raw values."""
+    return np.sign(v) * np.log1p(np.abs(v))
+
+
+class BatchedCore:
+    """``B`` independent environments of one scenario advanced together.
+
+    Parameters
+    ----------
+    model : CoreModel
+        The scenario's dynamics.
+    batch_size : int
+        ``B``.
+    invalid_actions : {"raise", "keep"}
+        Behaviour on masked actions (see the module docstring).
+
+    Attributes (state at the current time ``k``; read-only for callers)
+    ------------------------------------------------------------------------
+    x : (B, n)             true state ``x[k]``.
+    Z : (B, N, n)          estimates in Lemma 1 coordinates (``x_hat = T z_hat``).
+    tau : (B, N, N) int    freshness indices (``OMEGA = -1``).
+    k : (B,) int           time index per member.
+    adjacency : (B, N, N)  ``G[k]``; ``nbr``/``valid`` its slots (B, N, D).
+    y : (B, N, r_max)      measurements ``y[k]``; ``y_arrived`` (B, N).
+    transmit : (B, N)      who transmitted at ``k``; ``msg`` (B, N, D): message arrived.
+    errors : (B, N)        normalised errors of the last step (0 after reset).
+    """
+
+    def __init__(self, model: CoreModel, batch_size: int = 1, *,
+                 invalid_actions: str = "raise") -> None:
+        if not isinstance(model, CoreModel):
+            raise ValueError("model must be a CoreModel (see netsense.scenarios)")
+        if int(batch_size) < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        if invalid_actions not in INVALID_ACTIONS:
+            raise ValueError(f"invalid_actions must be one of {INVALID_ACTIONS}, "
+                             f"got {invalid_actions!r}")
+        self.model = model
+        self.B = int(batch_size)
+        self.invalid_actions = invalid_actions
+        plant, design = model.plant, model.design
+        dec = design.decomposition
+        self.N, self.n = plant.num_agents, plant.n
+        self.r = plant.max_outputs
+        self.D = int(model.graphs.max_in_degree)
+        self.horizon = int(model.horizon)
+        self.T = dec.T
+        self.block_of = dec.block_of
+        self.A_diag, self.A_lower = dec.A_diag, dec.A_lower
+        self.own_block = SourceEstimator.own_block_mask(design)
+        self.C_padded = plant.C_padded
+        self.output_mask = plant.output_mask
+        self.W = plant.W_effective
+        self.layout = ObsLayout.build(self.N, self.n, self.r, self.D)
+        self.nvec = np.array([self.D + 2] * self.N + [2], dtype=np.int64)
+        self.mask_size = int(self.nvec.sum())
+        self.source = (model.source_estimator or LuenbergerSource)()
+        self._has_pnoise = not isinstance(plant.process_noise, NoNoise)
+        self._has_mnoise = not isinstance(plant.measurement_noise, NoNoise)
+        self._meas_always = isinstance(model.measurement_arrivals, AlwaysArrive)
+        self._msg_always = isinstance(model.message_arrivals, AlwaysArrive)
+        self._arangeN = np.arange(self.N)
+        self._seeded = False
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, seed: int | Sequence[int] | None = None,
+              members: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Start new episodes; returns ``(obs (B, N, obs_dim), action_mask (B, N, M))``.
+
+        Parameters
+        ----------
+        seed : int, sequence of B ints, or None
+            Member ``b`` gets ``seed + b`` (int) or ``seed[b]``; ``None`` draws fresh
+            entropy. With ``members``, only the selected members are re-seeded (an int
+            seed then still maps member ``b`` to ``seed + b``).
+        members : (B,) bool, optional
+            Reset only these members (default all). The first reset must be a full one.
+        """
+        B = self.B
+        sel = np.ones(B, bool) if members is None else np.asarray(members, dtype=bool)
+        if sel.shape != (B,):
+            raise ValueError(f"members must have shape ({B},), got {sel.shape}")
+        if not self._seeded and not sel.all():
+            raise ValueError("the first reset must reset every member")
+        if seed is None:
+            seeds = [int(s) for s in np.random.SeedSequence().generate_state(B, np.uint64)]
+        elif np.ndim(seed) == 0:
+            if int(seed) < 0:
+                raise ValueError(f"seed must be >= 0, got {seed}")
+            seeds = [int(seed) + b for b in range(B)]
+        else:
+            seeds = [int(s) for s in seed]
+            if len(seeds) != B:
+                raise ValueError(f"seed must hold {B} entries, got {len(seeds)}")
+        if not self._seeded:
+            self._alloc()
+        idx = np.flatnonzero(sel)
+        for b in idx:
+            self._reset_member(b, seeds[b])
+        if sel.all():  # partial resets leave the (batch-wide) source estimator alone
+            self.source.reset(self.model.design, B, self.rngs[0]["source"])
+        self._seeded = True
+        self._load_step()
+        return self.observe()
+
+    def _alloc(self) -> None:
+        B, N, n, r, K = self.B, self.N, self.n, self.r, CHUNK
+        self.rngs: list[dict[str, np.random.Generator]] = [{} for _ in range(B)]
+        self.graph_state: list = [None] * B
+        self.meas_sampler: list = [None] * B
+        self.msg_sampler: list = [None] * B
+        self.x = np.zeros((B, n))
+        self.Z = np.zeros((B, N, n))
+        self.tau = np.full((B, N, N), kernels.OMEGA, dtype=np.int64)
+        self.k = np.zeros(B, dtype=np.int64)
+        self.transmit = np.ones((B, N), dtype=bool)
+        self.errors = np.zeros((B, N))
+        self.raw_errors = np.zeros((B, N))
+        self.messages_sent = np.zeros(B, dtype=np.int64)
+        self.ptr = np.zeros(B, dtype=np.int64)
+        self.buf_adj = np.zeros((B, K, N, N), dtype=bool)
+        self.buf_nbr = np.zeros((B, K, N, self.D), dtype=np.int64)
+        self.buf_valid = np.zeros((B, K, N, self.D), dtype=bool)
+        self.buf_w = np.zeros((B, K, self.W.shape[1])) if self._has_pnoise else None
+        self.buf_v = np.zeros((B, K, N, r)) if self._has_mnoise else None
+        self.buf_meas = None if self._meas_always else np.ones((B, K, N), dtype=bool)
+        self.buf_msg = None if self._msg_always else np.ones((B, K, N, N), dtype=bool)
+
+    def _reset_member(self, b: int, seed: int) -> None:
+        m = self.model
+        children = np.random.SeedSequence(seed).spawn(len(_STREAMS))
+        rngs = {name: np.random.default_rng(c) for name, c in zip(_STREAMS, children,
+                                                                   strict=True)}
+        self.rngs[b] = rngs
+        self.x[b] = m.x0_std * rngs["init"].standard_normal(self.n)
+        self.Z[b] = 0.0
+        self.tau[b] = kernels.OMEGA
+        self.tau[b, self._arangeN, self._arangeN] = 0
+        self.k[b] = 0
+        self.transmit[b] = bool(m.initial_transmit)
+        self.errors[b] = 0.0
+        self.raw_errors[b] = 0.0
+        self.messages_sent[b] = 0
+        self.graph_state[b] = m.graphs.initial_state(rngs["graph"])
+        if not self._meas_always:
+            self.meas_sampler[b] = m.measurement_arrivals.sampler(
+                rngs["measurement_arrivals"], (self.N,))
+        if not self._msg_always:
+            self.msg_sampler[b] = m.message_arrivals.sampler(
+                rngs["message_arrivals"], (self.N, self.N))
+        self._refill(np.array([b]))
+
+    def _refill(self, members: np.ndarray) -> None:
+        """Draw the next ``CHUNK`` steps of graphs, noise and arrivals for ``members``."""
+        m, K = self.model, CHUNK
+        for b in members:
+            rngs = self.rngs[b]
+            adj, self.graph_state[b] = m.graphs.sample(rngs["graph"], K, self.graph_state[b])
+            self.buf_adj[b] = adj
+            if self._has_pnoise:
+                self.buf_w[b] = m.plant.process_noise.sample(
+                    rngs["process_noise"], (K, self.W.shape[1]))
+            if self._has_mnoise:
+                self.buf_v[b] = m.plant.measurement_noise.sample(
+                    rngs["measurement_noise"], (K, self.N, self.r)) * self.output_mask
+            if not self._meas_always:
+                s = self.meas_sampler[b]
+                self.buf_meas[b] = np.stack([s.next() for _ in range(K)])
+            if not self._msg_always:
+                s = self.msg_sampler[b]
+                self.buf_msg[b] = np.stack([s.next() for _ in range(K)])
+        nbr, valid = in_neighbor_slots(self.buf_adj[members], self.D)
+        self.buf_nbr[members] = nbr
+        self.buf_valid[members] = valid
+        self.ptr[members] = 0
+
+    def _load_step(self) -> None:
+        """Expose the current step's graph, measurements and messages (from the chunk)."""
+        b = np.arange(self.B)
+        p = self.ptr
+        self.adjacency = self.buf_adj[b, p]
+        self.nbr = self.buf_nbr[b, p]
+        self.valid = self.buf_valid[b, p]
+        y = np.einsum("irn,bn->bir", self.C_padded, self.x)
+        if self._has_mnoise:
+            y += self.buf_v[b, p]
+        self.y = y
+        self.y_arrived = (np.ones((self.B, self.N), bool) if self._meas_always
+                          else self.buf_meas[b, p])
+        safe = np.where(self.valid, self.nbr, 0)
+        sent = np.take_along_axis(self.transmit, safe.reshape(self.B, -1), axis=1
+                                  ).reshape(safe.shape)
+        msg = self.valid & sent
+        if not self._msg_always:
+            link = self.buf_msg[b, p]  # [b, i, l]
+            msg &= np.take_along_axis(link, safe, axis=2)
+        self.msg = msg
+
+    # ------------------------------------------------------------------ masks
+    def action_mask(self) -> np.ndarray:
+        """``(B, N, N * (D + 2) + 2)`` int8: allowed choices per substate, then transmit."""
+        B, N, D = self.B, self.N, self.D
+        row = np.ones((B, N, D + 2), dtype=np.int8)
+        row[:, :, 1:D + 1] = self.msg
+        sub = np.repeat(row[:, :, None, :], N, axis=2)  # (B, N, N, D + 2)
+        sub[:, self._arangeN, self._arangeN, 1:] = 0  # source: own substate is eq. (7)
+        out = np.ones((B, N, self.mask_size), dtype=np.int8)
+        out[:, :, : N * (D + 2)] = sub.reshape(B, N, N * (D + 2))
+        return out
+
+    # ------------------------------------------------------------------ step
+    def _validate(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        B, N, D = self.B, self.N, self.D
+        a = np.asarray(actions)
+        if a.shape != (B, N, N + 1):
+            raise ValueError(f"actions must have shape (B, N, N + 1) = {(B, N, N + 1)}, "
+                             f"got {a.shape}")
+        if not np.issubdtype(a.dtype, np.integer):
+            if not np.issubdtype(a.dtype, np.number) or np.any(a != np.round(a)):
+                raise ValueError(f"actions must be integers, got dtype {a.dtype}")
+            a = a.astype(np.int64)
+        choice, tx = a[..., :N], a[..., N]
+        bad = (choice < 0) | (choice > D + 1)
+        if bad.any():
+            b, i, j = (int(v) for v in np.argwhere(bad)[0])
+            raise ValueError(f"action of agent {i} (batch member {b}) for substate {j} is "
+                             f"{int(choice[b, i, j])}, outside 0..{D + 1}")
+        if np.any((tx < 0) | (tx > 1)):
+            b, i = (int(v) for v in np.argwhere((tx < 0) | (tx > 1))[0])
+            raise ValueError(f"transmit entry of agent {i} (batch member {b}) is "
+                             f"{int(tx[b, i])}, expected 0 or 1")
+        ok_row = np.concatenate([np.ones((B, N, 1), bool), self.msg,
+                                 np.ones((B, N, 1), bool)], axis=2)
+        allowed = np.take_along_axis(ok_row, choice, axis=2)
+        allowed[:, self._arangeN, self._arangeN] = choice[:, self._arangeN, self._arangeN] == 0
+        masked = ~allowed
+        if masked.any():
+            if self.invalid_actions == "raise":
+                b, i, j = (int(v) for v in np.argwhere(masked)[0])
+                c = int(choice[b, i, j])
+                why = ("the own substate of a source is updated by eq. (7), only 0 is allowed"
+                       if i == j else f"slot {c - 1} holds no message at this step")
+                raise ValueError(f"masked action: agent {i} (batch member {b}), substate {j}, "
+                                 f"choice {c}: {why}")
+            choice = np.where(masked, 0, choice)
+        return choice, tx.astype(bool), masked
+
+    def step(self, actions) -> StepResult:
+        """Advance every member from ``k`` to ``k + 1`` under ``actions (B, N, N + 1)``.
+
+        Estimates: eqs. (7), (9)-(12) via the kernels; indices: eqs. (9), (11), (14), and
+        the stalest-contributor rule for averages. Then the plant (eq. (1)), the next
+        graph, measurements (eq. (2)) and messages, rewards and observations.
+        """
+        choice, tx_next, masked = self._validate(actions)
+        self.last_invalid = masked
+        B, D = self.B, self.D
+        Z, tau = self.Z, self.tau
+        # --- update rule: what every agent propagates, per substate --------------------
+        is_slot = (choice >= 1) & (choice <= D)
+        slot = np.clip(choice - 1, 0, max(D - 1, 0))
+        chosen = (np.take_along_axis(self.nbr, slot, axis=2) if D else
+                  np.zeros_like(choice))
+        src = np.where(is_slot, chosen, self._arangeN[None, :, None])
+        Z_sel = kernels.gather_substates(Z, src, self.block_of)
+        tau_next = kernels.advance_indices(tau, src)
+        avg = choice == D + 1
+        if avg.any():
+            mix = kernels.uniform_mix(Z, self.nbr, self.msg)
+            Z_sel = np.where(avg[:, :, self.block_of], mix, Z_sel)
+            tau_next = np.where(avg, kernels.average_indices(tau, self.nbr, self.msg), tau_next)
+        Z_sel = kernels.keep_own_blocks(Z_sel, Z, self.own_block)
+        Z_next = kernels.propagate(Z_sel, Z, self.A_diag, self.A_lower)
+        Z_next += self.source.correction(int(self.k[0]), Z, self.y, self.y_arrived)
+        # --- plant, eq. (1) ----------------------------------------------------------------
+        bidx = np.arange(B)
+        x_next = self.x @ self.model.plant.A.T
+        if self._has_pnoise:
+            x_next += self.buf_w[bidx, self.ptr] @ self.W.T
+        self.x, self.Z, self.tau = x_next, Z_next, tau_next
+        self.k += 1
+        self.transmit = tx_next
+        self.messages_sent += tx_next.sum(1)
+        self.ptr += 1
+        full = np.flatnonzero(self.ptr >= CHUNK)
+        if full.size:
+            self._refill(full)
+        self._load_step()
+        # --- rewards -------------------------------------------------------------------------
+        rw = self.model.reward
+        z_true = x_next @ self.T  # T orthogonal: ||x_hat - x|| = ||z_hat - z||
+        err = np.linalg.norm(Z_next - z_true[:, None, :], axis=-1)
+        scale = np.maximum(np.linalg.norm(x_next, axis=-1), rw.error_floor)
+        raw = err / scale[:, None]
+        raw = np.where(np.isfinite(raw), raw, np.inf)
+        self.raw_errors = raw
+        e = np.minimum(raw, rw.error_clip)
+        self.errors = e
+        if rw.team_weight:
+            e = (1 - rw.team_weight) * e + rw.team_weight * e.mean(1, keepdims=True)
+        reward = -rw.error_weight * e - rw.message_cost * tx_next
+        lim = self.model.divergence_limit
+        terminated = (raw.max(1) > lim) if lim is not None else np.zeros(B, bool)
+        truncated = self.k >= self.horizon
+        obs, mask = self.observe()
+        return StepResult(obs, mask, reward, terminated, truncated & ~terminated)
+
+    # ------------------------------------------------------------------ observations
+    def observe(self) -> tuple[np.ndarray, np.ndarray]:
+        """Observations ``(B, N, obs_dim)`` float32 and masks of the current step."""
+        L, B, N, D = self.layout, self.B, self.N, self.D
+        H = float(self.horizon)
+        obs = np.zeros((B, N, L.size), dtype=np.float32)
+        obs[:, :, L.time] = (self.k / H)[:, None, None]
+        arr = self.y_arrived
+        obs[:, :, L.y] = symlog(self.y * arr[..., None])
+        obs[:, :, L.y_arrived] = arr[..., None]
+        om = self.tau == kernels.OMEGA
+        obs[:, :, L.own_omega] = om
+        obs[:, :, L.own_age] = np.where(om, 0, self.tau) / H
+        norm = np.linalg.norm(self.Z, axis=-1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            obs[:, :, L.z_dir] = np.where(norm > 0, self.Z / norm, 0.0)
+        obs[:, :, L.z_lognorm] = np.log1p(norm)
+        if D:
+            msg = self.msg
+            obs[:, :, L.slot_arrived] = msg
+            obs[:, :, L.slot_id] = np.where(self.valid, (self.nbr + 1) / N, 0.0)
+            seen = kernels.neighbor_indices(self.tau, self.nbr, msg)  # (B, N, D, N)
+            som = seen == kernels.OMEGA
+            obs[:, :, L.slot_omega] = som.reshape(B, N, D * N)
+            obs[:, :, L.slot_age] = (np.where(som, 0, seen) / H).reshape(B, N, D * N)
+        np.nan_to_num(obs, copy=False, nan=0.0, posinf=1e3, neginf=-1e3)
+        np.clip(obs, -1e3, 1e3, out=obs)
+        return obs, self.action_mask()
+
+    # ------------------------------------------------------------------ views
+    @property
+    def estimates(self) -> np.ndarray:
+        """Every agent's estimate of ``x``, ``(B, N, n)`` (``x_hat = T z_hat``)."""
+        return self.Z @ self.T.T
+
+    def state_vector(self) -> np.ndarray:
+        """Global state per member ``(B, n + N n + N N)``: ``x``, estimates, ``G[k]``."""
+        B = self.B
+        return np.concatenate([self.x, self.estimates.reshape(B, -1),
+                               self.adjacency.reshape(B, -1).astype(float)], axis=1)

@@ -1,0 +1,190 @@
+"""Scripted policies that act only through observations and action masks.
+
+Each policy maps batched arrays ``obs (B, N, obs_dim)`` and ``mask (B, N, M)`` (as
+:class:`netsense.envcore.BatchedCore` returns them) to actions ``(B, N, N + 1)``; for the
+PettingZoo environment, :meth:`Policy.act_dict` takes and returns ``{agent: ...}`` dicts.
+Decoding uses the documented observation layout (:class:`netsense.envcore.ObsLayout`).
+
+======================  =====================================================================
+policy                  rule
+======================  =====================================================================
+``freshness``           eqs. (8)-(14): per substate adopt the freshest slot whose message
+                        arrived if it is strictly fresher than the own index (or the own is
+                        omega); ties to the smallest slot (= smallest node id); transmit always
+``uniform``             eq. (6) with uniform weights: average every non-own substate over self
+                        and the arrived messages; transmit always
+``tree``                eq. (6) with all weight on the parent in the BFS tree of ``G[k]``
+                        rooted at the source (Fig. 2); needs the periodic graph schedule, so it
+                        applies to :class:`netsense.graphs.PeriodicGraphs` scenarios only
+``open_loop``           keep every estimate (eq. (12)); never transmit
+``random``              uniformly random among the unmasked choices; transmit w.p. ``p_transmit``
+======================  =====================================================================
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from netsense.envcore import ObsLayout
+
+
+class Policy:
+    """Base class: ``act(obs, mask) -> actions`` on batched arrays."""
+
+    name = "policy"
+
+    def __init__(self, layout: ObsLayout) -> None:
+        self.layout = layout
+        self.N, self.D = layout.N, layout.D
+
+    def act(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Actions ``(B, N, N + 1)`` for observations ``(B, N, obs_dim)``."""
+        raise NotImplementedError  # pragma: no cover
+
+    def act_dict(self, env, observations: dict, infos: dict | None = None) -> dict:
+        """Actions ``{agent: action}`` for a :class:`netsense.env.NetSenseEnv` step."""
+        agents = env.possible_agents
+        if env.action_mask_in == "observation":
+            obs = np.stack([observations[a]["observation"] for a in agents])
+            mask = np.stack([observations[a]["action_mask"] for a in agents])
+        else:
+            obs = np.stack([observations[a] for a in agents])
+            mask = np.stack([infos[a]["action_mask"] for a in agents])
+        act = self.act(obs[None], mask[None])[0]
+        return {a: act[i] for i, a in enumerate(agents) if a in env.agents}
+
+    def _base(self, obs: np.ndarray, transmit: int) -> np.ndarray:
+        B, N = obs.shape[:2]
+        out = np.zeros((B, N, N + 1), dtype=np.int64)
+        out[..., N] = transmit
+        return out
+
+
+class FreshnessPolicy(Policy):
+    """The freshness-index rule, eqs. (8)-(14), read from observations."""
+
+    name = "freshness"
+
+    def act(self, obs, mask):
+        L, N, D = self.layout, self.N, self.D
+        out = self._base(obs, 1)
+        if D == 0:
+            return out
+        B = obs.shape[0]
+        own_key = np.where(obs[..., L.own_omega] > 0.5, np.inf, obs[..., L.own_age])
+        s_om = obs[..., L.slot_omega].reshape(B, N, D, N) > 0.5
+        s_age = obs[..., L.slot_age].reshape(B, N, D, N)
+        arrived = obs[..., L.slot_arrived] > 0.5  # (B, N, D)
+        key = np.where(s_om | ~arrived[..., None], np.inf, s_age)
+        best = np.argmin(key, axis=2)  # first = smallest slot = smallest node id
+        best_key = np.take_along_axis(key, best[:, :, None, :], axis=2)[:, :, 0, :]
+        adopt = best_key < own_key  # finite < inf: Case 1; strict <: eq. (13)
+        out[..., :N] = np.where(adopt, best + 1, 0)
+        return out
+
+
+class UniformConsensusPolicy(Policy):
+    """Uniform-weight consensus, eq. (6): average every substate but the own one."""
+
+    name = "uniform"
+
+    def act(self, obs, mask):
+        N = self.N
+        out = self._base(obs, 1)
+        out[..., :N] = self.D + 1
+        idx = np.arange(N)
+        out[:, idx, idx] = 0
+        return out
+
+
+class TreeConsensusPolicy(Policy):
+    """Consensus with all weight on the BFS-tree parent (Fig. 2), for periodic graphs.
+
+    The policy knows the scenario's periodic graph schedule (a design-time input, like
+    the gains) and reads the time index from the observation; it adopts from the parent's
+    slot when that slot's message arrived and keeps its own estimate otherwise.
+    """
+
+    name = "tree"
+
+    def __init__(self, layout: ObsLayout, graphs, horizon: int) -> None:
+        super().__init__(layout)
+        from netsense.graphs import PeriodicGraphs, in_neighbor_slots
+        from netsense.observers.consensus import tree_parents
+
+        if not isinstance(graphs, PeriodicGraphs):
+            raise ValueError("the tree policy needs a PeriodicGraphs scenario (it uses the "
+                             f"graph schedule), got {type(graphs).__name__}")
+        adj = np.stack(graphs.graphs)  # (P, N, N)
+        nbr, valid = in_neighbor_slots(adj, self.D)
+        parent = tree_parents(adj, nbr, valid)  # (P, i, j)
+        # slot of the parent in i's slot list (-1: keep own)
+        hit = nbr[:, :, None, :] == parent[..., None]  # (P, i, j, D)
+        self.choice = np.where(hit.any(-1), np.argmax(hit, -1) + 1, 0)  # (P, N, N)
+        self.horizon = int(horizon)
+        self.period = adj.shape[0]
+
+    def act(self, obs, mask):
+        L, N, D = self.layout, self.N, self.D
+        out = self._base(obs, 1)
+        k = np.rint(obs[:, 0, L.time.start] * self.horizon).astype(np.int64)
+        choice = self.choice[k % self.period]  # (B, N, N)
+        arrived = obs[..., L.slot_arrived] > 0.5
+        ok = np.concatenate([np.ones(arrived.shape[:2] + (1,), bool), arrived], axis=2)
+        usable = np.take_along_axis(ok, np.minimum(choice, D), axis=2)
+        out[..., :N] = np.where(usable, choice, 0)
+        idx = np.arange(N)
+        out[:, idx, idx] = 0
+        return out
+
+
+class OpenLoopPolicy(Policy):
+    """Keep every estimate (eq. (12)) and never transmit."""
+
+    name = "open_loop"
+
+    def act(self, obs, mask):
+        return self._base(obs, 0)
+
+
+class RandomPolicy(Policy):
+    """Uniformly random unmasked choices; transmit with probability ``p_transmit``."""
+
+    name = "random"
+
+    def __init__(self, layout: ObsLayout, seed: int | None = None,
+                 p_transmit: float = 0.5) -> None:
+        super().__init__(layout)
+        self.rng = np.random.default_rng(seed)
+        self.p_transmit = p_transmit
+
+    def act(self, obs, mask):
+        N, D = self.N, self.D
+        B = obs.shape[0]
+        m = mask[..., : N * (D + 2)].reshape(B, N, N, D + 2).astype(float)
+        u = self.rng.random(m.shape) * m  # masked choices score 0, allowed ones > 0
+        out = self._base(obs, 0)
+        out[..., :N] = np.argmax(u, axis=-1)
+        out[..., N] = self.rng.random((B, N)) < self.p_transmit
+        return out
+
+
+POLICIES = ("freshness", "uniform", "tree", "open_loop", "random")
+
+
+def make_policy(name: str, env, **kwargs) -> Policy:
+    """A scripted policy for ``env`` (a :class:`netsense.env.NetSenseEnv` or a
+    :class:`netsense.envcore.BatchedCore`) by name, one of :data:`POLICIES`."""
+    core = getattr(env, "core", env)
+    layout = core.layout
+    if name == "freshness":
+        return FreshnessPolicy(layout)
+    if name == "uniform":
+        return UniformConsensusPolicy(layout)
+    if name == "tree":
+        return TreeConsensusPolicy(layout, core.model.graphs, core.horizon)
+    if name == "open_loop":
+        return OpenLoopPolicy(layout)
+    if name == "random":
+        return RandomPolicy(layout, **kwargs)
+    raise ValueError(f"unknown policy {name!r}; choose one of {POLICIES}")
