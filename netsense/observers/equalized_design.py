@@ -196,6 +196,7 @@ class LPTemplate:
     ub: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
     b_ub: tuple[np.ndarray, np.ndarray]
     lower: np.ndarray
+    upper: np.ndarray
     mu_lower: np.ndarray
     layout: list[dict]
     problem: EqualizedProblem
@@ -216,7 +217,7 @@ class LPTemplate:
         A_eq = sp.csr_matrix((self.eq[2], (self.eq[0], self.eq[1])),
                              shape=(len(self.b_eq), self.n_var))
         lb = np.where(self.mu_lower, mu1, self.lower)
-        bounds = np.column_stack([lb, np.full(self.n_var, np.inf)])
+        bounds = np.column_stack([lb, self.upper])
         return self.obj, A_ub, b_ub, A_eq, self.b_eq, bounds
 
     def unpack(self, x: np.ndarray, mu1: float):
@@ -246,9 +247,16 @@ def build_lp(problem: EqualizedProblem) -> LPTemplate:
     ``M_(k-1,i)`` for the available ``i`` (D(L^E')), ``nu_{k-1}``, the error map ``X_q``
     (``n x (n + k(n_w + n_v))``, columns ``[x~_0, w_0, v_0, ..., w_{k-1}, v_{k-1}]``), the
     constant ``c_q``, ``P_q >= |X_q|`` and the level ``mu_q`` (``mu_1`` at the leaves).
+
+    When ``s0 = 0`` the offsets ``nu`` are fixed to zero. This loses nothing: the
+    uncertainty set is symmetric, so with ``(M, nu)`` feasible ``(M, -nu)`` is too, and so is
+    their average ``(M, 0)`` with levels no larger. It also stops the LP from parking an
+    arbitrary constant offset in the slack of the terminal constraints, which would cost
+    typical-case accuracy without changing the guarantee.
     """
     t0 = time.perf_counter()
     P = problem
+    affine = bool(np.any(P.s0 != 0))
     T, n, p = P.T, P.n, P.p
     nw, nv = P.W.shape[2], P.V.shape[2]
     nc = [n + k * (nw + nv) for k in range(T + 1)]
@@ -260,14 +268,17 @@ def build_lp(problem: EqualizedProblem) -> LPTemplate:
     ub_r, ub_c, ub_v, ub_s, b_ub, b_sc = [], [], [], [], [], []
     obj: list[float] = []
     lower: list[float] = []
+    upper: list[float] = []
     mu_lower: list[bool] = []
     nvar = [0]
 
-    def new(count: int, lb: float = -np.inf, cost: float = 0.0, mu: bool = False) -> int:
+    def new(count: int, lb: float = -np.inf, cost: float = 0.0, mu: bool = False,
+            ub: float = np.inf) -> int:
         start = nvar[0]
         nvar[0] += count
         obj.extend([cost] * count)
         lower.extend([lb] * count)
+        upper.extend([ub] * count)
         mu_lower.extend([mu] * count)
         return start
 
@@ -294,7 +305,7 @@ def build_lp(problem: EqualizedProblem) -> LPTemplate:
                "e": Phi @ par["e"] + P.W[t] @ Sw - L @ P.V[t] @ Sv, "e0": Phi @ par["e0"]}
         m = nc[k]
         lay["M"] = new(len(avail) * n * p)
-        lay["nu"] = new(n)
+        lay["nu"] = new(n) if affine else new(n, lb=0.0, ub=0.0)
         lay["X"] = new(n * m)
         lay["c"] = new(n)
         lay["P"] = new(n * m, lb=0.0)
@@ -368,7 +379,8 @@ def build_lp(problem: EqualizedProblem) -> LPTemplate:
         ub=(cat(ub_r).astype(np.int64), cat(ub_c).astype(np.int64), cat(ub_v),
             cat(ub_s).astype(bool)),
         b_ub=(np.asarray(b_ub, dtype=float), np.asarray(b_sc, dtype=bool)),
-        lower=np.asarray(lower), mu_lower=np.asarray(mu_lower), layout=layout, problem=P,
+        lower=np.asarray(lower), upper=np.asarray(upper), mu_lower=np.asarray(mu_lower),
+        layout=layout, problem=P,
         build_seconds=time.perf_counter() - t0)
 
 
