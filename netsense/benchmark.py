@@ -1,0 +1,630 @@
+"""Benchmark harness: scenarios x policies x seeds, with metrics, tables and plots.
+
+One *job* is one episode of one scenario under one policy and one seed. A job returns an
+:class:`EpisodeRecord` (per-step curves) which :func:`episode_metrics` reduces to the
+numbers of the table:
+
+==========================  ================================================================
+metric                      definition
+==========================  ================================================================
+``mean_rel_error``          mean over steps ``k = 1..K`` and agents ``i`` of
+                            ``e_i[k] = ||x_hat_i[k] - x[k]|| / max(||x[k]||, floor)``
+``final_rel_error``         mean over agents of ``e_i[K]`` (the last step)
+``steps_to_eps``            first ``k`` from which ``max_i e_i[k'] <= eps`` for every
+                            ``k' >= k`` (NaN when it is never reached)
+``msgs_per_agent_step``     transmissions / (``N`` x ``K``)
+``aoi_mean``, ``aoi_max``   mean / max over steps, agents and substates ``j != i`` of the
+                            freshness index ``tau_i^{(j)}`` (finite entries only)
+``aoi_omega_frac``          fraction of those entries still equal to omega
+``reward``                  the scenario's episode return, averaged over agents
+==========================  ================================================================
+
+Policies (names accepted by :func:`run_benchmark` and ``netsense benchmark``):
+
+``freshness``, ``uniform_consensus``, ``tree_consensus``, ``open_loop``, ``random``
+    the scripted policies of :mod:`netsense.policies`, acting through the environment;
+``kf_oracle``
+    a centralized Kalman filter that sees every agent's measurement every step (no
+    network): a lower bound on the error, no messages and no reward;
+``learned`` / ``learned:PATH``
+    a policy trained by :mod:`netsense.rl.sb3` and loaded from ``PATH`` (a ``.zip``); in
+    ``PATH`` the text ``{scenario}`` is replaced by the scenario id.
+
+Seeds run in parallel in worker processes (``backend="process"``) or as Ray tasks
+(``backend="ray"``, optionally on a cluster given by ``ray_address``), with a tqdm bar.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+#: Scripted policies run through the environment.
+SCRIPTED_POLICIES = ("freshness", "uniform_consensus", "tree_consensus", "open_loop", "random")
+#: Every policy name the harness knows (``learned`` may carry ``:PATH``).
+POLICY_NAMES = SCRIPTED_POLICIES + ("kf_oracle", "learned")
+#: Default policy set of ``netsense benchmark``.
+DEFAULT_POLICIES = ("freshness", "uniform_consensus", "open_loop", "random", "kf_oracle")
+
+METRICS = ("mean_rel_error", "final_rel_error", "steps_to_eps", "msgs_per_agent_step",
+           "aoi_mean", "aoi_max", "aoi_omega_frac", "reward")
+
+_FLOOR = 1e-3
+
+
+# ----------------------------------------------------------------------------- records
+@dataclass
+class EpisodeRecord:
+    """Per-step curves of one episode.
+
+    Attributes
+    ----------
+    errors : (K + 1, N) array
+        ``||x_hat_i[k] - x[k]||`` for ``k = 0..K`` (the oracle has ``N = 1``).
+    x_norm : (K + 1,) array
+        ``||x[k]||``.
+    messages : (K, N) bool array or None
+        Whether agent ``i`` transmitted at step ``k`` (None for the oracle).
+    aoi : (K + 1, N, N) int array or None
+        Freshness indices ``tau_i^{(j)}[k]``, ``-1`` for omega (None when not tracked).
+    rewards : (K, N) array or None
+        Per-agent rewards (None for the oracle).
+    floor : float
+        Smallest ``||x||`` used to normalise (the scenario's ``reward.error_floor``).
+    """
+
+    errors: np.ndarray
+    x_norm: np.ndarray
+    messages: np.ndarray | None = None
+    aoi: np.ndarray | None = None
+    rewards: np.ndarray | None = None
+    floor: float = 1e-3
+
+    def relative_errors(self) -> np.ndarray:
+        """``e_i[k]``, ``(K + 1, N)``: errors over ``max(||x[k]||, floor)``."""
+        return relative_errors(self.errors, self.x_norm, self.floor)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One episode to run.
+
+    Parameters
+    ----------
+    scenario : str
+        Scenario id (``netsense.list_scenarios()``).
+    policy : str
+        Policy name (see the module docstring).
+    seed : int
+        ``reset(seed=...)`` of the environment.
+    overrides : dict
+        Keyword overrides passed to ``netsense.make``.
+    eps : float
+        Threshold of ``steps_to_eps``.
+    """
+
+    scenario: str
+    policy: str
+    seed: int
+    overrides: dict = field(default_factory=dict)
+    eps: float = 1e-2
+
+
+# ----------------------------------------------------------------------------- metrics
+def relative_errors(errors: np.ndarray, x_norm: np.ndarray, floor: float = _FLOOR
+                    ) -> np.ndarray:
+    """Relative errors ``errors[k, i] / max(x_norm[k], floor)``.
+
+    Parameters
+    ----------
+    errors : (K + 1, N) array
+    x_norm : (K + 1,) array
+    floor : float
+        Lower bound of the denominator (a state at the origin).
+    """
+    errors = np.asarray(errors, dtype=float)
+    x_norm = np.asarray(x_norm, dtype=float)
+    if errors.ndim != 2 or x_norm.shape != errors.shape[:1]:
+        raise ValueError(f"errors must be (K+1, N) and x_norm (K+1,), got {errors.shape} "
+                         f"and {x_norm.shape}")
+    return errors / np.maximum(x_norm, floor)[:, None]
+
+
+def steps_to_epsilon(rel: np.ndarray, eps: float) -> float:
+    """First ``k`` from which ``max_i rel[k', i] <= eps`` for all ``k' >= k``.
+
+    Parameters
+    ----------
+    rel : (K + 1, N) array
+        Relative errors; non-finite entries count as above ``eps``.
+    eps : float
+        Threshold, > 0.
+
+    Returns
+    -------
+    float
+        The step (as a float) or NaN when the last step is still above ``eps``.
+    """
+    if eps <= 0:
+        raise ValueError(f"eps must be > 0, got {eps}")
+    worst = np.max(np.where(np.isfinite(rel), rel, np.inf), axis=1)
+    above = np.nonzero(~(worst <= eps))[0]
+    if above.size == 0:
+        return 0.0
+    if above[-1] == worst.shape[0] - 1:
+        return float("nan")
+    return float(above[-1] + 1)
+
+
+def aoi_statistics(aoi: np.ndarray | None) -> dict[str, float]:
+    """Age-of-information statistics of ``tau`` (``(K + 1, N, N)``, ``-1`` = omega).
+
+    Only off-diagonal entries count (a source's own index is always 0). Returns
+    ``aoi_mean``, ``aoi_max`` over finite entries and ``aoi_omega_frac``; NaN when
+    ``aoi`` is None or the graph has a single agent.
+    """
+    nan = {"aoi_mean": float("nan"), "aoi_max": float("nan"), "aoi_omega_frac": float("nan")}
+    if aoi is None:
+        return nan
+    aoi = np.asarray(aoi)
+    N = aoi.shape[-1]
+    if aoi.ndim != 3 or aoi.shape[1] != N:
+        raise ValueError(f"aoi must have shape (K+1, N, N), got {aoi.shape}")
+    if N < 2:
+        return nan
+    off = aoi[:, ~np.eye(N, dtype=bool)]
+    finite = off[off >= 0]
+    return {
+        "aoi_mean": float(finite.mean()) if finite.size else float("nan"),
+        "aoi_max": float(finite.max()) if finite.size else float("nan"),
+        "aoi_omega_frac": float(np.mean(off < 0)),
+    }
+
+
+def episode_metrics(rec: EpisodeRecord, eps: float = 1e-2) -> dict[str, float]:
+    """Reduce one :class:`EpisodeRecord` to the metrics listed in the module docstring."""
+    rel = rec.relative_errors()
+    K = rel.shape[0] - 1
+    if K < 1:
+        raise ValueError("an episode needs at least one step")
+    out = {
+        "mean_rel_error": float(np.mean(rel[1:])),
+        "final_rel_error": float(np.mean(rel[-1])),
+        "steps_to_eps": steps_to_epsilon(rel, eps),
+        "msgs_per_agent_step": (float(np.mean(rec.messages)) if rec.messages is not None
+                                else float("nan")),
+        "reward": (float(np.mean(np.sum(rec.rewards, axis=0))) if rec.rewards is not None
+                   else float("nan")),
+    }
+    out.update(aoi_statistics(rec.aoi))
+    return {m: out[m] for m in METRICS}
+
+
+# ------------------------------------------------------------------- centralized oracle
+class CentralizedKF:
+    """Centralized Kalman one-step predictor on the stacked ``y = C x + v`` (the oracle).
+
+    At step ``k`` it updates with every agent's measurement ``y_i[k]`` that arrived and
+    predicts ``x_hat[k+1|k] = A x_hat[k|k]`` — the same information timing as the
+    distributed agents (whose estimate of ``x[k+1]`` uses measurements up to ``k``) but
+    with no network in between, so its error is a lower bound. Covariances come from the
+    plant's noise models; a noise-free plant gets ``jitter`` so the filter stays well
+    posed (it then acts like a near-deadbeat centralized observer).
+
+    Parameters
+    ----------
+    plant : netsense.systems.Plant
+    x0_std : float
+        Prior ``x[0] ~ N(0, x0_std^2 I)`` (the scenario's initial-state law).
+    jitter : float
+        Covariance floor for noise-free plants.
+    """
+
+    def __init__(self, plant, *, x0_std: float = 1.0, jitter: float = 1e-9) -> None:
+        self.A = np.asarray(plant.A, dtype=float)
+        W = plant.W_effective
+        self.Qw = max(_noise_variance(plant.process_noise), jitter) * (W @ W.T)
+        self.C_pad = plant.C_padded  # (N, r_max, n)
+        self.rows = plant.output_mask  # (N, r_max)
+        self.r_var = max(_noise_variance(plant.measurement_noise), jitter)
+        n = self.A.shape[0]
+        self.x = np.zeros(n)
+        self.P = max(x0_std, jitter) ** 2 * np.eye(n)
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """Current prediction of ``x[k]``, ``(n,)``."""
+        return self.x.copy()
+
+    def step(self, y_padded: np.ndarray, arrived: np.ndarray | None = None) -> np.ndarray:
+        """Update with ``y[k]`` (``(N, r_max)``, rows of ``arrived`` agents) and predict."""
+        use = self.rows if arrived is None else self.rows & np.asarray(arrived)[:, None]
+        C = self.C_pad[use]
+        if C.shape[0]:
+            y = np.asarray(y_padded, dtype=float)[use]
+            S = C @ self.P @ C.T + self.r_var * np.eye(C.shape[0])
+            K = np.linalg.solve(S, C @ self.P).T
+            self.x = self.x + K @ (y - C @ self.x)
+            I_KC = np.eye(self.x.shape[0]) - K @ C
+            self.P = I_KC @ self.P @ I_KC.T + self.r_var * K @ K.T
+        self.x = self.A @ self.x
+        self.P = self.A @ self.P @ self.A.T + self.Qw
+        self.P = 0.5 * (self.P + self.P.T)
+        return self.x
+
+
+def _noise_variance(model) -> float:
+    d = model.to_dict()
+    if d.get("kind") == "gaussian":
+        return float(d["std"]) ** 2
+    if d.get("kind") == "uniform":
+        return float(d["half_width"]) ** 2 / 3.0
+    return 0.0
+
+
+# ---------------------------------------------------------------------------- rollouts
+def _make_env(scenario: str, overrides: dict | None):
+    from netsense.scenarios import make
+
+    return make(scenario, **dict(overrides or {}))
+
+
+def _scripted(name: str, env):
+    """A scripted policy of :mod:`netsense.policies` for ``env``."""
+    from netsense import policies
+
+    return policies.make_policy(name, env)
+
+
+def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
+            ) -> EpisodeRecord:
+    """One episode of ``scenario`` under ``policy`` through the PettingZoo API.
+
+    The true state, every estimate and the freshness indices are read from the
+    environment's core after each step (``env.core``); transmissions are the transmit
+    bits the agents chose.
+    """
+    env = _make_env(scenario, overrides)
+    core = env.core
+    floor = env.model.reward.error_floor
+    learned = policy.startswith("learned")
+    if learned:
+        from netsense.rl.sb3 import LearnedPolicy
+        from netsense.rl.wrappers import MaskedFlatObs
+
+        path = policy.split(":", 1)[1] if ":" in policy else None
+        if not path:
+            raise ValueError("the learned policy needs a path: learned:PATH")
+        agent_env = MaskedFlatObs(env)
+        model = LearnedPolicy(path)
+
+        def act(o, i):
+            return model.act(o, agent_env)
+    else:
+        agent_env = env
+        pol = _scripted(policy, env)
+
+        def act(o, i):
+            return pol(o, i)
+    obs, infos = agent_env.reset(seed=seed)
+    errs, xn, aoi, msgs, rews = [], [], [], [], []
+
+    def record() -> None:
+        x = core.x[0]
+        errs.append(np.linalg.norm(core.estimates[0] - x, axis=-1))
+        xn.append(np.linalg.norm(x))
+        aoi.append(core.tau[0].copy())
+
+    record()
+    while env.agents:
+        actions = act(obs, infos)
+        obs, rew, term, trunc, infos = agent_env.step(actions)
+        record()
+        msgs.append(core.transmit[0].copy())
+        rews.append([rew[a] for a in env.possible_agents])
+    return EpisodeRecord(np.array(errs), np.array(xn), np.array(msgs), np.array(aoi),
+                         np.array(rews, dtype=float), floor=floor)
+
+
+def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> EpisodeRecord:
+    """The centralized KF on the same realisation (same seed) as the policies see.
+
+    The environment is stepped with the always-valid "keep everything, stay silent"
+    action just to advance the plant and draw the measurements; only ``x[k]`` and
+    ``y[k]`` are used.
+    """
+    env = _make_env(scenario, overrides)
+    core = env.core
+    kf = CentralizedKF(env.model.plant, x0_std=env.model.x0_std)
+    env.reset(seed=seed)
+    idle = {a: np.zeros(core.N + 1, dtype=np.int64) for a in env.possible_agents}
+    errs, xn = [], []
+    while True:
+        x = core.x[0]
+        errs.append([np.linalg.norm(kf.estimate - x)])
+        xn.append(np.linalg.norm(x))
+        if not env.agents:
+            break
+        kf.step(core.y[0], core.y_arrived[0])
+        env.step(idle)
+    return EpisodeRecord(np.array(errs), np.array(xn), floor=env.model.reward.error_floor)
+
+
+# ---------------------------------------------------------------------------- runners
+def run_job(job: Job) -> dict:
+    """Run one episode; returns ``{"job": ..., "metrics": ..., "curve": ...}``.
+
+    ``curve`` is the mean-over-agents relative error per step (for the plots). Module
+    level so that worker processes and Ray tasks can import it.
+    """
+    if job.policy == "kf_oracle":
+        rec = rollout_oracle(job.scenario, job.seed, job.overrides)
+    else:
+        rec = rollout(job.scenario, job.policy, job.seed, job.overrides)
+    rel = rec.relative_errors()
+    return {"job": asdict(job), "metrics": episode_metrics(rec, job.eps),
+            "curve": np.mean(rel, axis=1)}
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, disable=not enabled, unit="ep")
+
+
+def execute(jobs: Sequence[Job], *, backend: str = "process", workers: int | None = None,
+            ray_address: str | None = None, progress: bool = True,
+            runner: Callable[[Job], dict] = run_job) -> list[dict]:
+    """Run ``jobs`` and return their results in job order.
+
+    Parameters
+    ----------
+    jobs : sequence of Job
+    backend : {"process", "serial", "ray"}
+        Worker processes on this machine, the calling process, or Ray tasks.
+    workers : int, optional
+        Process count (default ``min(len(jobs), os.cpu_count())``).
+    ray_address : str, optional
+        ``ray.init(address=...)`` (e.g. ``"auto"`` or ``"ray://head:10001"``); default a
+        local Ray instance.
+    progress : bool
+        Show a tqdm bar.
+    runner : callable
+        The per-job function (module level, picklable).
+    """
+    if backend not in ("process", "serial", "ray"):
+        raise ValueError(f"backend must be 'process', 'serial' or 'ray', got {backend!r}")
+    jobs = list(jobs)
+    results: list[dict | None] = [None] * len(jobs)
+    bar = _progress(len(jobs), f"benchmark ({backend})", progress)
+    try:
+        if backend == "serial" or (backend == "process" and (workers or 2) <= 1):
+            for i, job in enumerate(jobs):
+                results[i] = runner(job)
+                bar.update()
+        elif backend == "process":
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            n = workers or min(len(jobs), os.cpu_count() or 1)
+            ctx = mp.get_context("spawn")
+            with ProcessPoolExecutor(max_workers=max(n, 1), mp_context=ctx,
+                                     initializer=_worker_init) as pool:
+                futs = {pool.submit(runner, job): i for i, job in enumerate(jobs)}
+                for fut in as_completed(futs):
+                    results[futs[fut]] = fut.result()
+                    bar.update()
+        else:
+            import ray
+
+            if not ray.is_initialized():
+                ray.init(address=ray_address, include_dashboard=False,
+                         ignore_reinit_error=True, log_to_driver=False)
+            remote = ray.remote(num_cpus=1)(runner)
+            refs = {remote.remote(job): i for i, job in enumerate(jobs)}
+            pending = list(refs)
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                for ref in done:
+                    results[refs[ref]] = ray.get(ref)
+                    bar.update()
+    finally:
+        bar.close()
+    return results  # type: ignore[return-value]
+
+
+def _worker_init() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    try:  # torch is optional; one thread per worker avoids oversubscribing the cores
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:
+        pass
+
+
+# ---------------------------------------------------------------------------- reports
+def aggregate(results: Iterable[dict]) -> list[dict]:
+    """Mean and standard deviation over seeds per (scenario, policy), in first-seen order."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in results:
+        groups.setdefault((r["job"]["scenario"], _label(r["job"]["policy"])), []).append(r)
+    rows = []
+    for (scenario, policy), rs in groups.items():
+        row: dict = {"scenario": scenario, "policy": policy, "seeds": len(rs)}
+        for m in METRICS:
+            vals = np.array([r["metrics"][m] for r in rs], dtype=float)
+            fin = vals[np.isfinite(vals)]
+            row[f"{m}_mean"] = float(fin.mean()) if fin.size else float("nan")
+            row[f"{m}_std"] = float(fin.std()) if fin.size > 1 else 0.0 if fin.size else \
+                float("nan")
+            if m == "steps_to_eps":
+                row["reached_eps"] = int(fin.size)
+        rows.append(row)
+    return rows
+
+
+def _label(policy: str) -> str:
+    return "learned" if policy.startswith("learned") else policy
+
+
+def write_csv(results: Sequence[dict], path: str | Path) -> Path:
+    """One row per episode: scenario, policy, seed and every metric."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["scenario", "policy", "seed", *METRICS])
+        for r in results:
+            j = r["job"]
+            w.writerow([j["scenario"], _label(j["policy"]), j["seed"],
+                        *[_fmt_csv(r["metrics"][m]) for m in METRICS]])
+    return path
+
+
+def _fmt_csv(v: float) -> str:
+    return "nan" if not math.isfinite(v) else f"{v:.6g}"
+
+
+def _fmt(mean: float, std: float, digits: int = 3) -> str:
+    if not math.isfinite(mean):
+        return "–"
+    s = f"{mean:.{digits}g}"
+    return s if not math.isfinite(std) or std == 0 else f"{s} ± {std:.2g}"
+
+
+def markdown_table(rows: Sequence[dict], eps: float = 1e-2) -> str:
+    """The aggregated table in Markdown (mean ± std over seeds)."""
+    head = ("| scenario | policy | mean rel. error | final rel. error | "
+            f"steps to {eps:g} (reached) | msgs / agent-step | mean AoI | max AoI | reward |")
+    lines = [head, "|" + "---|" * 9]
+    for r in rows:
+        reach = f"{_fmt(r['steps_to_eps_mean'], r['steps_to_eps_std'])} " \
+                f"({r['reached_eps']}/{r['seeds']})"
+        cells = [r["scenario"], r["policy"],
+                 _fmt(r["mean_rel_error_mean"], r["mean_rel_error_std"]),
+                 _fmt(r["final_rel_error_mean"], r["final_rel_error_std"]), reach,
+                 _fmt(r["msgs_per_agent_step_mean"], r["msgs_per_agent_step_std"]),
+                 _fmt(r["aoi_mean_mean"], r["aoi_mean_std"]),
+                 _fmt(r["aoi_max_mean"], r["aoi_max_std"]),
+                 _fmt(r["reward_mean"], r["reward_std"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_errors(results: Sequence[dict], path: str | Path, scenario: str) -> Path:
+    """Error vs time per policy for one scenario: median over seeds, inter-quartile band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    curves: dict[str, list[np.ndarray]] = {}
+    for r in results:
+        if r["job"]["scenario"] == scenario:
+            curves.setdefault(_label(r["job"]["policy"]), []).append(np.asarray(r["curve"]))
+    for label, cs in curves.items():
+        c = np.vstack(cs)
+        c = np.where(c > 0, c, np.nan)
+        k = np.arange(c.shape[1])
+        med = np.nanmedian(c, axis=0)
+        ax.plot(k, med, label=label)
+        if c.shape[0] > 1:
+            ax.fill_between(k, np.nanpercentile(c, 25, axis=0), np.nanpercentile(c, 75, axis=0),
+                            alpha=0.2)
+    ax.set_yscale("log")
+    ax.set_xlabel("step k")
+    ax.set_ylabel("relative error (mean over agents)")
+    ax.set_title(scenario)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_reward_vs_messages(rows: Sequence[dict], path: str | Path) -> Path:
+    """Scenario reward against messages per agent-step, one panel per scenario."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenarios = list(dict.fromkeys(r["scenario"] for r in rows))
+    fig, axes = plt.subplots(1, len(scenarios), figsize=(4.2 * len(scenarios), 3.6),
+                             squeeze=False)
+    for ax, sc in zip(axes[0], scenarios, strict=True):
+        for r in rows:
+            if r["scenario"] != sc or not math.isfinite(r["reward_mean"]):
+                continue
+            ax.errorbar(r["msgs_per_agent_step_mean"], r["reward_mean"],
+                        xerr=r["msgs_per_agent_step_std"], yerr=r["reward_std"], fmt="o",
+                        label=r["policy"], capsize=3)
+        ax.set_xlabel("messages per agent-step")
+        ax.set_ylabel("episode reward (mean over agents)")
+        ax.set_title(sc, fontsize=9)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ------------------------------------------------------------------------ entry point
+def make_jobs(scenarios: Sequence[str], policies: Sequence[str], seeds: Sequence[int], *,
+              overrides: dict | None = None, eps: float = 1e-2) -> list[Job]:
+    """Cartesian product of scenarios x policies x seeds (unknown policy names raise)."""
+    for p in policies:
+        if p.split(":", 1)[0] not in POLICY_NAMES:
+            raise ValueError(f"unknown policy {p!r}; choose from {', '.join(POLICY_NAMES)} "
+                             "(learned may be written learned:PATH)")
+    if not scenarios or not policies or not seeds:
+        raise ValueError("scenarios, policies and seeds must each be non-empty")
+    return [Job(s, p.replace("{scenario}", s), int(seed), dict(overrides or {}), eps)
+            for s in scenarios for p in policies for seed in seeds]
+
+
+def run_benchmark(scenarios: Sequence[str], policies: Sequence[str] = DEFAULT_POLICIES,
+                  seeds: Sequence[int] = range(5), *, out: str | Path | None = None,
+                  overrides: dict | None = None, eps: float = 1e-2, backend: str = "process",
+                  workers: int | None = None, ray_address: str | None = None,
+                  progress: bool = True) -> tuple[list[dict], list[dict]]:
+    """Run the benchmark and (when ``out`` is given) write its CSV, table and plots.
+
+    Writes ``episodes.csv`` (one row per episode), ``summary.csv`` and ``summary.md``
+    (mean ± std over seeds), ``errors_<scenario>.png`` and ``reward_vs_messages.png``.
+
+    Returns
+    -------
+    results, rows
+        Per-episode results and the aggregated rows.
+    """
+    jobs = make_jobs(scenarios, policies, seeds, overrides=overrides, eps=eps)
+    results = execute(jobs, backend=backend, workers=workers, ray_address=ray_address,
+                      progress=progress)
+    rows = aggregate(results)
+    if out is not None:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        write_csv(results, out / "episodes.csv")
+        with (out / "summary.csv").open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows({k: _fmt_csv(v) if isinstance(v, float) else v for k, v in r.items()}
+                        for r in rows)
+        (out / "summary.md").write_text(markdown_table(rows, eps))
+        for sc in dict.fromkeys(scenarios):
+            plot_errors(results, out / f"errors_{sc}.png", sc)
+        plot_reward_vs_messages(rows, out / "reward_vs_messages.png")
+    return results, rows

@@ -1,0 +1,55 @@
+"""``netsense benchmark``: scenarios x policies x seeds -> CSV, Markdown table, PNG plots."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "benchmark"
+HELP = ("Benchmark learned and scripted policies and a centralized KF oracle on scenarios "
+        "(seeds in parallel processes or on Ray); writes CSV, a Markdown table and plots.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from netsense.benchmark import DEFAULT_POLICIES, POLICY_NAMES
+
+    parser.add_argument("scenarios", nargs="+", help="scenario ids (see `netsense list`)")
+    parser.add_argument("--policies", nargs="+", default=list(DEFAULT_POLICIES),
+                        metavar="POLICY",
+                        help=f"policies among {', '.join(POLICY_NAMES)}; a learned policy is "
+                             "learned:PATH where {scenario} in PATH is replaced by the "
+                             f"scenario id (default: {' '.join(DEFAULT_POLICIES)})")
+    parser.add_argument("--seeds", type=int, default=5, help="number of seeds (default: 5)")
+    parser.add_argument("--seed0", type=int, default=1000,
+                        help="first seed; seeds are seed0..seed0+seeds-1 (default: 1000, "
+                             "away from training seeds)")
+    parser.add_argument("--eps", type=float, default=1e-2,
+                        help="relative-error threshold of 'steps to eps' (default: 0.01)")
+    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--backend", choices=("process", "serial", "ray"), default="process",
+                        help="where episodes run (default: process)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="worker processes (default: number of cores)")
+    parser.add_argument("--address", default=None,
+                        help="Ray cluster address for --backend ray (e.g. auto, "
+                             "ray://head:10001); default a local Ray instance")
+    parser.add_argument("--override", action="append", default=[], metavar="KEY=JSON",
+                        help="scenario override for every scenario (repeatable)")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from netsense.benchmark import run_benchmark
+    from netsense.commands.train import parse_overrides
+
+    if args.seeds < 1:
+        raise SystemExit("--seeds must be >= 1")
+    seeds = range(args.seed0, args.seed0 + args.seeds)
+    _, rows = run_benchmark(args.scenarios, args.policies, seeds, out=args.out,
+                            overrides=parse_overrides(args.override), eps=args.eps,
+                            backend=args.backend, workers=args.workers,
+                            ray_address=args.address, progress=not args.no_progress)
+    from netsense.benchmark import markdown_table
+
+    print(markdown_table(rows, args.eps))
+    print(f"wrote {args.out}/episodes.csv, summary.csv, summary.md and plots")
+    return 0

@@ -1,0 +1,372 @@
+"""Stable-Baselines3 adapter: parameter-shared MaskablePPO on a netsense scenario.
+
+Pipeline (one network for all agents, action masks reaching the learner)::
+
+    netsense.make(scenario)                 PettingZoo ParallelEnv, MultiDiscrete actions
+      -> MaskedFlatObs                      flat Box obs, flat action mask appended
+      -> supersuit.pettingzoo_env_to_vec_env_v1    one vector slot per agent (sharing)
+      -> supersuit.concat_vec_envs_v1(..., base_class="stable_baselines3")
+      -> VecActionMasks                     ``action_masks()`` read from the last obs
+      -> VecMonitor                         episode returns for the training curve
+      -> sb3_contrib.MaskablePPO("MlpPolicy")
+
+MaskablePPO asks the vector env for masks through ``env_method("action_masks")``
+(:func:`sb3_contrib.common.maskable.utils.get_action_masks`); :class:`VecActionMasks`
+answers it. Requires the ``rl`` extra: ``pip install torch==2.13.0 && pip install -e
+".[rl]"``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from netsense.rl.wrappers import MaskedFlatObs, mask_allows
+
+try:
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+except ImportError as exc:  # pragma: no cover - depends on the installed extras
+    raise ImportError("netsense.rl.sb3 needs the 'rl' extra: pip install torch==2.13.0 && "
+                      "pip install -e '.[rl]'") from exc
+
+__all__ = ["LearnedPolicy", "TrainConfig", "TrainResult", "make_vec_env", "train"]
+
+
+def _make_env(scenario: str, overrides: dict | None):
+    from netsense.scenarios import make
+
+    return make(scenario, **dict(overrides or {}))
+
+
+def make_vec_env(scenario: str | None = None, *, num_vec_envs: int = 1, seed: int = 0,
+                 overrides: dict | None = None,
+                 env_fn: Callable[[], Any] | None = None):
+    """SB3 vector env of a scenario: one slot per agent and copy, masks exposed.
+
+    Parameters
+    ----------
+    scenario : str, optional
+        Scenario id for ``netsense.make``.
+    num_vec_envs : int
+        Independent copies of the environment (``num_envs = num_vec_envs * N``).
+    seed : int
+        Seed of the first reset (copy ``c`` gets ``seed + c``).
+    overrides : dict, optional
+        Keyword overrides for ``netsense.make``.
+    env_fn : callable, optional
+        Builds the ParallelEnv instead of ``netsense.make`` (tests, custom scenarios).
+
+    Returns
+    -------
+    VecEnv
+        With ``action_masks()`` and ``num_envs = num_vec_envs * N``.
+    """
+    import supersuit as ss
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    if num_vec_envs < 1:
+        raise ValueError(f"num_vec_envs must be >= 1, got {num_vec_envs}")
+    if (scenario is None) == (env_fn is None):
+        raise ValueError("give exactly one of scenario and env_fn")
+    env = env_fn() if env_fn is not None else _make_env(scenario, overrides)
+    wrapped = MaskedFlatObs(env)
+    vec = ss.pettingzoo_env_to_vec_env_v1(wrapped)
+    vec = ss.concat_vec_envs_v1(vec, num_vec_envs, num_cpus=0, base_class="stable_baselines3")
+    masked = VecActionMasks(vec, wrapped.mask_size, wrapped.nvec, seed=seed)
+    return VecMonitor(masked)
+
+
+class VecActionMasks(VecEnvWrapper):
+    """SB3 ``VecEnvWrapper`` that serves ``action_masks()`` from the observations' tail.
+
+    Parameters
+    ----------
+    venv : VecEnv
+        Vector env whose observations end with a flat mask of ``mask_size`` entries
+        (as :class:`netsense.rl.wrappers.MaskedFlatObs` produces).
+    mask_size : int
+    nvec : array
+        Sizes of the ``MultiDiscrete`` action dimensions.
+    seed : int, optional
+        Seed of the first reset.
+    """
+
+    def __init__(self, venv, mask_size: int, nvec: np.ndarray, seed: int | None = None) -> None:
+        super().__init__(venv)
+        self.mask_size = int(mask_size)
+        self.nvec = np.asarray(nvec, dtype=np.int64)
+        self._first_seed = seed
+        self._last_obs: np.ndarray | None = None
+        self.mask_violations = 0
+        self.actions_checked = 0
+
+    def seed(self, seed: int | None = None) -> list:
+        """Seed the next reset (copy ``c`` gets ``seed + c``); SuperSuit has no ``seed``."""
+        self._first_seed = seed
+        return [None if seed is None else seed + i for i in range(self.num_envs)]
+
+    def reset(self) -> np.ndarray:
+        """Reset (seeded on the first call) and remember the observations."""
+        if self._first_seed is not None:
+            obs, infos = self.venv.venv.reset(seed=self._first_seed)
+            self.venv.reset_infos = infos
+            self._first_seed = None
+        else:
+            obs = self.venv.reset()
+        self._last_obs = np.asarray(obs)
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        """Count actions that break the current masks, then forward them."""
+        if self._last_obs is not None:
+            masks = self.action_masks()
+            acts = np.asarray(actions).reshape(len(masks), -1)
+            bad = sum(not mask_allows(m, a, self.nvec) for m, a in zip(masks, acts, strict=True))
+            self.mask_violations += int(bad)
+            self.actions_checked += len(masks)
+        self.venv.step_async(actions)
+
+    def step_wait(self):
+        """Forward and remember the observations (after SuperSuit's auto-reset)."""
+        obs, rew, done, infos = self.venv.step_wait()
+        self._last_obs = np.asarray(obs)
+        return obs, rew, done, infos
+
+    def action_masks(self) -> np.ndarray:
+        """``(num_envs, sum(nvec))`` boolean masks of the current observations."""
+        if self._last_obs is None:
+            raise RuntimeError("reset the environment before asking for action masks")
+        return self._last_obs[:, -self.mask_size:] > 0.5
+
+    # MaskablePPO reaches the masks through these two VecEnv methods.
+    def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list:
+        """``env_method("action_masks")`` returns one mask per slot; others forward."""
+        if method_name == "action_masks":
+            return list(self.action_masks())
+        return self.venv.env_method(method_name, *args, indices=indices, **kwargs)
+
+    def has_attr(self, attr_name: str) -> bool:
+        """True for ``action_masks``; otherwise asks the wrapped env."""
+        if attr_name == "action_masks":
+            return True
+        return self.venv.has_attr(attr_name)
+
+
+# --------------------------------------------------------------------------- training
+@dataclass(frozen=True)
+class TrainConfig:
+    """Hyper-parameters of :func:`train` (MaskablePPO, shared MLP policy).
+
+    Parameters
+    ----------
+    scenario : str
+        Scenario id.
+    steps : int
+        Total agent-steps (SB3 ``total_timesteps``; each env step counts ``N``).
+    seed : int
+        Seed of the learner and the environment.
+    num_vec_envs : int
+        Environment copies stepped together.
+    n_steps : int
+        Rollout length per vector slot.
+    batch_size, n_epochs : int
+        PPO minibatch size and epochs per update.
+    learning_rate, gamma, gae_lambda, ent_coef : float
+        PPO coefficients.
+    net_arch : tuple of int
+        Hidden layers of the policy and value networks.
+    overrides : dict
+        Keyword overrides for ``netsense.make``.
+    """
+
+    scenario: str
+    steps: int = 50_000
+    seed: int = 0
+    num_vec_envs: int = 4
+    n_steps: int = 128
+    batch_size: int = 256
+    n_epochs: int = 5
+    learning_rate: float = 3e-4
+    gamma: float = 0.95
+    gae_lambda: float = 0.95
+    ent_coef: float = 0.01
+    net_arch: tuple[int, ...] = (64, 64)
+    overrides: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "num_vec_envs", "n_steps", "batch_size", "n_epochs"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
+
+
+@dataclass
+class TrainResult:
+    """What :func:`train` produced.
+
+    Attributes
+    ----------
+    policy_path, curve_csv, curve_png : Path
+        Saved policy (``policy.zip``) and training curve.
+    curve : list of dict
+        Rows ``timesteps, episodes, mean_episode_reward, wall_s``.
+    wall_s : float
+        Training wall time in seconds.
+    mask_violations, actions_checked : int
+        Actions taken during training that broke their mask (must be 0), out of all.
+    """
+
+    policy_path: Path
+    curve_csv: Path
+    curve_png: Path
+    curve: list[dict]
+    wall_s: float
+    mask_violations: int
+    actions_checked: int
+
+
+def _callback(total: int, progress: bool):
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tqdm.auto import tqdm
+
+    class CurveCallback(BaseCallback):
+        """Records the mean episode return after each rollout; drives a tqdm bar."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.rows: list[dict] = []
+            self.t0 = time.perf_counter()
+            self.bar = None
+
+        def _on_training_start(self) -> None:
+            self.bar = tqdm(total=total, desc="train", unit="step", disable=not progress)
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.training_env.num_envs)
+            return True
+
+        def _on_rollout_end(self) -> None:
+            buf = list(self.model.ep_info_buffer)
+            if buf:
+                self.rows.append({
+                    "timesteps": int(self.num_timesteps),
+                    "episodes": len(buf),
+                    "mean_episode_reward": float(np.mean([e["r"] for e in buf])),
+                    "wall_s": round(time.perf_counter() - self.t0, 3),
+                })
+                self.bar.set_postfix(reward=f"{self.rows[-1]['mean_episode_reward']:.3g}")
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    return CurveCallback()
+
+
+def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
+          env_fn: Callable[[], Any] | None = None, verbose: int = 0) -> TrainResult:
+    """Train a parameter-shared MaskablePPO policy and save it with its training curve.
+
+    Writes ``policy.zip``, ``training_curve.csv``, ``training_curve.png`` and
+    ``train_config.json`` into ``out``.
+
+    Parameters
+    ----------
+    config : TrainConfig
+    out : path
+        Output directory (created).
+    progress : bool
+        Show a tqdm bar.
+    env_fn : callable, optional
+        Builds the ParallelEnv instead of ``netsense.make(config.scenario)``.
+    verbose : int
+        SB3 verbosity.
+    """
+    import torch
+    from sb3_contrib import MaskablePPO
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(1)
+    env = make_vec_env(None if env_fn else config.scenario, num_vec_envs=config.num_vec_envs,
+                       seed=config.seed, overrides=config.overrides, env_fn=env_fn)
+    batch = min(config.batch_size, config.n_steps * env.num_envs)
+    model = MaskablePPO("MlpPolicy", env, n_steps=config.n_steps, batch_size=batch,
+                        n_epochs=config.n_epochs, learning_rate=config.learning_rate,
+                        gamma=config.gamma, gae_lambda=config.gae_lambda,
+                        ent_coef=config.ent_coef, seed=config.seed, device="cpu",
+                        policy_kwargs={"net_arch": list(config.net_arch)}, verbose=verbose)
+    cb = _callback(config.steps, progress)
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=config.steps, callback=cb)
+    wall = time.perf_counter() - t0
+    masks = env.venv  # VecMonitor -> VecActionMasks
+    policy_path = out / "policy.zip"
+    model.save(policy_path)
+    env.close()
+    curve_csv = out / "training_curve.csv"
+    with curve_csv.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=["timesteps", "episodes", "mean_episode_reward",
+                                           "wall_s"])
+        w.writeheader()
+        w.writerows(cb.rows)
+    curve_png = _plot_curve(cb.rows, out / "training_curve.png", config.scenario)
+    meta = {**asdict(config), "algo": "maskable_ppo", "wall_s": round(wall, 2),
+            "mask_violations": masks.mask_violations, "actions_checked": masks.actions_checked}
+    (out / "train_config.json").write_text(json.dumps(meta, indent=2, default=list) + "\n")
+    return TrainResult(policy_path, curve_csv, curve_png, cb.rows, wall,
+                       masks.mask_violations, masks.actions_checked)
+
+
+def _plot_curve(rows: list[dict], path: Path, title: str) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.6, 3.6))
+    if rows:
+        ax.plot([r["timesteps"] for r in rows], [r["mean_episode_reward"] for r in rows])
+    ax.set_xlabel("agent-steps")
+    ax.set_ylabel("mean episode return per agent")
+    ax.set_title(f"MaskablePPO on {title}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# -------------------------------------------------------------------------- inference
+class LearnedPolicy:
+    """A saved MaskablePPO policy acting for every agent of a netsense env.
+
+    Parameters
+    ----------
+    path : path
+        ``policy.zip`` written by :func:`train`.
+    deterministic : bool
+        Take the most likely allowed action (default) or sample.
+    """
+
+    def __init__(self, path: str | Path, *, deterministic: bool = True) -> None:
+        from sb3_contrib import MaskablePPO
+
+        path = Path(path)
+        if not path.exists():
+            raise ValueError(f"no learned policy at {path} (train one with `netsense train`)")
+        self.model = MaskablePPO.load(path, device="cpu")
+        self.deterministic = deterministic
+
+    def act(self, flat_obs: dict[str, np.ndarray], wrapper: MaskedFlatObs) -> dict:
+        """Actions for every agent in ``flat_obs`` (observations of ``wrapper``)."""
+        agents = list(flat_obs)
+        stacked = np.stack([flat_obs[a] for a in agents])
+        _, masks = wrapper.split(stacked)
+        acts, _ = self.model.predict(stacked, action_masks=masks,
+                                     deterministic=self.deterministic)
+        return {a: np.asarray(acts[i]) for i, a in enumerate(agents)}
