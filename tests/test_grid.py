@@ -133,3 +133,13 @@ def test_grid_inputs_are_checked():
         linearize(_two_bus()).voltages(np.zeros(5))
     with pytest.raises(ValueError, match="bus index"):
         meter_rows(3, 3, PMU)
+
+
+def test_cli_prints_script_built_from_our_data(capsys):
+    from netsense.cli import main
+
+    assert main(["grid", "script", "--load-scale", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("New Line.") == 35
+    # 0.5 x the 350 kW load on branch ca of bus 701
+    assert "New Load.d701_2 bus1=701.3.1 phases=1 conn=delta model=1 kv=4.8 kw=175 " in out
