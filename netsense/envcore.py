@@ -272,6 +272,7 @@ class BatchedCore:
         self.A_diag, self.A_lower = dec.A_diag, dec.A_lower
         self.own_block = SourceEstimator.own_block_mask(design)
         self.C_padded = plant.C_padded
+        self._C_flat_T = self.C_padded.reshape(-1, self.n).T.copy()  # y = C x, eq. (2)
         self.output_mask = plant.output_mask
         self.W = plant.W_effective
         self.layout = ObsLayout.build(self.N, self.n, self.r, self.D)
@@ -283,6 +284,18 @@ class BatchedCore:
         self._meas_always = isinstance(model.measurement_arrivals, AlwaysArrive)
         self._msg_always = isinstance(model.message_arrivals, AlwaysArrive)
         self._arangeN = np.arange(self.N)
+        B, N, D = self.B, self.N, self.D
+        self._bI = np.arange(B)[:, None, None]
+        self._iI = self._arangeN[None, :, None]
+        self._bJ = np.arange(B)[:, None, None, None]
+        self._iJ = self._arangeN[None, :, None, None]
+        self._jJ = self._arangeN[None, None, :, None]
+        self._bidx = np.arange(B)
+        self._own_col = np.broadcast_to(self._iI, (B, N, 1))
+        self._true_col = np.ones((B, N, 1), bool)
+        # flat positions of the own-substate mask entries 1..D+1 (forced to 0)
+        self._diag_mask_pos = (self._arangeN[:, None] * (D + 2)
+                               + np.arange(1, D + 2)[None, :]).ravel()
         self._seeded = False
 
     # ------------------------------------------------------------------ reset
@@ -344,6 +357,10 @@ class BatchedCore:
         self.buf_adj = np.zeros((B, K, N, N), dtype=bool)
         self.buf_nbr = np.zeros((B, K, N, self.D), dtype=np.int64)
         self.buf_valid = np.zeros((B, K, N, self.D), dtype=bool)
+        self.buf_nbr_ext = np.zeros((B, K, N, self.D + 2), dtype=np.int64)
+        self.buf_safe = np.zeros((B, K, N, self.D), dtype=np.int64)
+        self.buf_slot_id = np.zeros((B, K, N, self.D))
+        self._ones_BN = np.ones((B, N), dtype=bool)
         self.buf_w = np.zeros((B, K, self.W.shape[1])) if self._has_pnoise else None
         self.buf_v = np.zeros((B, K, N, r)) if self._has_mnoise else None
         self.buf_meas = None if self._meas_always else np.ones((B, K, N), dtype=bool)
@@ -395,41 +412,53 @@ class BatchedCore:
         nbr, valid = in_neighbor_slots(self.buf_adj[members], self.D)
         self.buf_nbr[members] = nbr
         self.buf_valid[members] = valid
+        # choice -> source agent: 0 and D + 1 map to the agent itself, d + 1 to slot d
+        own = np.broadcast_to(self._arangeN[None, None, :, None], nbr.shape[:3] + (1,))
+        self.buf_nbr_ext[members] = np.concatenate(
+            [own, np.where(valid, nbr, own), own], axis=3)
+        self.buf_safe[members] = np.where(valid, nbr, 0)
+        self.buf_slot_id[members] = np.where(valid, (nbr + 1) / self.N, 0.0)
         self.ptr[members] = 0
 
     def _load_step(self) -> None:
         """Expose the current step's graph, measurements and messages (from the chunk)."""
-        b = np.arange(self.B)
-        p = self.ptr
+        # all members at the same chunk position (the usual case): basic slicing, no copies
+        same = self.ptr.min() == self.ptr.max()
+        b, p = (slice(None), int(self.ptr[0])) if same else (self._bidx, self.ptr)
         self.adjacency = self.buf_adj[b, p]
         self.nbr = self.buf_nbr[b, p]
         self.valid = self.buf_valid[b, p]
-        y = np.einsum("irn,bn->bir", self.C_padded, self.x)
+        self.nbr_ext = self.buf_nbr_ext[b, p]
+        self.slot_id = self.buf_slot_id[b, p]
+        y = self.x @ self._C_flat_T
+        y = y.reshape(self.B, self.N, self.r)
         if self._has_mnoise:
             y += self.buf_v[b, p]
         self.y = y
-        self.y_arrived = (np.ones((self.B, self.N), bool) if self._meas_always
-                          else self.buf_meas[b, p])
-        safe = np.where(self.valid, self.nbr, 0)
-        sent = np.take_along_axis(self.transmit, safe.reshape(self.B, -1), axis=1
-                                  ).reshape(safe.shape)
-        msg = self.valid & sent
+        self.y_arrived = self._ones_BN if self._meas_always else self.buf_meas[b, p]
+        safe = self.buf_safe[b, p]
+        msg = self.valid & self.transmit[self._bI, safe]
         if not self._msg_always:
-            link = self.buf_msg[b, p]  # [b, i, l]
-            msg &= np.take_along_axis(link, safe, axis=2)
+            msg &= self.buf_msg[b, p][self._bI, self._iI, safe]  # link l -> i
         self.msg = msg
+        self.ok_row = np.concatenate([self._true_col, msg, self._true_col], 2)
+        self._mask = None
 
     # ------------------------------------------------------------------ masks
     def action_mask(self) -> np.ndarray:
-        """``(B, N, N * (D + 2) + 2)`` int8: allowed choices per substate, then transmit."""
-        B, N, D = self.B, self.N, self.D
-        row = np.ones((B, N, D + 2), dtype=np.int8)
-        row[:, :, 1:D + 1] = self.msg
-        sub = np.repeat(row[:, :, None, :], N, axis=2)  # (B, N, N, D + 2)
-        sub[:, self._arangeN, self._arangeN, 1:] = 0  # source: own substate is eq. (7)
-        out = np.ones((B, N, self.mask_size), dtype=np.int8)
-        out[:, :, : N * (D + 2)] = sub.reshape(B, N, N * (D + 2))
-        return out
+        """``(B, N, N * (D + 2) + 2)`` int8: allowed choices per substate, then transmit.
+
+        The block of substate ``j`` is ``[keep, slot 0 .. slot D-1, average]``; slots
+        allow only a message that arrived, and an agent's own substate allows only keep.
+        """
+        if self._mask is None:
+            B, N, D = self.B, self.N, self.D
+            out = np.ones((B, N, self.mask_size), dtype=np.int8)
+            sub = out[:, :, : N * (D + 2)].reshape(B, N, N, D + 2)
+            sub[...] = self.ok_row[:, :, None, :]
+            out[:, self._arangeN[:, None], self._diag_mask_pos.reshape(N, D + 1)] = 0
+            self._mask = out
+        return self._mask
 
     # ------------------------------------------------------------------ step
     def _validate(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -438,25 +467,19 @@ class BatchedCore:
         if a.shape != (B, N, N + 1):
             raise ValueError(f"actions must have shape (B, N, N + 1) = {(B, N, N + 1)}, "
                              f"got {a.shape}")
-        if not np.issubdtype(a.dtype, np.integer):
-            if not np.issubdtype(a.dtype, np.number) or np.any(a != np.round(a)):
+        if a.dtype.kind not in "iu":
+            if a.dtype.kind not in "fb" or np.any(a != np.round(a)):
                 raise ValueError(f"actions must be integers, got dtype {a.dtype}")
             a = a.astype(np.int64)
-        choice, tx = a[..., :N], a[..., N]
-        bad = (choice < 0) | (choice > D + 1)
+        bad = (a < 0) | (a >= self.nvec)
         if bad.any():
             b, i, j = (int(v) for v in np.argwhere(bad)[0])
-            raise ValueError(f"action of agent {i} (batch member {b}) for substate {j} is "
-                             f"{int(choice[b, i, j])}, outside 0..{D + 1}")
-        if np.any((tx < 0) | (tx > 1)):
-            b, i = (int(v) for v in np.argwhere((tx < 0) | (tx > 1))[0])
-            raise ValueError(f"transmit entry of agent {i} (batch member {b}) is "
-                             f"{int(tx[b, i])}, expected 0 or 1")
-        ok_row = np.concatenate([np.ones((B, N, 1), bool), self.msg,
-                                 np.ones((B, N, 1), bool)], axis=2)
-        allowed = np.take_along_axis(ok_row, choice, axis=2)
-        allowed[:, self._arangeN, self._arangeN] = choice[:, self._arangeN, self._arangeN] == 0
-        masked = ~allowed
+            what = f"substate {j}" if j < N else "transmit"
+            raise ValueError(f"action of agent {i} (batch member {b}) for {what} is "
+                             f"{int(a[b, i, j])}, outside 0..{int(self.nvec[j]) - 1}")
+        choice, tx = a[..., :N], a[..., N]
+        mask4 = self.action_mask()[:, :, : N * (D + 2)].reshape(B, N, N, D + 2)
+        masked = mask4[self._bJ, self._iJ, self._jJ, choice[..., None]][..., 0] == 0
         if masked.any():
             if self.invalid_actions == "raise":
                 b, i, j = (int(v) for v in np.argwhere(masked)[0])
@@ -480,11 +503,7 @@ class BatchedCore:
         B, D = self.B, self.D
         Z, tau = self.Z, self.tau
         # --- update rule: what every agent propagates, per substate --------------------
-        is_slot = (choice >= 1) & (choice <= D)
-        slot = np.clip(choice - 1, 0, max(D - 1, 0))
-        chosen = (np.take_along_axis(self.nbr, slot, axis=2) if D else
-                  np.zeros_like(choice))
-        src = np.where(is_slot, chosen, self._arangeN[None, :, None])
+        src = self.nbr_ext[self._bI, self._iI, choice]
         Z_sel = kernels.gather_substates(Z, src, self.block_of)
         tau_next = kernels.advance_indices(tau, src)
         avg = choice == D + 1
@@ -496,65 +515,72 @@ class BatchedCore:
         Z_next = kernels.propagate(Z_sel, Z, self.A_diag, self.A_lower)
         Z_next += self.source.correction(int(self.k[0]), Z, self.y, self.y_arrived)
         # --- plant, eq. (1) ----------------------------------------------------------------
-        bidx = np.arange(B)
         x_next = self.x @ self.model.plant.A.T
         if self._has_pnoise:
-            x_next += self.buf_w[bidx, self.ptr] @ self.W.T
+            x_next += np.take_along_axis(self.buf_w, self.ptr[:, None, None], 1)[:, 0] @ self.W.T
         self.x, self.Z, self.tau = x_next, Z_next, tau_next
         self.k += 1
         self.transmit = tx_next
         self.messages_sent += tx_next.sum(1)
         self.ptr += 1
-        full = np.flatnonzero(self.ptr >= CHUNK)
-        if full.size:
-            self._refill(full)
+        if self.ptr.max() >= CHUNK:
+            self._refill(np.flatnonzero(self.ptr >= CHUNK))
         self._load_step()
         # --- rewards -------------------------------------------------------------------------
         rw = self.model.reward
         z_true = x_next @ self.T  # T orthogonal: ||x_hat - x|| = ||z_hat - z||
-        err = np.linalg.norm(Z_next - z_true[:, None, :], axis=-1)
-        scale = np.maximum(np.linalg.norm(x_next, axis=-1), rw.error_floor)
-        raw = err / scale[:, None]
-        raw = np.where(np.isfinite(raw), raw, np.inf)
+        d = Z_next - z_true[:, None, :]
+        err = np.sqrt(np.einsum("bin,bin->bi", d, d))
+        scale = np.maximum(np.sqrt(np.einsum("bn,bn->b", x_next, x_next)), rw.error_floor)
+        raw = err / scale[:, None]  # nan only if the estimates blew up (inf - inf)
         self.raw_errors = raw
-        e = np.minimum(raw, rw.error_clip)
+        e = np.fmin(raw, rw.error_clip)  # fmin: nan -> the clip value
         self.errors = e
         if rw.team_weight:
             e = (1 - rw.team_weight) * e + rw.team_weight * e.mean(1, keepdims=True)
-        reward = -rw.error_weight * e - rw.message_cost * tx_next
+        reward = -rw.error_weight * e
+        if rw.message_cost:
+            reward -= rw.message_cost * tx_next
         lim = self.model.divergence_limit
-        terminated = (raw.max(1) > lim) if lim is not None else np.zeros(B, bool)
         truncated = self.k >= self.horizon
+        if lim is None:
+            terminated = np.zeros(B, bool)
+        else:
+            terminated = ~(raw.max(1) <= lim)  # nan counts as diverged
+            truncated &= ~terminated
         obs, mask = self.observe()
-        return StepResult(obs, mask, reward, terminated, truncated & ~terminated)
+        return StepResult(obs, mask, reward, terminated, truncated)
 
     # ------------------------------------------------------------------ observations
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
         """Observations ``(B, N, obs_dim)`` float32 and masks of the current step."""
         L, B, N, D = self.layout, self.B, self.N, self.D
         H = float(self.horizon)
-        obs = np.zeros((B, N, L.size), dtype=np.float32)
+        obs = np.empty((B, N, L.size), dtype=np.float32)
         obs[:, :, L.time] = (self.k / H)[:, None, None]
         arr = self.y_arrived
-        obs[:, :, L.y] = symlog(self.y * arr[..., None])
+        y = self.y if self._meas_always else self.y * arr[..., None]
+        obs[:, :, L.y] = np.sign(y) * np.log1p(np.abs(y))  # symlog
         obs[:, :, L.y_arrived] = arr[..., None]
-        om = self.tau == kernels.OMEGA
-        obs[:, :, L.own_omega] = om
-        obs[:, :, L.own_age] = np.where(om, 0, self.tau) / H
-        norm = np.linalg.norm(self.Z, axis=-1, keepdims=True)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            obs[:, :, L.z_dir] = np.where(norm > 0, self.Z / norm, 0.0)
+        tau = self.tau
+        obs[:, :, L.own_omega] = tau < 0
+        obs[:, :, L.own_age] = np.maximum(tau, 0) / H
+        Z = self.Z
+        norm = np.sqrt(np.einsum("bin,bin->bi", Z, Z))[..., None]
+        obs[:, :, L.z_dir] = Z / np.where(norm > 0, norm, 1.0)
         obs[:, :, L.z_lognorm] = np.log1p(norm)
         if D:
             msg = self.msg
             obs[:, :, L.slot_arrived] = msg
-            obs[:, :, L.slot_id] = np.where(self.valid, (self.nbr + 1) / N, 0.0)
-            seen = kernels.neighbor_indices(self.tau, self.nbr, msg)  # (B, N, D, N)
-            som = seen == kernels.OMEGA
-            obs[:, :, L.slot_omega] = som.reshape(B, N, D * N)
-            obs[:, :, L.slot_age] = (np.where(som, 0, seen) / H).reshape(B, N, D * N)
-        np.nan_to_num(obs, copy=False, nan=0.0, posinf=1e3, neginf=-1e3)
-        np.clip(obs, -1e3, 1e3, out=obs)
+            obs[:, :, L.slot_id] = self.slot_id
+            seen = kernels.neighbor_indices(tau, self.nbr, msg)  # (B, N, D, N)
+            obs[:, :, L.slot_omega] = (seen < 0).reshape(B, N, D * N)
+            obs[:, :, L.slot_age] = (np.maximum(seen, 0) / H).reshape(B, N, D * N)
+        # every field is bounded by construction (|symlog| <= 710 for finite float64);
+        # only a numerical blow-up of the estimates (inf/nan) needs repair
+        if not np.isfinite(obs).all():
+            np.nan_to_num(obs, copy=False, nan=0.0, posinf=1e3, neginf=-1e3)
+            np.clip(obs, -1e3, 1e3, out=obs)
         return obs, self.action_mask()
 
     # ------------------------------------------------------------------ views
