@@ -160,7 +160,7 @@ def main(argv: list[str] | None = None) -> dict:
         "A_printed_vs_c2d_max_abs": dA, "B_row4_resolved": f"{B[3, 0]:.4f} {B[3, 1]:.4f}",
     }
     _write(args.out, summary, rec, trace)
-    _plot(args.out, rec, trace, d)
+    _plot(args.out, rec, trace, d, args.pattern)
     print(f"{'quantity':<28}{'paper':>10}{'ours':>12}")
     print(f"{'mu_1':<28}{PAPER['mu1']:>10}{d.mu1:>12.4f}")
     print(f"{'max mu_2 (at our mu_1)':<28}{PAPER['max_mu2']:>10}{d.mu2.max():>12.4f}")
@@ -193,30 +193,38 @@ def _write(out: Path, summary: dict, rec: np.ndarray, trace: np.ndarray) -> None
                header="mu1,feasible,cost_J", comments="", fmt="%.6g")
 
 
-def _plot(out: Path, rec: np.ndarray, trace: np.ndarray, d) -> None:
+def _plot(out: Path, rec: np.ndarray, trace: np.ndarray, d, pattern: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, 3, figsize=(13, 6.5))
+    fig, axes = plt.subplots(3, 4, figsize=(15, 9.5))
     k = rec[:, 1]
     steps = np.unique(k)
     bound = np.array([rec[k == s, 6][0] for s in steps])
-    for i, ax in enumerate(axes.flat[:4]):
-        for r in np.unique(rec[:, 0]):
-            m = rec[:, 0] == r
-            ax.plot(k[m], rec[m, 7 + i], color="tab:orange", lw=0.6, alpha=0.5)
-            ax.plot(k[m], rec[m, 2 + i], color="tab:blue", lw=0.6, alpha=0.5)
-        ax.step(steps, bound, "k--", where="post", lw=1)
-        ax.step(steps, -bound, "k--", where="post", lw=1)
-        ax.set_title(f"state {i + 1} error")
-        ax.set_xlabel("k")
-    axes.flat[0].plot([], [], color="tab:blue", label="equalized recovery")
-    axes.flat[0].plot([], [], color="tab:orange", label="KF waiting for data")
-    axes.flat[0].plot([], [], "k--", label="guaranteed bound")
-    axes.flat[0].legend(fontsize=7)
-    ax = axes.flat[4]
+    for row, (col0, name, color) in enumerate([(2, "equalized recovery", "tab:blue"),
+                                               (7, "KF waiting for data", "tab:orange")]):
+        for i in range(4):
+            ax = axes[row, i]
+            for r in np.unique(rec[:, 0]):
+                m = rec[:, 0] == r
+                ax.plot(k[m], rec[m, col0 + i], color=color, lw=0.6, alpha=0.5)
+            ax.plot(steps, bound, "k--", drawstyle="steps-mid", lw=1)
+            ax.plot(steps, -bound, "k--", drawstyle="steps-mid", lw=1)
+            ax.set_title(f"{name}: state {i + 1} error", fontsize=9)
+            ax.set_xlabel("k")
+    axes[0, 0].plot([], [], "k--", label=f"guaranteed bound (pattern {pattern})")
+    axes[0, 0].legend(fontsize=7)
+    ax = axes[2, 0]
+    ax.plot(steps, [np.abs(rec[k == s, 2:6]).max(axis=1).mean() for s in steps],
+            color="tab:blue", label="equalized recovery")
+    ax.plot(steps, [np.abs(rec[k == s, 7:11]).max(axis=1).mean() for s in steps],
+            color="tab:orange", label="KF waiting for data")
+    ax.set_title("mean ||x - x^||_inf over runs", fontsize=9)
+    ax.set_xlabel("k")
+    ax.legend(fontsize=7)
+    ax = axes[2, 1]
     ok = trace[:, 1] == 1
     ax.plot(trace[ok & np.isfinite(trace[:, 2]), 0], trace[ok & np.isfinite(trace[:, 2]), 2],
             "o", ms=3, label="J(mu_1)")
@@ -226,10 +234,11 @@ def _plot(out: Path, rec: np.ndarray, trace: np.ndarray, d) -> None:
     ax.set_xlabel("mu_1 (red: infeasible)")
     ax.set_title("search over mu_1")
     ax.legend(fontsize=7)
-    ax = axes.flat[5]
+    ax = axes[2, 2]
     ax.plot(np.arange(d.mu2.shape[1]), d.mu2.T, color="tab:gray", lw=0.5, alpha=0.5)
     ax.set_title(f"mu_2,k per event sequence ({d.mu2.shape[0]})")
     ax.set_xlabel("k in horizon")
+    axes[2, 3].axis("off")
     fig.tight_layout()
     fig.savefig(out / "equalized_batch_reactor.png", dpi=120)
     plt.close(fig)

@@ -465,7 +465,9 @@ def design(problem: EqualizedProblem, mu1: float | None = None, *, rtol: float =
             if hi > 1e8:
                 raise ValueError("no feasible mu1 up to 1e8: the language/plant admits no "
                                  "equalized recovery with these fixed L and s0")
-        while hi - lo > rtol * hi:
+        for _ in range(200):  # noise-free problems are feasible at every mu1 > 0
+            if hi - lo <= rtol * hi or hi < 1e-12:
+                break
             mid = 0.5 * (lo + hi)
             lo, hi = (lo, mid) if run(mid, feas=True) is not None else (mid, hi)
         keys = [float(m) for m in hi * np.geomspace(1.0, span, grid)]
