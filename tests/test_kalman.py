@@ -174,3 +174,25 @@ def test_bad_inputs_raise_before_any_state_change():
     with pytest.raises(ValueError, match=r"R\(3\) must be positive definite"):
         f.step(np.zeros((2, 1)))
     assert f.t == t and np.array_equal(f.x, x) and np.array_equal(f.P, P)
+
+
+def test_known_drive_and_update_only_scalar():
+    a, c, q, r = 0.8, 1.5, 0.4, 0.2
+    f = KFIO(StateSpaceModel([[a]], [[1.0]], [[c]], [[q]], [[r]]))
+    f.reset([0.5], [[1.0]])
+    # update only at t = 0 with y_0
+    K = 1.0 * c / (c * c * 1.0 + r)
+    x, P = 0.5 + K * (2.0 - c * 0.5), (1 - K * c) * 1.0
+    f.update([[2.0]], [True])
+    np.testing.assert_allclose([f.x[0, 0], f.P[0, 0, 0], f.t], [x, P, 0], atol=1e-12)
+    for y, u, g in [(1.0, 0.3, True), (0.0, -1.0, False), (-2.0, 0.7, True)]:
+        xp, Pp = a * x + u, a * a * P + q
+        if g:
+            K = Pp * c / (c * c * Pp + r)
+            x, P = xp + K * (y - c * xp), (1 - K * c) * Pp
+        else:
+            x, P = xp, Pp
+        f.step([[y]], [g], u=[[u]])
+        np.testing.assert_allclose([f.x[0, 0], f.P[0, 0, 0]], [x, P], atol=1e-12)
+    with pytest.raises(ValueError, match=r"u must have shape \(1, 1\)"):
+        f.step([[0.0]], [True], u=np.zeros(3))

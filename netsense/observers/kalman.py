@@ -272,7 +272,18 @@ class KalmanFilter:
         A, B, Q = (self.model.at(k, t) for k in ("A", "B", "Q"))
         return self.x @ A.T, _sym(bmm(bmm(A, self.P), A.T) + B @ Q @ B.T)
 
-    def step(self, y, gamma=None) -> np.ndarray:
+    def _drive(self, u) -> np.ndarray | None:
+        if u is None:
+            return None
+        u = np.asarray(u, dtype=float)
+        shape = (self.batch, self.model.n)
+        if u.shape not in (shape, shape[1:]):
+            raise ValueError(f"u must have shape {shape} or {shape[1:]}, got {u.shape}")
+        if not np.all(np.isfinite(u)):
+            raise ValueError("u contains NaN or infinite entries")
+        return u
+
+    def step(self, y, gamma=None, u=None) -> np.ndarray:
         """Advance from ``t`` to ``t + 1`` with ``y_{t+1}`` and ``gamma_{t+1}``.
 
         Parameters
@@ -282,6 +293,9 @@ class KalmanFilter:
             use ``gamma`` (KFIO, RSEIO).
         gamma : (batch,) bool array, optional
             Arrival indicators ``gamma_{t+1}`` (default: all arrived).
+        u : (batch, n) or (n,) array, optional
+            Known additive drive, ``x_{t+1} = A_t x_t + B_t w_t + u_t`` (e.g. a known input
+            or couplings to states estimated elsewhere); it shifts every prediction.
 
         Returns
         -------
@@ -289,21 +303,15 @@ class KalmanFilter:
             ``x_{t+1|t+1}`` (also stored in :attr:`x`).
         """
         y, gamma = self._inputs(y, gamma)
+        u = self._drive(u)
         t = self.t
         C, R = self.model.at("C", t + 1), self.model.at("R", t + 1)
         update = gamma if self.uses_arrivals else np.ones_like(gamma)
         x_free, P_free = self._nominal_prior(t)
         x_pred, P_pred = self._prior(t, x_free, P_free)
-        # Measurement update, eq. (4)-(5): P_+ = (P_pred^-1 + C'R^-1 C)^-1,
-        # x_+ = x_pred + P_+ C' R^-1 (y - C x_pred), written with the gain
-        # K = P_pred C' (C P_pred C' + R)^-1 = P_+ C' R^-1 (no explicit inverses).
-        CP = bmm(C, P_pred)                              # (b, m, n)
-        S_y = _sym(bmm(CP, C.T) + R)                     # (b, m, m)
-        K = _T(spd_solve(S_y, CP))                       # (b, n, m)
-        innov = np.where(update[:, None], y, 0.0) - x_pred @ C.T
-        x_upd = x_pred + np.sum(K * innov[:, None, :], axis=-1)
-        I_KC = np.eye(self.model.n) - bmm(K, C)         # Joseph form keeps P symmetric PSD
-        P_upd = _sym(bmm(bmm(I_KC, P_pred), _T(I_KC)) + bmm(bmm(K, R), _T(K)))
+        if u is not None:
+            x_free, x_pred = x_free + u, x_pred + u
+        x_upd, P_upd = self._correct(x_pred, P_pred, y, update, C, R)
         if np.all(update):
             self.x, self.P = x_upd, P_upd
         else:
@@ -311,6 +319,35 @@ class KalmanFilter:
             self.P = np.where(update[:, None, None], P_upd, P_free)
         self.t = t + 1
         return self.x
+
+    def update(self, y, gamma=None) -> np.ndarray:
+        """Measurement update at the current time ``t`` only (e.g. to use ``y_0``).
+
+        The plain Kalman update with ``C_t``, ``R_t`` on the rows that use the measurement
+        (all rows for :class:`KalmanFilter`, arrived rows for KFIO and RSEIO; Theorem 1
+        adjusts only a prediction, so there is no robust form of an update alone).
+        """
+        y, gamma = self._inputs(y, gamma)
+        C, R = self.model.at("C", self.t), self.model.at("R", self.t)
+        update = gamma if self.uses_arrivals else np.ones_like(gamma)
+        x_upd, P_upd = self._correct(self.x, self.P, y, update, C, R)
+        self.x = np.where(update[:, None], x_upd, self.x)
+        self.P = np.where(update[:, None, None], P_upd, self.P)
+        return self.x
+
+    @staticmethod
+    def _correct(x_pred, P_pred, y, update, C, R) -> tuple[np.ndarray, np.ndarray]:
+        """Measurement update, eqs. (4)-(5): ``P_+ = (P_pred^-1 + C'R^-1 C)^-1`` and
+        ``x_+ = x_pred + P_+ C' R^-1 (y - C x_pred)``, written with the gain
+        ``K = P_pred C' (C P_pred C' + R)^-1 = P_+ C' R^-1`` (no explicit inverses)."""
+        CP = bmm(C, P_pred)                              # (b, m, n)
+        S_y = _sym(bmm(CP, C.T) + R)                     # (b, m, m)
+        K = _T(spd_solve(S_y, CP))                       # (b, n, m)
+        innov = np.where(update[:, None], y, 0.0) - x_pred @ C.T
+        x_upd = x_pred + np.sum(K * innov[:, None, :], axis=-1)
+        I_KC = np.eye(P_pred.shape[-1]) - bmm(K, C)     # Joseph form keeps P symmetric PSD
+        P_upd = _sym(bmm(bmm(I_KC, P_pred), _T(I_KC)) + bmm(bmm(K, R), _T(K)))
+        return x_upd, P_upd
 
     def run(self, ys, gammas=None) -> np.ndarray:
         """Filter a whole sequence; returns estimates ``x_{t|t}`` of shape (T + 1, batch, n).

@@ -175,8 +175,10 @@ class RSEIO(KFIO):
         # Rows that are zero in both S and T change nothing (exactly); dropping them keeps the
         # systems below as small as possible (1x1 for the section IV plant).
         keep = np.any(S != 0, axis=1) | np.any(T != 0, axis=1)
-        keep[0] |= not keep.any()
-        S, T = S[keep], T[keep]
+        if not keep.any():                    # nothing to penalise: one zero row
+            S, T = np.zeros((1, S.shape[1])), np.zeros((1, T.shape[1]))
+        else:
+            S, T = S[keep], T[keep]
         SP = bmm(S, P)                                            # (b, q, n)
         G = _sym(np.eye(S.shape[0]) + lam * bmm(SP, S.T))         # I + lam S P S'
         P_hat = _sym(P - lam * bmm(_T(SP), spd_solve(G, SP)))
