@@ -269,17 +269,27 @@ def _noise_variance(model) -> float:
 
 
 # ---------------------------------------------------------------------------- rollouts
+class NotApplicable(Exception):
+    """A policy that does not apply to a scenario (e.g. tree consensus on random graphs)."""
+
+
 def _make_env(scenario: str, overrides: dict | None):
     from netsense.scenarios import make
 
     return make(scenario, **dict(overrides or {}))
 
 
-def _scripted(name: str, env):
-    """A scripted policy of :mod:`netsense.policies` for ``env``."""
-    from netsense import policies
+#: Benchmark policy name -> name in :mod:`netsense.policies`.
+_SCRIPTED = {"freshness": "freshness", "uniform_consensus": "uniform",
+             "tree_consensus": "tree", "open_loop": "open_loop", "random": "random"}
 
-    return policies.make_policy(name, env)
+
+def _scripted(name: str, env, seed: int):
+    """A scripted policy of :mod:`netsense.policies` for ``env`` (``random`` is seeded)."""
+    from netsense.policies import make_policy
+
+    kwargs = {"seed": seed} if name == "random" else {}
+    return make_policy(_SCRIPTED[name], env, **kwargs)
 
 
 def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
@@ -308,10 +318,15 @@ def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
             return model.act(o, agent_env)
     else:
         agent_env = env
-        pol = _scripted(policy, env)
+        try:
+            pol = _scripted(policy, env, seed)
+        except ValueError as exc:
+            if policy == "tree_consensus":  # needs a periodic graph schedule
+                raise NotApplicable(str(exc)) from exc
+            raise
 
         def act(o, i):
-            return pol(o, i)
+            return pol.act_dict(env, o, i)
     obs, infos = agent_env.reset(seed=seed)
     errs, xn, aoi, msgs, rews = [], [], [], [], []
 
@@ -357,16 +372,20 @@ def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> E
 
 
 # ---------------------------------------------------------------------------- runners
-def run_job(job: Job) -> dict:
+def run_job(job: Job) -> dict | None:
     """Run one episode; returns ``{"job": ..., "metrics": ..., "curve": ...}``.
 
-    ``curve`` is the mean-over-agents relative error per step (for the plots). Module
-    level so that worker processes and Ray tasks can import it.
+    ``curve`` is the mean-over-agents relative error per step (for the plots); None when
+    the policy does not apply to the scenario. Module level so that worker processes and
+    Ray tasks can import it.
     """
-    if job.policy == "kf_oracle":
-        rec = rollout_oracle(job.scenario, job.seed, job.overrides)
-    else:
-        rec = rollout(job.scenario, job.policy, job.seed, job.overrides)
+    try:
+        if job.policy == "kf_oracle":
+            rec = rollout_oracle(job.scenario, job.seed, job.overrides)
+        else:
+            rec = rollout(job.scenario, job.policy, job.seed, job.overrides)
+    except NotApplicable:
+        return None
     rel = rec.relative_errors()
     return {"job": asdict(job), "metrics": episode_metrics(rec, job.eps),
             "curve": np.mean(rel, axis=1)}
@@ -380,8 +399,8 @@ def _progress(total: int, desc: str, enabled: bool):
 
 def execute(jobs: Sequence[Job], *, backend: str = "process", workers: int | None = None,
             ray_address: str | None = None, progress: bool = True,
-            runner: Callable[[Job], dict] = run_job) -> list[dict]:
-    """Run ``jobs`` and return their results in job order.
+            runner: Callable[[Job], dict | None] = run_job) -> list[dict]:
+    """Run ``jobs`` and return their results in job order (skipping inapplicable ones).
 
     Parameters
     ----------
@@ -436,17 +455,12 @@ def execute(jobs: Sequence[Job], *, backend: str = "process", workers: int | Non
                     bar.update()
     finally:
         bar.close()
-    return results  # type: ignore[return-value]
+    return [r for r in results if r is not None]
 
 
 def _worker_init() -> None:
+    # one thread per worker (numpy BLAS, torch if a learned policy loads it later)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    try:  # torch is optional; one thread per worker avoids oversubscribing the cores
-        import torch
-
-        torch.set_num_threads(1)
-    except ImportError:
-        pass
 
 
 # ---------------------------------------------------------------------------- reports
@@ -532,12 +546,12 @@ def plot_errors(results: Sequence[dict], path: str | Path, scenario: str) -> Pat
             curves.setdefault(_label(r["job"]["policy"]), []).append(np.asarray(r["curve"]))
     for label, cs in curves.items():
         c = np.vstack(cs)
-        c = np.where(c > 0, c, np.nan)
+        c = np.maximum(c, 1e-16)  # exact zeros (deadbeat) drawn at the bottom of the log axis
         k = np.arange(c.shape[1])
-        med = np.nanmedian(c, axis=0)
+        med = np.median(c, axis=0)
         ax.plot(k, med, label=label)
         if c.shape[0] > 1:
-            ax.fill_between(k, np.nanpercentile(c, 25, axis=0), np.nanpercentile(c, 75, axis=0),
+            ax.fill_between(k, np.percentile(c, 25, axis=0), np.percentile(c, 75, axis=0),
                             alpha=0.2)
     ax.set_yscale("log")
     ax.set_xlabel("step k")

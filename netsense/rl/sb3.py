@@ -354,8 +354,10 @@ class LearnedPolicy:
     """
 
     def __init__(self, path: str | Path, *, deterministic: bool = True) -> None:
+        import torch
         from sb3_contrib import MaskablePPO
 
+        torch.set_num_threads(1)  # inference on small MLPs; leave cores to other workers
         path = Path(path)
         if not path.exists():
             raise ValueError(f"no learned policy at {path} (train one with `netsense train`)")
