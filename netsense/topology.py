@@ -166,7 +166,8 @@ class StaticGraph(GraphProcess):
 def ring_with_chords(N: int, chords: int = 1) -> np.ndarray:
     """Bidirectional ring plus links to the ``chords`` next-nearest nodes on each side.
 
-    The base graph of the Markov link-failure family (a sparse mesh-like topology).
+    ``chords = 0`` is the bidirectional ring, the base graph of the Markov link-failure
+    family of the sweep.
     """
     adj = np.zeros((N, N), dtype=bool)
     l = np.arange(N)
@@ -177,14 +178,17 @@ def ring_with_chords(N: int, chords: int = 1) -> np.ndarray:
     return adj
 
 
+#: Recovery probability of a failed link in the ``markov`` family.
+MARKOV_P_RECOVER = 0.2
+
 #: Families of :func:`make_graph_process` and the meaning of their ``param``.
 FAMILIES: dict[str, str] = {
     "ring": "RoundRobinRing forward, T = period (param unused)",
     "ring_backward": "RoundRobinRing backward (slowest schedule), T = period",
     "random_jsc": "RandomJointlyConnected with period T, param = extra_edge_prob",
     "gossip": "one uniformly drawn edge of the complete graph per step (T measured)",
-    "markov": "Markov link failures on ring_with_chords(N), param = p_fail, "
-              "p_recover = 0.5 (T measured)",
+    "markov": "Markov link failures on the bidirectional ring, param = p_fail, "
+              "p_recover = 0.2 (T measured)",
     "mobility": "random-waypoint agents in the unit square, param = radius (T measured)",
 }
 
@@ -206,7 +210,7 @@ def make_graph_process(family: str, N: int, T: int = 1, param: float = 0.0) -> G
     if family == "gossip":
         return Gossip.complete(N)
     if family == "markov":
-        return MarkovLinkFailures(ring_with_chords(N), param, 0.5)
+        return MarkovLinkFailures(ring_with_chords(N, 0), param, MARKOV_P_RECOVER)
     if family == "mobility":
         from netsense.mobility import RandomWaypoint
 
@@ -507,8 +511,9 @@ def run_case(case: SweepCase) -> list[dict]:
 
     Both gain designs (deadbeat, Corollary 1; rho-ordered, Theorem 1) see the same plant,
     graph sequences and initial states. Row fields: the case fields, ``batch`` (seed
-    index), ``T_used`` (the guaranteed period, else the measured smallest one, NaN if
-    Assumption 1 fails on the horizon), ``assumption1``, ``trigger`` / ``bound_lemma3``,
+    index), ``T_used`` (the guaranteed period, else the smallest ``T <= steps / 4`` for
+    which Assumption 1 holds on the realised sequence, NaN if there is none),
+    ``assumption1``, ``trigger`` / ``bound_lemma3``,
     ``worst_index`` (over ``k >= trigger``) / ``bound_lemma5``, ``worst_after_lemma3``
     (over ``k >= (N-1)T``), ``steps_deadbeat`` / ``bound_corollary1``, ``steps_rho`` /
     ``onset_theorem1``, ``messages_per_step``, ``adoptions_per_step``, ``aoi_mean``,
@@ -539,7 +544,8 @@ def run_case(case: SweepCase) -> list[dict]:
         if T_guar is not None:
             T_used, holds = T_guar, True
         else:
-            T_emp = smallest_period(graphs[b])
+            # at least four complete windows, so "Assumption 1 holds" says something
+            T_emp = smallest_period(graphs[b], max_period=max(case.steps // 4, 1))
             holds = T_emp is not None
             T_used = T_emp if holds else float("nan")
         if holds and T_guar is None:
