@@ -160,3 +160,14 @@ def test_bad_inputs_raise_before_state_changes():
     with pytest.raises(RuntimeError, match="not in the design's language"):
         est.step({})  # "00" promises data 0 on time
     assert est.k == 0 and est.estimate[0] == 0.3
+
+
+def test_feasibility_is_monotone_in_mu1_on_a_grid():
+    from netsense.observers.equalized_design import build_lp, solve_fixed
+
+    P = random_problem(seed=3, s0=False)
+    tpl = build_lp(P)
+    mu_min = design(P, rtol=1e-3).mu1
+    grid = mu_min * np.array([0.25, 0.5, 0.9, 0.99, 1.01, 1.5, 3.0, 10.0])
+    feas = [solve_fixed(P, m, template=tpl, feasibility_only=True) is not None for m in grid]
+    assert feas == [False] * 4 + [True] * 4
