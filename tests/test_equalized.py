@@ -171,3 +171,16 @@ def test_feasibility_is_monotone_in_mu1_on_a_grid():
     grid = mu_min * np.array([0.25, 0.5, 0.9, 0.99, 1.01, 1.5, 3.0, 10.0])
     feas = [solve_fixed(P, m, template=tpl, feasibility_only=True) is not None for m in grid]
     assert feas == [False] * 4 + [True] * 4
+
+
+def test_cli_command_reports_hand_checked_levels(capsys):
+    from netsense.cli import main
+
+    # {"00", "10"} on x+ = 2x: mu_1 = 2 eta; J = mu_1 + 2 mu_1 (k=0) + (mu_1 + 2 mu_1) (k=1)
+    # + 2 mu_1 (k=2) = 8 mu_1
+    assert main(["equalized", "--A", "[[2.0]]", "--C", "[[1.0]]", "--language", "00,10",
+                 "--eta-v", "0.1", "--mu1", "0.25"]) == 0
+    out = capsys.readouterr().out
+    assert "mu_1 = 0.25 " in out and "max mu_2 = 0.5 " in out and "J = 2\n" in out
+    with pytest.raises(ValueError, match="each:M:T"):
+        main(["equalized", "--A", "[[2.0]]", "--C", "[[1.0]]", "--language", "each:x:3"])
