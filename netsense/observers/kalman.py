@@ -26,13 +26,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["KFIO", "KalmanFilter", "StateSpaceModel"]
 
 MatrixLike = np.ndarray | Callable[[int], np.ndarray]
 
 
-def check_matrix(name: str, M, shape: tuple[int | None, ...]) -> np.ndarray:
+def check_matrix(name: str, M: ArrayLike, shape: tuple[int | None, ...]) -> np.ndarray:
     """Return ``M`` as a finite float array of ``shape`` (``None`` = any) or raise."""
     M = np.asarray(M, dtype=float)
     bad = M.ndim != len(shape) or any(
@@ -198,7 +199,8 @@ class KalmanFilter:
         self.t = 0
 
     # ------------------------------------------------------------------ set-up
-    def reset(self, x0, P0, batch: int | None = None, t0: int = 0) -> None:
+    def reset(self, x0: ArrayLike, P0: ArrayLike, batch: int | None = None,
+              t0: int = 0) -> None:
         """Set ``x_{t0|t0}`` and ``P_{t0|t0}``.
 
         Parameters
@@ -283,7 +285,8 @@ class KalmanFilter:
             raise ValueError("u contains NaN or infinite entries")
         return u
 
-    def step(self, y, gamma=None, u=None) -> np.ndarray:
+    def step(self, y: ArrayLike, gamma: ArrayLike | None = None,
+             u: ArrayLike | None = None) -> np.ndarray:
         """Advance from ``t`` to ``t + 1`` with ``y_{t+1}`` and ``gamma_{t+1}``.
 
         Parameters
@@ -320,7 +323,7 @@ class KalmanFilter:
         self.t = t + 1
         return self.x
 
-    def update(self, y, gamma=None) -> np.ndarray:
+    def update(self, y: ArrayLike, gamma: ArrayLike | None = None) -> np.ndarray:
         """Measurement update at the current time ``t`` only (e.g. to use ``y_0``).
 
         The plain Kalman update with ``C_t``, ``R_t`` on the rows that use the measurement
@@ -349,7 +352,7 @@ class KalmanFilter:
         P_upd = _sym(bmm(bmm(I_KC, P_pred), _T(I_KC)) + bmm(bmm(K, R), _T(K)))
         return x_upd, P_upd
 
-    def run(self, ys, gammas=None) -> np.ndarray:
+    def run(self, ys: ArrayLike, gammas: ArrayLike | None = None) -> np.ndarray:
         """Filter a whole sequence; returns estimates ``x_{t|t}`` of shape (T + 1, batch, n).
 
         ``ys`` is ``(T, batch, m)`` holding ``y_{t0+1}, ..., y_{t0+T}``; ``gammas`` is

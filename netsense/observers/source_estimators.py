@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from netsense.design import ObserverDesign
 from netsense.observers.kalman import KFIO, StateSpaceModel, check_matrix
@@ -53,7 +54,8 @@ class KFIOSource(SourceEstimator):
         Initial error covariance of the observers' initial estimate, in ``x`` coordinates.
     """
 
-    def __init__(self, Q, R, W=None, P0=1.0) -> None:
+    def __init__(self, Q: ArrayLike, R: float | Sequence[ArrayLike],
+                 W: ArrayLike | None = None, P0: ArrayLike = 1.0) -> None:
         self.Q, self.R, self.W, self.P0 = Q, R, W, P0
 
     # ------------------------------------------------------------------ set-up
@@ -136,9 +138,12 @@ class RSEIOSource(KFIOSource):
         Derivatives of each agent's ``C_i``; mapped to ``(dC_j T)`` restricted to block j.
     """
 
-    def __init__(self, Q, R, mu: float, W=None, P0=1.0, dA=None, dW=None,
-                 dC: Sequence | None = None) -> None:
+    def __init__(self, Q: ArrayLike, R: float | Sequence[ArrayLike], mu: float,
+                 W: ArrayLike | None = None, P0: ArrayLike = 1.0, dA: ArrayLike | None = None,
+                 dW: ArrayLike | None = None, dC: Sequence[ArrayLike] | None = None) -> None:
         super().__init__(Q, R, W, P0)
+        if isinstance(mu, bool) or not np.isscalar(mu) or not 0.0 < float(mu) <= 1.0:
+            raise ValueError(f"mu must lie in (0, 1], got {mu!r}")
         self.mu, self.dA, self.dW, self.dC = mu, dA, dW, dC
 
     def _filter(self, j: int, model: StateSpaceModel, design: ObserverDesign) -> RSEIO:
