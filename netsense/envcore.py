@@ -430,7 +430,7 @@ class BatchedCore:
         self.valid = self.buf_valid[b, p]
         self.nbr_ext = self.buf_nbr_ext[b, p]
         self.slot_id = self.buf_slot_id[b, p]
-        y = self.x @ self._C_flat_T
+        y = self.x[:, None, :] @ self._C_flat_T  # stacked (B, 1, .): same rounding for any B
         y = y.reshape(self.B, self.N, self.r)
         if self._has_mnoise:
             y += self.buf_v[b, p]
@@ -515,9 +515,11 @@ class BatchedCore:
         Z_next = kernels.propagate(Z_sel, Z, self.A_diag, self.A_lower)
         Z_next += self.source.correction(int(self.k[0]), Z, self.y, self.y_arrived)
         # --- plant, eq. (1) ----------------------------------------------------------------
-        x_next = self.x @ self.model.plant.A.T
+        # (B, 1, n) stacks: every member is computed exactly as in a B = 1 run
+        x_next = (self.x[:, None, :] @ self.model.plant.A.T)[:, 0]
         if self._has_pnoise:
-            x_next += np.take_along_axis(self.buf_w, self.ptr[:, None, None], 1)[:, 0] @ self.W.T
+            w = np.take_along_axis(self.buf_w, self.ptr[:, None, None], 1)  # (B, 1, p)
+            x_next += (w @ self.W.T)[:, 0]
         self.x, self.Z, self.tau = x_next, Z_next, tau_next
         self.k += 1
         self.transmit = tx_next
@@ -528,7 +530,7 @@ class BatchedCore:
         self._load_step()
         # --- rewards -------------------------------------------------------------------------
         rw = self.model.reward
-        z_true = x_next @ self.T  # T orthogonal: ||x_hat - x|| = ||z_hat - z||
+        z_true = (x_next[:, None, :] @ self.T)[:, 0]  # T orthogonal: ||x_hat - x|| = ||z_hat - z||
         d = Z_next - z_true[:, None, :]
         err = np.sqrt(np.einsum("bin,bin->bi", d, d))
         scale = np.maximum(np.sqrt(np.einsum("bn,bn->b", x_next, x_next)), rw.error_floor)

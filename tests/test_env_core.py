@@ -1,0 +1,231 @@
+"""The batched core (issue 8, items 1 and 6): B = 1 is the env, members are independent
+single runs, masks and partial resets behave per member, bad actions never corrupt state."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import netsense as ns
+from netsense.envcore import BatchedCore, ObsLayout
+from netsense.policies import make_policy
+from netsense.scenarios import build_model, load, make, with_overrides
+
+
+def model_of(sid, **over):
+    return build_model(with_overrides(load(sid), **over))
+
+
+def env_arrays(env, obs, infos=None):
+    a = env.possible_agents
+    return (np.stack([obs[x]["observation"] for x in a]),
+            np.stack([obs[x]["action_mask"] for x in a]))
+
+
+@pytest.mark.parametrize("sid", ["link_failures-v0", "random_structured_n20_N10-v0"])
+def test_each_member_equals_an_independent_single_run(sid):
+    B, seed = 3, 11
+    model = model_of(sid, horizon=70)  # crosses a CHUNK boundary (64)
+    core = BatchedCore(model, B)
+    obs, mask = core.reset(seed)
+    envs = [make(sid, horizon=70) for _ in range(B)]
+    singles = [e.reset(seed=seed + b)[0] for b, e in enumerate(envs)]
+    pol = make_policy("random", core, seed=0, p_transmit=0.7)
+    for _ in range(70):
+        for b, e in enumerate(envs):
+            o, m = env_arrays(e, singles[b])
+            np.testing.assert_array_equal(obs[b], o)
+            np.testing.assert_array_equal(mask[b], m)
+        act = pol.act(obs, mask)
+        out = core.step(act)
+        obs, mask = out.obs, out.action_mask
+        for b, e in enumerate(envs):
+            singles[b], rew, term, trunc, _ = e.step(
+                {a: act[b, i] for i, a in enumerate(e.possible_agents)})
+            np.testing.assert_array_equal(out.reward[b], [rew[a] for a in e.possible_agents])
+            np.testing.assert_array_equal(core.Z[b], e.core.Z[0])
+            np.testing.assert_array_equal(core.tau[b], e.core.tau[0])
+            assert bool(out.truncated[b]) == trunc[e.possible_agents[0]]
+    assert out.truncated.all()
+
+
+def test_batched_freshness_policy_matches_batched_freshness_observer():
+    """The batched core under the freshness policy equals FreshnessObserver(batch_size=B)
+    fed each member's own graphs and measurements."""
+    B = 4
+    model = model_of("random_structured_n20_N10-v0", horizon=40)
+    core = BatchedCore(model, B)
+    obs, mask = core.reset(0)
+    observer = ns.FreshnessObserver(model.design, batch_size=B)
+    pol = make_policy("freshness", core)
+    for _ in range(40):
+        observer.step(core.y.copy(), core.adjacency.copy(), arrived=core.y_arrived.copy())
+        out = core.step(pol.act(obs, mask))
+        obs, mask = out.obs, out.action_mask
+        np.testing.assert_array_equal(core.Z, observer.z_estimates)
+        np.testing.assert_array_equal(core.tau, observer.indices)
+    # members really differ (independent graph and noise realisations)
+    assert not np.array_equal(core.Z[0], core.Z[1])
+
+
+def test_masks_follow_graph_and_transmit_flags_per_member():
+    """Oracle: slot d of agent i is its d-th smallest in-neighbour in G[k]; the slot is
+    allowed iff that neighbour transmitted (no drops in this scenario)."""
+    B = 3
+    model = model_of("message_cost-v0")
+    core = BatchedCore(model, B)
+    obs, mask = core.reset(5)
+    rng = np.random.default_rng(1)
+    N, D = core.N, core.D
+    for _ in range(12):
+        act = np.zeros((B, N, N + 1), dtype=np.int64)
+        act[..., N] = rng.random((B, N)) < 0.5
+        out = core.step(act)
+        for b in range(B):
+            for i in range(N):
+                nb = np.flatnonzero(core.adjacency[b, i])
+                m = out.action_mask[b, i, : N * (D + 2)].reshape(N, D + 2)
+                for d in range(D):
+                    want = d < nb.size and bool(act[b, nb[d], N])
+                    for j in range(N):
+                        assert m[j, d + 1] == (want and j != i)
+                assert m[:, 0].all() and m[i, 1:].sum() == 0
+                assert (m[np.arange(N) != i, D + 1] == 1).all()
+            np.testing.assert_array_equal(out.action_mask[b, :, -2:], 1)
+
+
+def test_partial_reset_restarts_only_selected_members():
+    B = 3
+    model = model_of("link_failures-v0", horizon=30)
+    core = BatchedCore(model, B)
+    obs, mask = core.reset([10, 20, 30])
+    pol = make_policy("freshness", core)
+    ref = [make("link_failures-v0", horizon=30) for _ in range(B)]
+    ref_obs = [r.reset(seed=s)[0] for r, s in zip(ref, [10, 20, 30], strict=True)]
+    for k in range(25):
+        if k == 9:  # restart member 1 with a new seed; the others keep going
+            obs, mask = core.reset([0, 99, 0], members=np.array([False, True, False]))
+            ref_obs[1] = ref[1].reset(seed=99)[0]
+            assert core.k.tolist() == [9, 0, 9]
+        act = pol.act(obs, mask)
+        out = core.step(act)
+        obs, mask = out.obs, out.action_mask
+        for b in range(B):
+            ref_obs[b], *_ = ref[b].step({a: act[b, i]
+                                          for i, a in enumerate(ref[b].possible_agents)})
+            o, m = env_arrays(ref[b], ref_obs[b])
+            np.testing.assert_array_equal(obs[b], o)
+            np.testing.assert_array_equal(mask[b], m)
+    assert core.k.tolist() == [25, 16, 25]
+
+
+def test_masked_and_out_of_range_actions_raise_before_any_state_change():
+    model = model_of("fig1_scalar-v0")
+    core = BatchedCore(model, 2)
+    obs, mask = core.reset(0)
+    N, D = core.N, core.D
+    snap = (core.Z.copy(), core.tau.copy(), core.x.copy(), core.k.copy())
+    bad = np.zeros((2, N, N + 1), dtype=np.int64)
+    bad[1, 0, 0] = 1  # source 0 may not touch its own substate
+    with pytest.raises(ValueError, match="own substate"):
+        core.step(bad)
+    bad[:] = 0
+    bad[0, 2, 1] = D + 2  # out of range
+    with pytest.raises(ValueError, match="outside"):
+        core.step(bad)
+    bad[:] = 0
+    bad[0, 1, N] = 2  # transmit must be 0/1
+    with pytest.raises(ValueError, match="transmit"):
+        core.step(bad)
+    with pytest.raises(ValueError, match="shape"):
+        core.step(np.zeros((1, N, N + 1), dtype=np.int64))
+    for before, after in zip(snap, (core.Z, core.tau, core.x, core.k), strict=True):
+        np.testing.assert_array_equal(before, after)
+    # a slot whose neighbour did not transmit: nobody transmits at k = 0 here
+    silent = model_of("fig1_scalar-v0", initial_transmit=False)
+    core = BatchedCore(silent, 2)
+    core.reset(0)
+    assert core.valid[0, 2].all() and not core.msg.any()
+    bad[:] = 0
+    bad[0, 2, 0] = 1
+    with pytest.raises(ValueError, match="no message"):
+        core.step(bad)
+    keep = BatchedCore(silent, 2, invalid_actions="keep")
+    keep.reset(0)
+    ref = BatchedCore(silent, 2)
+    ref.reset(0)
+    keep.step(bad)
+    ref.step(np.zeros_like(bad))  # the masked choice became 0 = keep
+    np.testing.assert_array_equal(keep.Z, ref.Z)
+    np.testing.assert_array_equal(keep.tau, ref.tau)
+    assert keep.last_invalid.sum() == 1
+
+
+def test_env_rejects_missing_agents_and_bad_names():
+    env = make("fig1_scalar-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="missing"):
+        env.step({"sensor_0": np.zeros(4, int)})
+    with pytest.raises(ValueError, match="unknown agent"):
+        env.observation_space("sensor_9")
+
+
+def test_observation_layout_decodes_the_core_state():
+    env = make("random_structured_n20_N10-v0", horizon=10)
+    pol = make_policy("freshness", env)
+    obs, infos = env.reset(seed=2)
+    for _ in range(4):
+        obs, *_, infos = env.step(pol.act_dict(env, obs, infos))
+    c, L = env.core, env.layout
+    assert isinstance(L, ObsLayout) and L.size == env.observation_space("sensor_0")[
+        "observation"].shape[0]
+    o = np.stack([obs[a]["observation"] for a in env.possible_agents])
+    H = c.horizon
+    np.testing.assert_allclose(o[:, L.time], 4 / H)
+    tau = c.tau[0]
+    np.testing.assert_array_equal(o[:, L.own_omega], tau < 0)
+    np.testing.assert_allclose(o[:, L.own_age], np.where(tau < 0, 0, tau) / H, rtol=1e-6)
+    z = c.Z[0]
+    np.testing.assert_allclose(o[:, L.z_lognorm][:, 0], np.log1p(np.linalg.norm(z, axis=1)),
+                               rtol=1e-5)
+    nrm = np.linalg.norm(z, axis=1, keepdims=True)
+    np.testing.assert_allclose(o[:, L.z_dir], z / np.where(nrm > 0, nrm, 1), atol=1e-6)
+    for i in range(c.N):
+        nb = np.flatnonzero(c.adjacency[0, i])
+        for d in range(c.D):
+            sid_ = o[i, L.slot_id][d]
+            ages = o[i, L.slot_age].reshape(c.D, c.N)[d]
+            if d < nb.size:
+                assert sid_ == pytest.approx((nb[d] + 1) / c.N)
+                t = tau[nb[d]]
+                np.testing.assert_allclose(ages, np.where(t < 0, 0, t) / H, rtol=1e-6)
+            else:
+                assert sid_ == 0 and o[i, L.slot_arrived][d] == 0
+
+
+def test_reward_is_negative_normalised_error_minus_message_cost():
+    env = make("message_cost-v0", horizon=5)
+    obs, infos = env.reset(seed=0)
+    N = env.core.N
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        tx = rng.random(N) < 0.5
+        acts = {a: np.r_[np.zeros(N, int), int(tx[i])] for i, a in enumerate(env.agents)}
+        obs, rew, term, trunc, infos = env.step(acts)
+        c = env.core
+        x = c.x[0]
+        e = np.linalg.norm(c.estimates[0] - x, axis=1) / max(np.linalg.norm(x), 1e-3)
+        e = np.minimum(e, 5.0)
+        want = -(0.5 * e + 0.5 * e.mean()) - 0.05 * tx
+        np.testing.assert_allclose([rew[a] for a in env.possible_agents], want, rtol=1e-9)
+    assert all(trunc.values()) and not env.agents
+
+
+def test_divergence_limit_terminates():
+    env = make("fig1_scalar-v0", divergence_limit=0.5, horizon=30)
+    obs, infos = env.reset(seed=0)
+    N = env.core.N
+    obs, rew, term, trunc, infos = env.step({a: np.r_[np.zeros(N, int), 0]
+                                             for a in env.agents})
+    # open loop from zero estimates: nodes 1 and 2 keep error ||x|| / ||x|| = 1 > 0.5
+    assert all(term.values()) and not any(trunc.values()) and env.agents == []
