@@ -53,18 +53,21 @@ def test_scalar_delayed_word_closed_form():
         design(P, mu1=0.1)
 
 
-def random_problem(seed=0, s0=True):
+def random_problem(seed=0, s0=True, ltv=False):
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(2, 2))
     A *= 1.1 / max(abs(np.linalg.eigvals(A)))
+    if ltv:  # A_k differs at every step of the horizon
+        A = A + 0.1 * rng.normal(size=(3, 2, 2))
     return EqualizedProblem(
         A=A, C=rng.normal(size=(1, 2)), W=0.5 * np.eye(2), V=[[1.0]], eta_w=0.02, eta_v=0.05,
         L=0.2 * rng.normal(size=(2, 1)), s0=np.array([0.01, -0.02]) if s0 else None,
         language=DelayLanguage.each_delayed_at_most(1, 3))
 
 
-def test_levels_match_eq9_error_map():
-    P = random_problem()
+@pytest.mark.parametrize("ltv", [False, True])
+def test_levels_match_eq9_error_map(ltv):
+    P = random_problem(ltv=ltv)
     d = design(P, mu1=1.0)
     c_viol, d_viol = constraint_violation(d)
     assert c_viol == 0.0 and d_viol == 0.0
@@ -184,3 +187,17 @@ def test_cli_command_reports_hand_checked_levels(capsys):
     assert "mu_1 = 0.25 " in out and "max mu_2 = 0.5 " in out and "J = 2\n" in out
     with pytest.raises(ValueError, match="each:M:T"):
         main(["equalized", "--A", "[[2.0]]", "--C", "[[1.0]]", "--language", "each:x:3"])
+
+
+def test_estimator_pickles_mid_window_and_continues_identically():
+    import pickle
+
+    P = random_problem()
+    est = EqualizedRecoveryEstimator(design(P, mu1=1.0))
+    est.reset(np.zeros(2))
+    est.step({})
+    twin = pickle.loads(pickle.dumps(est))
+    for e in (est, twin):
+        e.step({0: [0.3], 1: [0.1]})
+    np.testing.assert_array_equal(est.estimate, twin.estimate)
+    assert est.bound == twin.bound and est.node == twin.node

@@ -401,8 +401,28 @@ def solve_fixed(problem: EqualizedProblem, mu1: float, *, template: LPTemplate |
                 feasibility_only: bool = False) -> EqualizedDesign | None:
     """Proposition 1 with ``L``, ``s0`` and ``mu_1`` fixed: one LP; ``None`` if infeasible.
 
-    With ``feasibility_only`` the objective is dropped (a cheaper phase-1 solve); the
-    returned gains are then feasible but their levels are not minimised.
+    Parameters
+    ----------
+    problem : EqualizedProblem
+    mu1 : float
+        Equalized recovery level ``mu_1 >= 0`` (Definition 1).
+    template : LPTemplate, optional
+        A prebuilt :func:`build_lp` of ``problem`` (reused across ``mu_1`` values).
+    feasibility_only : bool
+        Drop the objective (a cheaper phase-1 solve); the returned gains are feasible but
+        their intermediate levels are not minimised.
+
+    Returns
+    -------
+    EqualizedDesign or None
+        ``None`` when HiGHS proves the LP infeasible.
+
+    Raises
+    ------
+    ValueError
+        If ``mu1`` is negative or not finite.
+    RuntimeError
+        If HiGHS stops for another reason than optimality or infeasibility.
     """
     if not np.isfinite(mu1) or mu1 < 0:
         raise ValueError(f"mu1 must be a finite number >= 0, got {mu1!r}")
@@ -437,6 +457,28 @@ def design(problem: EqualizedProblem, mu1: float | None = None, *, rtol: float =
     and refined by golden-section search next to the best grid point.
     ``stats["search"]`` records ``(mu1, feasible, cost)`` of every solve (cost ``nan`` for
     phase-1 solves).
+
+    Parameters
+    ----------
+    problem : EqualizedProblem
+    mu1 : float, optional
+        Fixed recovery level (fixed-``mu_1`` mode); default: searched.
+    rtol : float
+        Relative width of the final bisection bracket of the smallest feasible ``mu_1``.
+    span, grid : float, int
+        The cost is sampled at ``grid`` geometric points of ``[mu_min, span mu_min]``.
+    refine : int
+        Golden-section iterations around the best grid point.
+
+    Returns
+    -------
+    EqualizedDesign
+        The design with the lowest cost ``J = mu_1 + sum_{k, alpha} mu^alpha_{2,k}``.
+
+    Raises
+    ------
+    ValueError
+        If the fixed ``mu1`` is infeasible, or no ``mu_1 <= 1e8`` is.
     """
     tpl = build_lp(problem)
     trace: list[tuple[float, bool, float]] = []
