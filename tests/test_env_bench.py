@@ -1,0 +1,29 @@
+"""Smoke runs of the env benchmark (CLI and experiment script)."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+from pathlib import Path
+
+from netsense.cli import main
+
+
+def test_cli_bench_env_smoke(tmp_path, capsys):
+    out = tmp_path / "b.csv"
+    assert main(["bench", "env", "--N", "3", "--seconds", "0.02", "--no-mpe",
+                 "--csv", str(out)]) == 0
+    rows = list(csv.DictReader(open(out)))
+    assert [r["N"] for r in rows] == ["3"]
+    assert float(rows[0]["agent_steps_per_s"]) == 3 * float(rows[0]["env_steps_per_s"]) > 0
+    assert "agent-steps/s" in capsys.readouterr().out
+
+
+def test_experiment_script_smoke(tmp_path):
+    path = Path(__file__).parents[1] / "experiments" / "bench_env.py"
+    spec = importlib.util.spec_from_file_location("bench_env", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "s.csv"
+    assert mod.main(["--smoke", "--csv", str(out)]) == 0
+    assert out.exists()
