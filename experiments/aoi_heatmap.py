@@ -83,8 +83,7 @@ def plot_heatmaps(taus: dict[str, np.ndarray], path: Path) -> None:
         K1, N, _ = tau.shape
         img = np.transpose(tau, (2, 1, 0)).reshape(N * N, K1).astype(float)  # rows (j, i)
         img = np.ma.masked_less(img, 0)
-        cmap = plt.get_cmap("viridis").copy()
-        cmap.set_bad("0.8")
+        cmap = plt.get_cmap("viridis").with_extremes(bad="0.8")
         im = ax.imshow(img, aspect="auto", interpolation="nearest", cmap=cmap, vmin=0,
                        vmax=vmax)
         for j in range(1, N):

@@ -59,6 +59,13 @@ def make_process(model: str, N: int, radius: float):
     return RandomWalk(N, radius=radius, step_std=0.02)
 
 
+def _nanmean(values, reduce=np.mean) -> float:
+    """``reduce`` over the finite values, NaN when there are none (no warning)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(reduce(v)) if v.size else float("nan")
+
+
 # %%
 def run_point(model: str, radius: float, N: int, n: int, seeds: int, steps: int, period: int,
               noise: float, seed: int) -> dict:
@@ -96,7 +103,7 @@ def run_point(model: str, radius: float, N: int, n: int, seeds: int, steps: int,
             "first_failure": -1 if rep.holds else rep.first_failure[0],
             "trigger": int(trig[b]),
             "worst_index_after_half": int(worst_index(tr.tau[:, b:b + 1], half)[0]),
-            "aoi_mean_after_half": float(np.nanmean(st["mean"][0][off])),
+            "aoi_mean_after_half": _nanmean(st["mean"][0][off]),
             "steps_to_eps_deadbeat": int(to_eps[b]),
             "converged": bool(to_eps[b] >= 0),
             "noisy_error_last_half": float(worst_err[half:, b].mean()),
@@ -126,7 +133,7 @@ def summarize(rows: list[dict]) -> list[dict]:
             "converged_frac": float(np.mean([r["converged"] for r in rs])),
             "steps_to_eps_median": float(np.median(conv)) if conv else float("nan"),
             "worst_index_median": float(np.median([r["worst_index_after_half"] for r in rs])),
-            "aoi_mean_median": float(np.nanmedian([r["aoi_mean_after_half"] for r in rs])),
+            "aoi_mean_median": _nanmean([r["aoi_mean_after_half"] for r in rs], np.median),
             "noisy_error_median": float(np.median([r["noisy_error_last_half"] for r in rs])),
         })
     return out

@@ -61,3 +61,61 @@ def test_sweep_rejects_bad_arguments():
         main(["sweep", "--family", "ring", "--N", "3", "--T", "5", "--quiet"])
     with pytest.raises(ValueError, match="workers"):
         run_sweep([SweepCase("ring", 3)], workers=0)
+
+
+# ----------------------------------------------------------------------------- experiments
+def _experiment(name):
+    """Import ``experiments/<name>.py`` under its own name (so worker processes can too)."""
+    import importlib
+    import sys
+    from pathlib import Path
+
+    folder = str(Path(__file__).resolve().parents[1] / "experiments")
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    return importlib.import_module(name)
+
+
+def test_topology_sweep_experiment_smoke(tmp_path):
+    res = _experiment("topology_sweep").main(
+        ["--N", "4", "--n", "3", "--seeds", "2", "--max-steps", "120", "--workers", "1",
+         "--out", str(tmp_path)])
+    assert res["violations"] == []
+    for f in ("topology_sweep.csv", "topology_summary.csv", "topology_tightness.csv",
+              "topology_bounds.png", "topology_ratio_vs_N.png", "topology_markov.png"):
+        assert (tmp_path / f).stat().st_size > 0
+    ring = [s for s in res["summary"] if s["family"] == "ring" and s["T"] == 1]
+    assert ring[0]["trigger_ratio"] == 1.0  # static ring: Lemma 3 attained
+
+
+def test_aoi_experiment_smoke(tmp_path):
+    res = _experiment("aoi_heatmap").main(["--N", "4", "--n", "3", "--seeds", "2", "--steps",
+                                           "40", "--workers", "1", "--out", str(tmp_path)])
+    ring = next(r for r in res["rows"] if r["family"] == "ring")
+    # ring with T = 4 = N (token ring): worst index 2N - 2 = 6
+    assert ring["aoi_max"] == 6
+    assert (tmp_path / "aoi_heatmap.png").stat().st_size > 0
+
+
+def test_mobility_experiment_smoke(tmp_path):
+    res = _experiment("mobility").main(
+        ["--N", "4", "--n", "3", "--seeds", "2", "--steps", "60", "--radii", "0.0,2.0",
+         "--timeline-radius", "2.0", "--workers", "1", "--out", str(tmp_path)])
+    by_r = {(s["model"], s["radius"]): s for s in res["summary"]}
+    assert by_r[("random_walk", 0.0)]["windows_connected"] == 0.0
+    assert by_r[("random_walk", 0.0)]["converged_frac"] == 0.0  # nobody ever talks
+    assert by_r[("random_waypoint", 2.0)]["assumption1_frac"] == 1.0
+    assert by_r[("random_waypoint", 2.0)]["converged_frac"] == 1.0
+    assert (tmp_path / "mobility_timeline.png").stat().st_size > 0
+
+
+def test_faults_experiment_smoke(tmp_path):
+    res = _experiment("faults").main(["--seeds", "4", "--steps", "80", "--at", "30",
+                                      "--workers", "1", "--out", str(tmp_path)])
+    rows = {(r["scenario"], r["observer"]): r for r in res["rows"]}
+    fresh = {s: r for (s, o), r in rows.items() if o == "freshness"}
+    assert fresh["none"]["ratio_to_fault_free"] == 1.0
+    stuck = next(s for s in fresh if s.startswith("stuck_sensor"))
+    assert fresh[stuck]["ratio_to_fault_free"] > 10
+    assert fresh["liar_agent_0_claim0"]["captured_fraction"] > 0
+    assert (tmp_path / "faults_errors.png").stat().st_size > 0
