@@ -65,7 +65,7 @@ validated before any state changes. Missing agents' actions raise ``ValueError``
 
 Observation Space
 -----------------
-A flat float32 vector (``obs_dim = 2 + r + 2N + n + 1 + 2D + 2DN``), with ``H`` the horizon:
+A flat float32 vector (``obs_dim = 3 + r + n + 2N + 2D + 2DN``), with ``H`` the horizon:
 
 ==================  =========  ===========================================================
 field               size       content
