@@ -204,7 +204,7 @@ def test_sb3_vec_env_trains_maskable_ppo_and_serves_masks():
     masks = get_action_masks(venv)
     assert masks.shape == (6, venv.venv.batched.mask_size) and masks.dtype == bool
     act = np.zeros((6, 4), dtype=np.int64)
-    for k in range(5):
+    for _ in range(5):
         obs, rew, dones, infos = venv.step(act)
         assert rew.dtype == np.float32 and len(infos) == 6
     assert dones.all()
