@@ -88,6 +88,11 @@ PAIRS = (("trigger", "bound_lemma3", "Lemma 3: all indices triggered", "(N-1)T")
           "(2N-1)(N-1)T (onset of eq. (33))"))
 
 
+#: Column stems of the tightness table: measured / bound for each entry of PAIRS.
+RATIO_NAMES = ("trigger_over_lemma3", "worst_over_lemma5", "deadbeat_over_corollary1",
+               "rho_steps_over_theorem1_onset")
+
+
 def plot_bounds(summary: list[dict], path: Path) -> None:
     plt = _plt()
     fig, axes = plt.subplots(2, 2, figsize=(11, 9))
@@ -173,11 +178,11 @@ def tightness_table(summary: list[dict]) -> list[dict]:
         if not ss:
             continue
         row = {"family": fam, "cases": len(ss)}
-        for q, _b, _t, label in PAIRS:
+        for (q, _b, _t, _label), name in zip(PAIRS, RATIO_NAMES, strict=True):
             r = np.array([s[f"{q}_ratio"] for s in ss], dtype=float)
             r = r[np.isfinite(r)]
-            row[f"{q}/{label.split(' ')[0]}_median"] = float(np.median(r)) if r.size else np.nan
-            row[f"{q}/{label.split(' ')[0]}_max"] = float(np.max(r)) if r.size else np.nan
+            row[f"{name}_median"] = float(np.median(r)) if r.size else np.nan
+            row[f"{name}_max"] = float(np.max(r)) if r.size else np.nan
         row["assumption1_frac"] = float(np.mean([s["assumption1_frac"] for s in ss]))
         row["messages_per_step_median"] = float(np.median([s["messages_per_step"] for s in ss]))
         out.append(row)
@@ -218,8 +223,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     print(f"{'family':<14}{'Lemma 3':>16}{'Lemma 5':>16}{'Corollary 1':>16}"
           f"{'rho / onset':>16}{'A1 held':>9}{'msgs':>7}")
     for r in table:
-        vals = [v for k, v in r.items() if k.endswith("_median") or k.endswith("_max")]
-        cells = [f"{vals[2 * i]:.2f} [{vals[2 * i + 1]:.2f}]" for i in range(4)]
+        cells = [f"{r[f'{m}_median']:.2f} [{r[f'{m}_max']:.2f}]" for m in RATIO_NAMES]
         print(f"{r['family']:<14}" + "".join(f"{c:>16}" for c in cells)
               + f"{r['assumption1_frac']:>9.2f}{r['messages_per_step_median']:>7.1f}")
     violations = [r for r in rows if r["assumption1"] and (
