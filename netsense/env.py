@@ -243,19 +243,20 @@ class NetSenseEnv(ParallelEnv):
         if self.action_mask_in == "observation":
             o = {a: {"observation": obs[i], "action_mask": mask[i]}
                  for i, a in enumerate(agents)}
-            infos = {a: {} for a in agents}
         else:
             o = dict(zip(agents, obs, strict=True))
-            infos = {a: {"action_mask": mask[i]} for i, a in enumerate(agents)}
-        if extra is not None:
-            err, tx = extra["error"], extra["transmitted"]
+        if extra is None:
+            infos = {a: {} for a in agents}
+        else:
             inv = extra.get("invalid")
+            infos = {a: {"error": e, "transmitted": t} for a, e, t in
+                     zip(agents, extra["error"], extra["transmitted"], strict=True)}
+            if inv is not None:
+                for a, v in zip(agents, inv, strict=True):
+                    infos[a]["invalid_actions"] = v
+        if self.action_mask_in == "info":
             for i, a in enumerate(agents):
-                d = infos[a]
-                d["error"] = err[i]
-                d["transmitted"] = tx[i]
-                if inv is not None:
-                    d["invalid_actions"] = inv[i]
+                infos[a]["action_mask"] = mask[i]
         return o, infos
 
     def actions_to_array(self, actions: dict[str, Any]) -> np.ndarray:

@@ -247,6 +247,16 @@ class BatchedCore:
     y : (B, N, r_max)      measurements ``y[k]``; ``y_arrived`` (B, N).
     transmit : (B, N)      who transmitted at ``k``; ``msg`` (B, N, D): message arrived.
     errors : (B, N)        normalised errors of the last step (0 after reset).
+
+    Notes
+    -----
+    Randomness: member ``b`` owns independent generators (spawned from its seed) for the
+    initial state, the graph process, process and measurement noise, measurement and
+    message arrivals; graphs, noise and arrivals are drawn ``CHUNK`` steps at a time per
+    member, so a member's realisation depends only on its seed, never on ``B``.
+    The source estimator is one object for the whole batch: it receives member 0's time
+    index and is reset only by full resets (the default :class:`LuenbergerSource` is
+    stateless and time-invariant, so this is exact for it).
     """
 
     def __init__(self, model: CoreModel, batch_size: int = 1, *,
