@@ -28,7 +28,7 @@ def test_smoke_run_writes_outputs_and_keeps_bounds(tmp_path):
     mod = load()
     s = mod.main(["--runs", "3", "--horizon", "3", "--max-delay", "1", "--pattern", "110",
                   "--periods", "2", "--out", str(tmp_path)])
-    assert s["bound_violations"] == 0
+    assert s["bound_violations"] == 0 and s["switching_bound_violations"] == 0
     assert s["C_violation"] == 0 and s["D_violation"] == 0
     assert s["feasibility_monotone_on_trace"]
     for name in ("summary.csv", "errors.csv", "search.csv", ".png"):
