@@ -217,3 +217,15 @@ def test_fault_scenarios_freshness_beats_consensus(scenario_id):
         assert len(errs) == 100
         mean_err[name] = float(np.mean(errs[50:]))
     assert mean_err["freshness"] < 0.01 < mean_err["uniform"]
+
+
+def test_faults_change_nothing_before_their_start():
+    design, g, x0 = _setup(RoundRobinRing(N, 2), steps=30)
+    healthy, _ = run_with_faults(PLANT, design, g, x0)
+    at = 12
+    for fault in (LyingAgent(0, claim=0, at=at), LinkDrops(BernoulliArrivals(0.3), at=at),
+                  CrashedAgents(1, at=at), StuckSensor(2, at=at, mode="stale", delay=2)):
+        tr, _ = run_with_faults(PLANT, design, g, x0, [fault], rng=4)
+        assert np.array_equal(tr.tau[:at + 1], healthy.tau[:at + 1]), fault
+        assert np.allclose(tr.sub_errors[:at + 1], healthy.sub_errors[:at + 1]), fault
+        assert not np.array_equal(tr.tau, healthy.tau) or isinstance(fault, StuckSensor)
