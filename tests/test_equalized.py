@@ -4,6 +4,8 @@ Oracles: closed-form optimal levels of scalar plants worked out by hand, and the
 of eq. (9) built from the Appendix's stacked matrices (independent of the tree-based LP).
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -103,13 +105,17 @@ def corner_run(est, P, rng, sampler, steps, mu1):
         modes.add(est.mode)
         zs[k] = P.C[0] @ x + P.eta_v * rng.choice([-1.0, 1.0], size=P.p)
         x_hat = est.step({i: zs[i] for i in sampler.next()})
-        x = P.A[0] @ x + P.W[0] @ (P.eta_w * rng.choice([-1.0, 1.0], size=P.W.shape[2]))
+        t = k % P.T  # periodic reuse: the plant's A_t repeats with the horizon
+        x = P.A[t] @ x + P.W[t] @ (P.eta_w * rng.choice([-1.0, 1.0], size=P.W.shape[2]))
         worst = max(worst, np.abs(x - x_hat).max() - est.bound)
     return worst, modes
 
 
-def test_bounds_hold_in_simulation_periodic():
-    P = random_problem()
+@pytest.mark.parametrize("ltv, missing", [(False, False), (True, False), (False, True)])
+def test_bounds_hold_in_simulation_periodic(ltv, missing):
+    P = random_problem(ltv=ltv)
+    if missing:  # at most one of the three measurements never arrives
+        P = dataclasses.replace(P, language=DelayLanguage.at_most_missing(1, 3))
     d = design(P)
     est = EqualizedRecoveryEstimator(d)
     rng = np.random.default_rng(1)
