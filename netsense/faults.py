@@ -43,7 +43,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -52,6 +52,10 @@ from netsense.observers.freshness import FreshnessObserver
 from netsense.sensing.arrivals import ArrivalModel
 from netsense.sensing.drops import arrival_from_dict
 from netsense.topology import StepHook, Trajectory, run_observer
+
+if TYPE_CHECKING:  # pragma: no cover
+    from netsense.design import ObserverDesign
+    from netsense.systems import Plant
 
 __all__ = [
     "CrashedAgents", "Fault", "LinkDrops", "LyingAgent", "LyingConsensusObserver",
@@ -286,7 +290,7 @@ class LyingFreshnessObserver(FreshnessObserver):
     fabricated claim), or ``-1`` (its own initial guess).
     """
 
-    def __init__(self, design, *, liar: LyingAgent, **kwargs) -> None:
+    def __init__(self, design: ObserverDesign, *, liar: LyingAgent, **kwargs) -> None:
         if not isinstance(liar, LyingAgent):
             raise ValueError(f"liar must be a LyingAgent, got {type(liar).__name__}")
         liar.check(design.num_agents)
@@ -327,7 +331,7 @@ class LyingConsensusObserver(ConsensusObserver):
     """Consensus baseline with the same misbehaving agents: from ``liar.at`` on they do not
     mix in their neighbours' estimates (open loop, eq. (12)) but keep sending theirs."""
 
-    def __init__(self, design, *, liar: LyingAgent, **kwargs) -> None:
+    def __init__(self, design: ObserverDesign, *, liar: LyingAgent, **kwargs) -> None:
         if not isinstance(liar, LyingAgent):
             raise ValueError(f"liar must be a LyingAgent, got {type(liar).__name__}")
         liar.check(design.num_agents)
@@ -367,10 +371,11 @@ def compose_hooks(hooks: Sequence[StepHook]) -> StepHook:
     return h
 
 
-def run_with_faults(plant, design, graphs: np.ndarray, x0: np.ndarray,
-                    faults: Sequence[Fault] = (), *, observer: str = "freshness",
-                    rng: np.random.Generator | int | None = 0,
-                    x0_hat: np.ndarray | None = None) -> tuple[Trajectory, Any]:
+def run_with_faults(plant: Plant, design: ObserverDesign, graphs: np.ndarray,
+                    x0: np.ndarray, faults: Sequence[Fault] = (), *,
+                    observer: str = "freshness", rng: np.random.Generator | int | None = 0,
+                    x0_hat: np.ndarray | None = None
+                    ) -> tuple[Trajectory, FreshnessObserver | ConsensusObserver]:
     """Run a batched observer under ``faults``; returns the trajectory and the observer.
 
     Parameters

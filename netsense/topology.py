@@ -32,6 +32,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -46,6 +47,10 @@ from netsense.graphs import (
     smallest_period,
 )
 from netsense.kernels import OMEGA
+
+if TYPE_CHECKING:  # pragma: no cover
+    from netsense.observers.base import DistributedObserver
+    from netsense.systems import Plant
 
 __all__ = [
     "FAMILIES", "RoundRobinRing", "StaticGraph", "SweepCase", "Trajectory", "aoi_stats",
@@ -286,7 +291,8 @@ StepHook = Callable[[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.nda
                     tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
-def run_observer(observer, plant, graphs: np.ndarray, x0: np.ndarray, *,
+def run_observer(observer: DistributedObserver, plant: Plant, graphs: np.ndarray,
+                 x0: np.ndarray, *,
                  x0_hat: np.ndarray | None = None, hook: StepHook | None = None,
                  alive: np.ndarray | None = None,
                  noise_rng: np.random.Generator | None = None) -> Trajectory:
