@@ -334,6 +334,9 @@ def build_model(sc: Scenario) -> CoreModel:
 
     plant = build_plant(sc)
     graphs = build_graphs(sc)
+    if graphs.num_nodes != plant.num_agents:
+        raise _err(sc.source, "graph.num_nodes", f"the graph has {graphs.num_nodes} nodes but "
+                   f"the plant has {plant.num_agents} agents")
     d = sc.design
     try:
         design = design_observer(plant, rho=float(d.get("rho", 0.5)),

@@ -86,6 +86,8 @@ def test_overrides_merge_sections_and_reject_unknown_keys():
      "p_fail=0.1\np_recover=0.2\n", "graph"),
     ("horizon = 5\n[plant]\nkind='fig1_scalar'\n[graph]\nkind='fig1'\n[noise]\n"
      "measurement = {kind='gaussian'}\n", "noise.measurement"),
+    ("horizon = 5\n[plant]\nkind='fig1_scalar'\n[graph]\nkind='gossip'\nnum_nodes=4\n",
+     "graph.num_nodes"),
 ])
 def test_malformed_file_names_file_and_field(tmp_path, text, field):
     path = tmp_path / "broken_v0.toml"
