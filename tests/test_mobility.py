@@ -89,3 +89,29 @@ def test_validation_names_the_field():
     with pytest.raises(ValueError, match="kind"):
         mobility_from_dict({"kind": "levy", "num_nodes": 3})
     assert isinstance(RandomWalk(3).initial_state(np.random.default_rng(0)), MobilityState)
+
+
+def test_mobility_graphs_drive_the_environment():
+    # The env's CoreModel takes any GraphProcess: moving agents plug in without a scenario
+    # key (see the README for what the scenario schema still lacks).
+    import dataclasses
+
+    from pettingzoo.test import parallel_api_test
+
+    from netsense.env import NetSenseEnv
+    from netsense.policies import make_policy
+    from netsense.scenarios import build_model, load
+
+    base = build_model(load("fault_message_drops-v0"))
+    model = dataclasses.replace(base, graphs=RandomWaypoint(8, radius=0.4))
+    parallel_api_test(NetSenseEnv(model), num_cycles=20)
+    env = NetSenseEnv(model)
+    obs, infos = env.reset(seed=0)
+    policy = make_policy("freshness", env)
+    errs = []
+    while env.agents:
+        obs, _, _, _, infos = env.step(policy.act_dict(env, obs, infos))
+        errs.append(max(infos[a]["error"] for a in infos))
+    assert len(errs) == base.horizon and np.mean(errs[-20:]) < 1e-3
+    clone = pickle.loads(pickle.dumps(env))
+    assert clone is not env
