@@ -343,6 +343,7 @@ class BatchedCore:
         idx = np.flatnonzero(sel)
         for b in idx:
             self._reset_member(b, seeds[b])
+        self._refill(idx)
         if sel.all():  # partial resets leave the (batch-wide) source estimator alone
             self.source.reset(self.model.design, B, self.rngs[0]["source"])
         self._seeded = True
@@ -398,7 +399,6 @@ class BatchedCore:
         if not self._msg_always:
             self.msg_sampler[b] = m.message_arrivals.sampler(
                 rngs["message_arrivals"], (self.N, self.N))
-        self._refill(np.array([b]))
 
     def _refill(self, members: np.ndarray) -> None:
         """Draw the next ``CHUNK`` steps of graphs, noise and arrivals for ``members``."""
