@@ -77,18 +77,16 @@ class HeldWLS:
     def update(self, reported: np.ndarray, y_rep: np.ndarray) -> np.ndarray:
         rows = self.sens.row_mask(reported)
         self.y[:, rows] = y_rep
-        self.seen |= reported
-        if self.seen.all():
-            if self.K is None:                         # fixed operator once all reported
-                Aw = self.A * self.w[:, None]
-                self.K = np.linalg.lstsq(Aw, np.diag(self.w), rcond=1e-9)[0]
-            return (self.y - self.b) @ self.K.T
-        r = self.sens.row_mask(self.seen)
-        Aw = self.A[r] * self.w[r, None]
-        rhs = ((self.y[:, r] - self.b[r]) * self.w[r]).T
-        # minimum-norm fit while unobservable; singular values below 1e-9 of the largest
-        # are treated as zero (the default cutoff keeps round-off directions and blows up)
-        return np.linalg.lstsq(Aw, rhs, rcond=1e-9)[0].T
+        if self.K is None or (reported & ~self.seen).any():
+            # the weighted pseudo-inverse only changes when a meter reports for the first
+            # time; singular values below 1e-9 of the largest are cut (minimum-norm fit
+            # while some meters are still silent; the default cutoff keeps round-off
+            # directions and blows up)
+            self.seen |= reported
+            self.r = self.sens.row_mask(self.seen)
+            Aw = self.A[self.r] * self.w[self.r, None]
+            self.K = np.linalg.pinv(Aw, rcond=1e-9) * self.w[self.r]
+        return (self.y[:, self.r] - self.b[self.r]) @ self.K.T
 
 
 # %% simulation

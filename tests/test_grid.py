@@ -101,7 +101,7 @@ def test_meter_rows_follow_eqs_42_43():
     assert S.shape == (24, 60) and np.all(S.sum(axis=1) == 1)
 
 
-def test_metering_gives_assumption_1_with_tau_one_hour_and_noise_levels():
+def test_metering_gives_assumption_1_with_tau_the_period_and_noise_levels():
     f = _two_bus()
     lp = linearize(f)
     gm = GridMetering(lp, meters=((0, SMART_METER),), phases=(5,),
@@ -110,8 +110,10 @@ def test_metering_gives_assumption_1_with_tau_one_hour_and_noise_levels():
     A, Q, b = sens.stack([True])
     # S Phi for a smart meter contains the identity on p and q (Lemma 3)
     np.testing.assert_allclose(A[3:], np.eye(6))
-    pattern = gm.arrivals.schedule(2 * 3600)
-    assert oa.smallest_tau([sens.stack(m)[0] for m in pattern]) == 3600
+    fast = GridMetering(lp, meters=((0, PMU),), phases=(7,), x_ref=f.nominal_injections())
+    pattern = fast.arrivals.schedule(150)
+    fs = fast.sensing()
+    assert oa.smallest_tau([fs.stack(m)[0] for m in pattern]) == PMU.period_s
     rng = np.random.default_rng(0)
     x = np.tile(f.nominal_injections(), (20000, 1))
     y = gm.measure(x, [0], rng)
