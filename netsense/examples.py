@@ -44,7 +44,7 @@ def run_fig2(steps: int = 30, a: float = 2.0, seed: int = 0) -> dict[str, np.nda
     graphs = fig1_graphs().sequence(steps)
     out: dict[str, np.ndarray] = {"k": np.arange(steps + 1)}
     xs = [x0]
-    for k in range(steps):
+    for _ in range(steps):
         xs.append(plant.step(xs[-1]))
     out["x"] = np.array(xs)[:, 0]
     for label, (cls, kwargs) in FIG2_OBSERVERS.items():
