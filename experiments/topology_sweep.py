@@ -8,7 +8,8 @@ is run on ``--seeds`` graph sequences per case (:func:`netsense.topology.run_cas
 we measure
 
 * the step after which every freshness index is triggered vs Lemma 3's ``(N-1)T``;
-* the worst index from ``(N-1)T`` on vs Lemma 5's ``2(N-1)T``;
+* the worst index from ``(N-1)T`` on vs Lemma 5's ``2(N-1)T`` and vs ``NT - 1``, the
+  sharper bound the proof of Lemma 3 gives (:func:`netsense.topology.sharp_index_bound`);
 * steps to a relative error ``eps`` with deadbeat gains vs Corollary 1's ``n + 2N(N-1)T``
   and with Theorem 1's rho-ordered gains vs the onset ``(2N-1)(N-1)T`` of eq. (33);
 * messages per step (links carrying a message) and adoptions per step.
@@ -79,24 +80,26 @@ def _plt():
     return plt
 
 
-PAIRS = (("trigger", "bound_lemma3", "Lemma 3: all indices triggered", "(N-1)T"),
+PAIRS = (("trigger", "bound_lemma3", "Lemma 3: all indices triggered", "(N-1)T",
+          "trigger_ratio"),
          ("worst_after_lemma3", "bound_lemma5", "Lemma 5: worst index after (N-1)T",
-          "2(N-1)T"),
+          "2(N-1)T", "worst_after_lemma3_ratio"),
+         ("worst_after_lemma3", "bound_index_sharp", "Sharpened: worst index after (N-1)T",
+          "NT - 1", "worst_sharp_ratio"),
          ("steps_deadbeat", "bound_corollary1", "Corollary 1: deadbeat, steps to eps",
-          "n + 2N(N-1)T"),
+          "n + 2N(N-1)T", "steps_deadbeat_ratio"),
          ("steps_rho", "onset_theorem1", "Theorem 1 gains: steps to eps",
-          "(2N-1)(N-1)T (onset of eq. (33))"))
-
+          "(2N-1)(N-1)T (onset of eq. (33))", "steps_rho_ratio"))
 
 #: Column stems of the tightness table: measured / bound for each entry of PAIRS.
-RATIO_NAMES = ("trigger_over_lemma3", "worst_over_lemma5", "deadbeat_over_corollary1",
-               "rho_steps_over_theorem1_onset")
+RATIO_NAMES = ("trigger_over_lemma3", "worst_over_lemma5", "worst_over_NT_minus_1",
+               "deadbeat_over_corollary1", "rho_steps_over_theorem1_onset")
 
 
 def plot_bounds(summary: list[dict], path: Path) -> None:
     plt = _plt()
-    fig, axes = plt.subplots(2, 2, figsize=(11, 9))
-    for ax, (q, b, title, label) in zip(axes.ravel(), PAIRS, strict=True):
+    fig, axes = plt.subplots(2, 3, figsize=(16, 9))
+    for ax, (q, b, title, label, _r) in zip(axes.ravel(), PAIRS, strict=False):
         lo, hi = np.inf, 0.0
         for fam, (color, marker) in FAMILY_STYLE.items():
             ss = [s for s in summary if s["family"] == fam and np.isfinite(s[f"{q}_median"])
@@ -118,6 +121,16 @@ def plot_bounds(summary: list[dict], path: Path) -> None:
         ax.set_title(title)
         ax.grid(alpha=0.3, which="both")
     axes[0, 0].legend(fontsize=8)
+    ax = axes[1, 2]
+    for fam, (color, marker) in FAMILY_STYLE.items():
+        Ns = sorted({s["N"] for s in summary if s["family"] == fam})
+        m = [np.median([s["messages_per_step"] for s in summary
+                        if s["family"] == fam and s["N"] == N]) for N in Ns]
+        ax.plot(Ns, m, marker=marker, color=color, label=fam)
+    ax.set_xlabel("N")
+    ax.set_ylabel("messages per step (median over cases)")
+    ax.set_title("Communication cost")
+    ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -125,11 +138,11 @@ def plot_bounds(summary: list[dict], path: Path) -> None:
 
 def plot_ratio_vs_N(summary: list[dict], path: Path) -> None:
     plt = _plt()
-    fig, axes = plt.subplots(1, 4, figsize=(16, 4))
-    for ax, (q, _b, title, label) in zip(axes, PAIRS, strict=True):
+    fig, axes = plt.subplots(1, 5, figsize=(20, 4))
+    for ax, (_q, _b, title, label, ratio) in zip(axes, PAIRS, strict=True):
         for fam, (color, marker) in FAMILY_STYLE.items():
             Ns = sorted({s["N"] for s in summary if s["family"] == fam})
-            r = [np.nanmax([s[f"{q}_ratio"] for s in summary
+            r = [np.nanmax([s[ratio] for s in summary
                             if s["family"] == fam and s["N"] == N] + [np.nan]) for N in Ns]
             ax.plot(Ns, r, marker=marker, color=color, label=fam)
         ax.axhline(1.0, color="k", lw=1)
@@ -178,8 +191,8 @@ def tightness_table(summary: list[dict]) -> list[dict]:
         if not ss:
             continue
         row = {"family": fam, "cases": len(ss)}
-        for (q, _b, _t, _label), name in zip(PAIRS, RATIO_NAMES, strict=True):
-            r = np.array([s[f"{q}_ratio"] for s in ss], dtype=float)
+        for (_q, _b, _t, _label, ratio), name in zip(PAIRS, RATIO_NAMES, strict=True):
+            r = np.array([s[ratio] for s in ss], dtype=float)
             r = r[np.isfinite(r)]
             row[f"{name}_median"] = float(np.median(r)) if r.size else np.nan
             row[f"{name}_max"] = float(np.max(r)) if r.size else np.nan
@@ -220,7 +233,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
     print(f"\n{len(cases)} cases x {args.seeds} seeds in {seconds:.1f} s")
     print("measured / bound, median [max] over cases (per case: median over seeds)")
-    print(f"{'family':<14}{'Lemma 3':>16}{'Lemma 5':>16}{'Corollary 1':>16}"
+    print(f"{'family':<14}{'Lemma 3':>16}{'Lemma 5':>16}{'NT - 1':>16}{'Corollary 1':>16}"
           f"{'rho / onset':>16}{'A1 held':>9}{'msgs':>7}")
     for r in table:
         cells = [f"{r[f'{m}_median']:.2f} [{r[f'{m}_max']:.2f}]" for m in RATIO_NAMES]
@@ -228,6 +241,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
               + f"{r['assumption1_frac']:>9.2f}{r['messages_per_step_median']:>7.1f}")
     violations = [r for r in rows if r["assumption1"] and (
         r["trigger"] > r["bound_lemma3"] or r["worst_after_lemma3"] > r["bound_lemma5"]
+        or r["worst_after_lemma3"] > r["bound_index_sharp"]
         or r["steps_deadbeat"] > r["bound_corollary1"] or r["trigger"] < 0)]
     print(f"bound violations among runs satisfying Assumption 1: {len(violations)}")
     return {"rows": rows, "summary": summary, "table": table, "violations": violations,

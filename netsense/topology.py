@@ -8,7 +8,8 @@ on a given switching pattern, and how this module answers it:
   (:func:`lemma3_bound`).
 * **How stale does information get afterwards?** :func:`worst_index` -- the largest
   index from a given step on; Lemma 5 bounds it by ``2(N-1)T`` after ``(N-1)T``
-  (:func:`lemma5_bound`).
+  (:func:`lemma5_bound`); the same argument as Lemma 3's gives ``NT - 1``
+  (:func:`sharp_index_bound`), which some graphs attain.
 * **How long until the estimates are good?** :func:`steps_to_tolerance` on
   :func:`relative_error`; with deadbeat gains Corollary 1 bounds the time to an exact
   estimate by ``n + 2N(N-1)T`` (:func:`corollary1_bound`); with Theorem 1's rho-ordered
@@ -55,6 +56,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "FAMILIES", "RoundRobinRing", "StaticGraph", "SweepCase", "Trajectory", "aoi_stats",
     "corollary1_bound", "guaranteed_period", "lemma3_bound", "lemma5_bound",
+    "sharp_index_bound",
     "make_graph_process",
     "relative_error", "ring_with_chords", "run_case", "run_observer", "run_sweep",
     "sample_graphs", "summarize", "write_csv",
@@ -72,6 +74,24 @@ def lemma3_bound(N: int, T: int | float) -> float:
 def lemma5_bound(N: int, T: int | float) -> float:
     """``2(N-1)T``: bound on every index for ``k >= (N-1)T`` (Lemma 5, eq. (17))."""
     return 2 * (N - 1) * T
+
+
+def sharp_index_bound(N: int, T: int | float) -> float:
+    """``NT - 1``: a sharper form of Lemma 5 (not in the paper), attained by some graphs.
+
+    For ``k >= (N-1)T`` every index satisfies ``tau_i^{(j)}[k] <= NT - 1``. Proof: call
+    information about substate ``j`` *as fresh as* ``t`` when its index is at most
+    ``k - t``. Freshness as fresh as ``t`` never gets lost (an agent adopts only strictly
+    fresher data, eqs. (9), (13), and otherwise ages by one, eq. (14)), and an agent with
+    an in-neighbour holding it gets it (the rule adopts the freshest neighbour, or keeps
+    something at least as fresh). In window ``[wT, (w+1)T)`` the union graph is strongly
+    connected, so some edge leaves the set of agents holding data as fresh as ``wT``: the
+    set grows by one agent per window, and by ``(w + N - 1)T`` all ``N`` agents hold data
+    as fresh as ``wT``. For ``k`` in window ``w'``, take ``w = w' - N + 1``: the age is at
+    most ``k - (w' - N + 1)T <= NT - 1``. The static directed ring (``T = 1``: ``N - 1``)
+    and random jointly connected graphs (e.g. ``N = 4``, ``T = 4``: 15) attain it.
+    """
+    return N * T - 1
 
 
 def corollary1_bound(n: int, N: int, T: int | float) -> float:
@@ -565,6 +585,7 @@ def run_case(case: SweepCase) -> list[dict]:
             "T_used": T_used, "assumption1": holds,
             "trigger": int(trig[b]), "bound_lemma3": lemma3_bound(case.N, T_used),
             "worst_index": int(worst[b]), "bound_lemma5": lemma5_bound(case.N, T_used),
+            "bound_index_sharp": sharp_index_bound(case.N, T_used),
             "worst_after_lemma3": int(worst_index(tr.tau[:, b:b + 1], start3)[0])
             if 0 <= start3 <= case.steps else -1,
             "steps_deadbeat": int(steps_db[b]),
@@ -620,22 +641,25 @@ def summarize(rows: list[dict]) -> list[dict]:
     for r in rows:
         groups.setdefault(tuple(r[k] for k in keys), []).append(r)
     out = []
-    pairs = (("trigger", "bound_lemma3"), ("worst_after_lemma3", "bound_lemma5"),
-             ("steps_deadbeat", "bound_corollary1"), ("steps_rho", "onset_theorem1"))
+    pairs = (("trigger", "bound_lemma3", "trigger_ratio"),
+             ("worst_after_lemma3", "bound_lemma5", "worst_after_lemma3_ratio"),
+             ("worst_after_lemma3", "bound_index_sharp", "worst_sharp_ratio"),
+             ("steps_deadbeat", "bound_corollary1", "steps_deadbeat_ratio"),
+             ("steps_rho", "onset_theorem1", "steps_rho_ratio"))
     for key, rs in groups.items():
         s = dict(zip(keys, key, strict=True))
         s["runs"] = len(rs)
         s["assumption1_frac"] = float(np.mean([r["assumption1"] for r in rs]))
         s["T_used_median"] = float(np.nanmedian([r["T_used"] for r in rs])) \
             if any(np.isfinite(r["T_used"]) for r in rs) else float("nan")
-        for q, b in pairs:
+        for q, b, ratio in pairs:
             ok = [r for r in rs if r[q] >= 0 and r["assumption1"]]
             vals = [r[q] for r in rs if r[q] >= 0]
             s[f"{q}_median"] = float(np.median(vals)) if vals else float("nan")
             s[f"{q}_max"] = float(np.max(vals)) if vals else float("nan")
             s[f"{b}_median"] = float(np.nanmedian([r[b] for r in rs])) \
                 if any(np.isfinite(r[b]) for r in rs) else float("nan")
-            s[f"{q}_ratio"] = float(np.median([r[q] / r[b] for r in ok])) if ok \
+            s[ratio] = float(np.median([r[q] / r[b] for r in ok])) if ok \
                 else float("nan")
             s[f"{q}_not_reached"] = sum(r[q] < 0 for r in rs)
         for q in ("worst_index", "messages_per_step", "adoptions_per_step", "aoi_mean",

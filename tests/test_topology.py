@@ -22,6 +22,7 @@ from netsense.topology import (
     run_case,
     run_observer,
     sample_graphs,
+    sharp_index_bound,
     steps_to_tolerance,
     trigger_step,
     window_connectivity,
@@ -162,6 +163,21 @@ def test_bounds_hold_on_random_jsc():
         assert r["worst_after_lemma3"] <= lemma5_bound(N, T)
         assert 0 <= r["steps_deadbeat"] <= corollary1_bound(n, N, T)
         assert r["steps_rho"] > 0
+
+
+@pytest.mark.parametrize("family,N,T,param", [("random_jsc", 4, 4, 0.0), ("random_jsc", 5, 2, 0.2),
+                                              ("gossip", 5, 1, 0.0), ("markov", 6, 1, 0.4),
+                                              ("mobility", 5, 1, 0.3)])
+def test_sharpened_index_bound_holds_and_is_attained(family, N, T, param):
+    # NT - 1 (sharp_index_bound's proof) after (N-1)T, with the guaranteed or measured T.
+    rows = run_case(SweepCase(family, N, T, n=3, param=param, seeds=8, steps=200, seed=1))
+    held = [r for r in rows if r["assumption1"]]
+    assert held
+    for r in held:
+        assert r["worst_after_lemma3"] <= sharp_index_bound(N, r["T_used"]) < r["bound_lemma5"]
+    if (family, N, T) == ("random_jsc", 4, 4):
+        assert max(r["worst_after_lemma3"] for r in rows) == 15  # = NT - 1: attained
+    assert sharp_index_bound(4, 1) == 3  # the static ring's worst index (test above)
 
 
 def test_deadbeat_error_vanishes_by_corollary1_on_static_graph():
