@@ -514,7 +514,11 @@ def _fmt(mean: float, std: float, digits: int = 3) -> str:
 
 
 def markdown_table(rows: Sequence[dict], eps: float = 1e-2) -> str:
-    """The aggregated table in Markdown (mean ± std over seeds)."""
+    """The aggregated table in Markdown (mean ± std over seeds).
+
+    ``steps to eps`` averages the seeds that reached ``eps`` (their count in brackets);
+    AoI cells read ``ω`` when no index ever became finite, ``–`` when not tracked.
+    """
     head = ("| scenario | policy | mean rel. error | final rel. error | "
             f"steps to {eps:g} (reached) | msgs / agent-step | mean AoI | max AoI | reward |")
     lines = [head, "|" + "---|" * 9]
@@ -525,11 +529,18 @@ def markdown_table(rows: Sequence[dict], eps: float = 1e-2) -> str:
                  _fmt(r["mean_rel_error_mean"], r["mean_rel_error_std"]),
                  _fmt(r["final_rel_error_mean"], r["final_rel_error_std"]), reach,
                  _fmt(r["msgs_per_agent_step_mean"], r["msgs_per_agent_step_std"]),
-                 _fmt(r["aoi_mean_mean"], r["aoi_mean_std"]),
-                 _fmt(r["aoi_max_mean"], r["aoi_max_std"]),
+                 _aoi(r, "aoi_mean"), _aoi(r, "aoi_max"),
                  _fmt(r["reward_mean"], r["reward_std"])]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _aoi(row: dict, key: str) -> str:
+    """AoI cell; ``ω`` when every index stayed omega (e.g. uniform averages, whose age is
+    the stalest contributor's), ``–`` when AoI is not tracked (the oracle)."""
+    if not math.isfinite(row[f"{key}_mean"]) and row.get("aoi_omega_frac_mean", 0) == 1:
+        return "ω"
+    return _fmt(row[f"{key}_mean"], row[f"{key}_std"])
 
 
 def plot_errors(results: Sequence[dict], path: str | Path, scenario: str) -> Path:
