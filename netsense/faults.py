@@ -286,8 +286,8 @@ class LyingFreshnessObserver(FreshnessObserver):
     A liar with ``claim = 0`` therefore never adopts anything and runs open loop.
 
     ``origin[b, i, j]`` records where agent ``i``'s current information about substate
-    ``j`` comes from: the source ``j``, a liar (when it was adopted from a liar's
-    fabricated claim), or ``-1`` (its own initial guess).
+    ``j`` comes from: the source ``j``, a liar (everything a lying agent sends counts as
+    originating at the liar), or ``-1`` (its own initial guess).
     """
 
     def __init__(self, design: ObserverDesign, *, liar: LyingAgent, **kwargs) -> None:
