@@ -63,9 +63,12 @@ from netsense.sensing.arrivals import AlwaysArrive, ArrivalModel
 from netsense.sensing.noise import NoNoise
 from netsense.systems import Plant
 
-#: Steps of graphs, noise and arrivals drawn at once per member (fixed: it is part of how a
-#: seed maps to a realisation).
+#: Most steps of graphs, noise and arrivals drawn at once per member.
 CHUNK = 64
+#: Memory budget of those pre-drawn chunks (bytes, whole batch); large batches use shorter
+#: chunks. A realisation never depends on the chunk length (every stream is drawn
+#: sequentially; ``tests/test_env_core.py`` checks this on every scenario).
+CHUNK_BUDGET = 48 * 2**20
 _STREAMS = ("init", "graph", "process_noise", "measurement_noise", "measurement_arrivals",
             "message_arrivals", "source")
 INVALID_ACTIONS = ("raise", "keep")
@@ -252,15 +255,17 @@ class BatchedCore:
     -----
     Randomness: member ``b`` owns independent generators (spawned from its seed) for the
     initial state, the graph process, process and measurement noise, measurement and
-    message arrivals; graphs, noise and arrivals are drawn ``CHUNK`` steps at a time per
-    member, so a member's realisation depends only on its seed, never on ``B``.
+    message arrivals; graphs, noise and arrivals are drawn ``chunk`` steps at a time per
+    member (``chunk`` defaults to :data:`CHUNK`, less when the batch would exceed
+    :data:`CHUNK_BUDGET`), and a member's realisation depends only on its seed, never on
+    ``B`` or ``chunk``.
     The source estimator is one object for the whole batch: it receives member 0's time
     index and is reset only by full resets (the default :class:`LuenbergerSource` is
     stateless and time-invariant, so this is exact for it).
     """
 
     def __init__(self, model: CoreModel, batch_size: int = 1, *,
-                 invalid_actions: str = "raise") -> None:
+                 invalid_actions: str = "raise", chunk: int | None = None) -> None:
         if not isinstance(model, CoreModel):
             raise ValueError("model must be a CoreModel (see netsense.scenarios)")
         if int(batch_size) < 1:
@@ -268,6 +273,8 @@ class BatchedCore:
         if invalid_actions not in INVALID_ACTIONS:
             raise ValueError(f"invalid_actions must be one of {INVALID_ACTIONS}, "
                              f"got {invalid_actions!r}")
+        if chunk is not None and int(chunk) < 1:
+            raise ValueError(f"chunk must be >= 1, got {chunk}")
         self.model = model
         self.B = int(batch_size)
         self.invalid_actions = invalid_actions
@@ -295,6 +302,12 @@ class BatchedCore:
         self._msg_always = isinstance(model.message_arrivals, AlwaysArrive)
         self._arangeN = np.arange(self.N)
         B, N, D = self.B, self.N, self.D
+        self._slot_dtype = np.int16 if N < 2**15 else np.int64
+        per_step = (N * D * np.dtype(self._slot_dtype).itemsize
+                    + 8 * N * self.r * self._has_mnoise + 8 * self.W.shape[1] * self._has_pnoise
+                    + N * (not self._meas_always) + N * N * (not self._msg_always))
+        self.chunk = int(chunk) if chunk is not None else int(
+            np.clip(CHUNK_BUDGET // max(B * per_step, 1), 1, CHUNK))
         self._bI = np.arange(B)[:, None, None]
         self._iI = self._arangeN[None, :, None]
         self._bJ = np.arange(B)[:, None, None, None]
@@ -351,7 +364,7 @@ class BatchedCore:
         return self.observe()
 
     def _alloc(self) -> None:
-        B, N, n, r, K = self.B, self.N, self.n, self.r, CHUNK
+        B, N, n, r, K = self.B, self.N, self.n, self.r, self.chunk
         self.rngs: list[dict[str, np.random.Generator]] = [{} for _ in range(B)]
         self.graph_state: list = [None] * B
         self.meas_sampler: list = [None] * B
@@ -365,12 +378,18 @@ class BatchedCore:
         self.raw_errors = np.zeros((B, N))
         self.messages_sent = np.zeros(B, dtype=np.int64)
         self.ptr = np.zeros(B, dtype=np.int64)
-        self.buf_adj = np.zeros((B, K, N, N), dtype=bool)
-        self.buf_nbr = np.zeros((B, K, N, self.D), dtype=np.int64)
-        self.buf_valid = np.zeros((B, K, N, self.D), dtype=bool)
-        self.buf_nbr_ext = np.zeros((B, K, N, self.D + 2), dtype=np.int64)
-        self.buf_safe = np.zeros((B, K, N, self.D), dtype=np.int64)
-        self.buf_slot_id = np.zeros((B, K, N, self.D))
+        # graphs are kept as their slot tables only (-1 = empty slot; G[k] is rebuilt
+        # from them on demand), in the smallest integer type that holds a node id
+        self.buf_nbr = np.zeros((B, K, N, self.D), dtype=self._slot_dtype)
+        # small batches also keep the per-step slot tables the update needs (saves ~10 us
+        # per step at B = 1); large ones derive them per step from buf_nbr
+        self._tables = B * K * N * (self.D + 2) * 8 * 4 <= CHUNK_BUDGET // 4
+        if self._tables:
+            self.buf_tables = {"nbr": np.zeros((B, K, N, self.D), dtype=np.int64),
+                               "valid": np.zeros((B, K, N, self.D), dtype=bool),
+                               "safe": np.zeros((B, K, N, self.D), dtype=np.int64),
+                               "nbr_ext": np.zeros((B, K, N, self.D + 2), dtype=np.int64),
+                               "slot_id": np.zeros((B, K, N, self.D))}
         self._ones_BN = np.ones((B, N), dtype=bool)
         self.buf_w = np.zeros((B, K, self.W.shape[1])) if self._has_pnoise else None
         self.buf_v = np.zeros((B, K, N, r)) if self._has_mnoise else None
@@ -401,12 +420,12 @@ class BatchedCore:
                 rngs["message_arrivals"], (self.N, self.N))
 
     def _refill(self, members: np.ndarray) -> None:
-        """Draw the next ``CHUNK`` steps of graphs, noise and arrivals for ``members``."""
-        m, K = self.model, CHUNK
+        """Draw the next ``chunk`` steps of graphs, noise and arrivals for ``members``."""
+        m, K = self.model, self.chunk
         for b in members:
             rngs = self.rngs[b]
             adj, self.graph_state[b] = m.graphs.sample(rngs["graph"], K, self.graph_state[b])
-            self.buf_adj[b] = adj
+            self.buf_nbr[b] = in_neighbor_slots(adj, self.D)[0]
             if self._has_pnoise:
                 self.buf_w[b] = m.plant.process_noise.sample(
                     rngs["process_noise"], (K, self.W.shape[1]))
@@ -419,34 +438,40 @@ class BatchedCore:
             if not self._msg_always:
                 s = self.msg_sampler[b]
                 self.buf_msg[b] = np.stack([s.next() for _ in range(K)])
-        nbr, valid = in_neighbor_slots(self.buf_adj[members], self.D)
-        self.buf_nbr[members] = nbr
-        self.buf_valid[members] = valid
-        # choice -> source agent: 0 and D + 1 map to the agent itself, d + 1 to slot d
-        own = np.broadcast_to(self._arangeN[None, None, :, None], nbr.shape[:3] + (1,))
-        self.buf_nbr_ext[members] = np.concatenate(
-            [own, np.where(valid, nbr, own), own], axis=3)
-        self.buf_safe[members] = np.where(valid, nbr, 0)
-        self.buf_slot_id[members] = np.where(valid, (nbr + 1) / self.N, 0.0)
+        if self._tables:
+            t = self._slot_tables(self.buf_nbr[members].astype(np.int64))
+            for name, arr in t.items():
+                self.buf_tables[name][members] = arr
         self.ptr[members] = 0
+
+    def _slot_tables(self, nbr: np.ndarray) -> dict[str, np.ndarray]:
+        """Per-step tables of the slots ``nbr (..., N, D)`` (``-1`` = empty slot)."""
+        valid = nbr >= 0
+        own = np.broadcast_to(self._arangeN[:, None], nbr.shape[:-1] + (1,))
+        # choice -> source agent: 0 and D + 1 map to the agent itself, d + 1 to slot d
+        return {"nbr": nbr, "valid": valid, "safe": np.maximum(nbr, 0),
+                "nbr_ext": np.concatenate([own, np.where(valid, nbr, own), own], -1),
+                "slot_id": (nbr + 1) / self.N}  # 0 for an empty slot
 
     def _load_step(self) -> None:
         """Expose the current step's graph, measurements and messages (from the chunk)."""
         # all members at the same chunk position (the usual case): basic slicing, no copies
         same = self.ptr.min() == self.ptr.max()
         b, p = (slice(None), int(self.ptr[0])) if same else (self._bidx, self.ptr)
-        self.adjacency = self.buf_adj[b, p]
-        self.nbr = self.buf_nbr[b, p]
-        self.valid = self.buf_valid[b, p]
-        self.nbr_ext = self.buf_nbr_ext[b, p]
-        self.slot_id = self.buf_slot_id[b, p]
+        if self._tables:
+            t = {name: arr[b, p] for name, arr in self.buf_tables.items()}
+        else:
+            t = self._slot_tables(self.buf_nbr[b, p].astype(np.int64))
+        self.nbr, self.valid, self.nbr_ext, self.slot_id = (
+            t["nbr"], t["valid"], t["nbr_ext"], t["slot_id"])
+        safe = t["safe"]
+        self._adjacency = None
         y = self.x[:, None, :] @ self._C_flat_T  # stacked (B, 1, .): same rounding for any B
         y = y.reshape(self.B, self.N, self.r)
         if self._has_mnoise:
             y += self.buf_v[b, p]
         self.y = y
         self.y_arrived = self._ones_BN if self._meas_always else self.buf_meas[b, p]
-        safe = self.buf_safe[b, p]
         msg = self.valid & self.transmit[self._bI, safe]
         if not self._msg_always:
             msg &= self.buf_msg[b, p][self._bI, self._iI, safe]  # link l -> i
@@ -535,8 +560,8 @@ class BatchedCore:
         self.transmit = tx_next
         self.messages_sent += tx_next.sum(1)
         self.ptr += 1
-        if self.ptr.max() >= CHUNK:
-            self._refill(np.flatnonzero(self.ptr >= CHUNK))
+        if self.ptr.max() >= self.chunk:
+            self._refill(np.flatnonzero(self.ptr >= self.chunk))
         self._load_step()
         # --- rewards -------------------------------------------------------------------------
         rw = self.model.reward
@@ -596,6 +621,16 @@ class BatchedCore:
         return obs, self.action_mask()
 
     # ------------------------------------------------------------------ views
+    @property
+    def adjacency(self) -> np.ndarray:
+        """``G[k]`` as ``(B, N, N)`` bool (``[b, i, l]``: ``l -> i``), from the slots."""
+        if self._adjacency is None:
+            adj = np.zeros((self.B, self.N, self.N), dtype=bool)
+            b, i, d = np.nonzero(self.valid)
+            adj[b, i, self.nbr[b, i, d]] = True
+            self._adjacency = adj
+        return self._adjacency
+
     @property
     def estimates(self) -> np.ndarray:
         """Every agent's estimate of ``x``, ``(B, N, n)`` (``x_hat = T z_hat``)."""
