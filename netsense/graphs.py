@@ -400,6 +400,25 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     """
     spec = dict(spec)
     kind = spec.pop("kind", None)
+    if kind in ("random_waypoint", "random_walk"):
+        from netsense.mobility import mobility_from_dict  # lazy: mobility builds on graphs
+
+        return mobility_from_dict({"kind": kind, **spec})
+    if kind in ("round_robin_ring", "static"):
+        from netsense import topology  # lazy: topology builds on graphs
+
+        if kind == "round_robin_ring":
+            extra = set(spec) - {"num_nodes", "period", "order"}
+            if extra or "num_nodes" not in spec:
+                raise ValueError(f"graph kind 'round_robin_ring' takes num_nodes, period, order; "
+                                 f"unknown fields {sorted(extra)}")
+            return topology.RoundRobinRing(int(spec["num_nodes"]), int(spec.get("period", 1)),
+                                           str(spec.get("order", "forward")))
+        if set(spec) != {"num_nodes", "edges"}:
+            raise ValueError(f"graph kind 'static' takes exactly num_nodes and edges, "
+                             f"got {sorted(spec)}")
+        return topology.StaticGraph(as_adjacency([tuple(e) for e in spec["edges"]],
+                                                 int(spec["num_nodes"])))
     fields = {
         "periodic": {"num_nodes", "edges"},
         "random_jsc": {"num_nodes", "period", "extra_edge_prob"},
@@ -408,7 +427,8 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     }
     optional = {"random_jsc": {"extra_edge_prob"}, "gossip": {"base_edges"}}
     if kind not in fields:
-        raise ValueError(f"graph kind must be one of {sorted(fields)}, got {kind!r}")
+        known = sorted(fields) + ["random_walk", "random_waypoint", "round_robin_ring", "static"]
+        raise ValueError(f"graph kind must be one of {known}, got {kind!r}")
     missing = fields[kind] - optional.get(kind, set()) - set(spec)
     extra = set(spec) - fields[kind]
     if missing or extra:

@@ -77,3 +77,16 @@ def test_roundtrip_dict_and_pickle():
         graph_process_from_dict({"kind": "random_jsc", "num_nodes": 3})
     with pytest.raises(ValueError, match="same size"):
         PeriodicGraphs((np.zeros((2, 2)), np.zeros((3, 3))))
+
+
+def test_topology_and_mobility_kinds_from_dict():
+    from netsense.mobility import RandomWalk, RandomWaypoint
+    from netsense.topology import RoundRobinRing, StaticGraph, ring_with_chords
+
+    for proc in [RoundRobinRing(5, 2, "backward"), StaticGraph(ring_with_chords(5)),
+                 RandomWaypoint(6, radius=0.5), RandomWalk(6, radius=0.5)]:
+        again = graph_process_from_dict(proc.to_dict())
+        assert type(again) is type(proc)
+        assert (again.sequence(15, 3) == proc.sequence(15, 3)).all()
+    with pytest.raises(ValueError, match="static"):
+        graph_process_from_dict({"kind": "static", "num_nodes": 3})
