@@ -610,9 +610,11 @@ class BatchedCore:
             msg = self.msg
             obs[:, :, L.slot_arrived] = msg
             obs[:, :, L.slot_id] = self.slot_id
-            seen = kernels.neighbor_indices(tau, self.nbr, msg)  # (B, N, D, N)
-            obs[:, :, L.slot_omega] = (seen < 0).reshape(B, N, D * N)
-            obs[:, :, L.slot_age] = (np.maximum(seen, 0) / H).reshape(B, N, D * N)
+            seen = kernels.neighbor_indices(tau, self.nbr, msg).reshape(B, N, D * N)
+            # written straight into the float32 slices: no (B, N, D, N) float64 temporaries
+            np.less(seen, 0, out=obs[:, :, L.slot_omega], casting="unsafe")
+            np.maximum(seen, 0, out=seen)
+            np.divide(seen, H, out=obs[:, :, L.slot_age], casting="unsafe")
         # every field is bounded by construction (|symlog| <= 710 for finite float64);
         # only a numerical blow-up of the estimates (inf/nan) needs repair
         if not np.isfinite(obs).all():
