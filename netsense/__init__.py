@@ -6,7 +6,8 @@ Core entry points (see the README for an example):
 * :func:`design_observer` — rate-ordered (Theorem 1) or deadbeat (Corollary 1) gains;
 * :class:`FreshnessObserver` / :class:`ConsensusObserver` — the distributed observers;
 * graph processes and the Assumption 1 checker in :mod:`netsense.graphs`;
-* plants in :mod:`netsense.systems`.
+* plants in :mod:`netsense.systems`;
+* :func:`make` / :func:`list_scenarios` — the PettingZoo environment's scenario registry.
 """
 
 from netsense.decomposition import Decomposition, decompose, is_observable
@@ -23,6 +24,7 @@ from netsense.graphs import (
 )
 from netsense.kernels import OMEGA
 from netsense.observers import ConsensusObserver, FreshnessObserver
+from netsense.scenarios import list_scenarios, make
 from netsense.sensing import GaussianNoise, NoNoise, UniformNoise
 from netsense.systems import Plant, fig1_scalar, random_structured
 
@@ -33,6 +35,6 @@ __all__ = [
     "Gossip", "GraphProcess", "MarkovLinkFailures", "NoNoise", "ObserverDesign",
     "PeriodicGraphs", "Plant", "RandomJointlyConnected", "UniformNoise",
     "check_joint_connectivity", "deadbeat_gain", "decompose", "design_observer",
-    "fig1_graphs", "fig1_scalar", "is_observable", "random_structured", "rate_gain",
-    "smallest_period",
+    "fig1_graphs", "fig1_scalar", "is_observable", "list_scenarios", "make",
+    "random_structured", "rate_gain", "smallest_period",
 ]
