@@ -488,6 +488,12 @@ def _label(policy: str) -> str:
     return "learned" if policy.startswith("learned") else policy
 
 
+def _color(label: str) -> str:
+    """The same colour for a policy in every plot and panel."""
+    order = ("learned",) + SCRIPTED_POLICIES + ("kf_oracle",)
+    return f"C{order.index(label) % 10}" if label in order else "k"
+
+
 def write_csv(results: Sequence[dict], path: str | Path) -> Path:
     """One row per episode: scenario, policy, seed and every metric."""
     path = Path(path)
@@ -560,10 +566,10 @@ def plot_errors(results: Sequence[dict], path: str | Path, scenario: str) -> Pat
         c = np.maximum(c, 1e-16)  # exact zeros (deadbeat) drawn at the bottom of the log axis
         k = np.arange(c.shape[1])
         med = np.median(c, axis=0)
-        ax.plot(k, med, label=label)
+        ax.plot(k, med, label=label, color=_color(label))
         if c.shape[0] > 1:
             ax.fill_between(k, np.percentile(c, 25, axis=0), np.percentile(c, 75, axis=0),
-                            alpha=0.2)
+                            alpha=0.2, color=_color(label))
     ax.set_yscale("log")
     ax.set_xlabel("step k")
     ax.set_ylabel("relative error (mean over agents)")
@@ -593,7 +599,7 @@ def plot_reward_vs_messages(rows: Sequence[dict], path: str | Path) -> Path:
                 continue
             ax.errorbar(r["msgs_per_agent_step_mean"], r["reward_mean"],
                         xerr=r["msgs_per_agent_step_std"], yerr=r["reward_std"], fmt="o",
-                        label=r["policy"], capsize=3)
+                        label=r["policy"], capsize=3, color=_color(r["policy"]))
         ax.set_xlabel("messages per agent-step")
         ax.set_ylabel("episode reward (mean over agents)")
         ax.set_title(sc, fontsize=9)
