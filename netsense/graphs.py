@@ -93,13 +93,18 @@ def in_neighbor_slots(adj: np.ndarray, max_degree: int | None = None
     D = int(deg.max(initial=0)) if max_degree is None else int(max_degree)
     if deg.size and deg.max() > D:
         raise ValueError(f"a node has in-degree {int(deg.max())} > max_degree = {D}")
-    # Stable sort puts neighbours (True -> key 0) first, in increasing node order.
-    order = np.argsort(~adj, axis=-1, kind="stable")[..., :D]
-    valid = np.arange(D) < deg[..., None]
-    nbr = np.where(valid, order, -1)
     if D > N:
         raise ValueError(f"max_degree = {D} exceeds N - 1 = {N - 1}")
-    return nbr.astype(np.int64), valid
+    # Scatter each neighbour l of i into slot (number of neighbours of i before l): this
+    # is the ascending order an argsort would give, at the cost of one nonzero().
+    flat = adj.reshape(-1, N)
+    rows, cols = np.nonzero(flat)
+    pos = (np.cumsum(flat, axis=1) - 1)[rows, cols]
+    nbr = np.full((flat.shape[0], D), -1, dtype=np.int64)
+    nbr[rows, pos] = cols
+    nbr = nbr.reshape(adj.shape[:-1] + (D,))
+    valid = nbr >= 0
+    return nbr, valid
 
 
 # ----------------------------------------------------------------------------- processes
@@ -225,11 +230,14 @@ class RandomJointlyConnected(GraphProcess):
     def sample(self, rng, num_steps, state):
         pos, window = state
         out = np.empty((num_steps, self.num_nodes, self.num_nodes), dtype=bool)
-        for k in range(num_steps):
+        k = 0
+        while k < num_steps:  # one iteration per (partial) window
             if pos == 0:
                 window = self._window(rng)
-            out[k] = window[pos]
-            pos = (pos + 1) % self.period
+            take = min(self.period - pos, num_steps - k)
+            out[k:k + take] = window[pos:pos + take]
+            k += take
+            pos = (pos + take) % self.period
         return out, (pos, window)
 
     def to_dict(self) -> dict:
@@ -272,11 +280,13 @@ class MarkovLinkFailures(GraphProcess):
 
     def sample(self, rng, num_steps, state):
         out = np.empty((num_steps,) + self.base.shape, dtype=bool)
+        # One draw for the chunk: the same stream as one draw of base.shape per step.
+        u = rng.random((num_steps,) + self.base.shape)
+        stay_up, come_back = u >= self.p_fail, u < self.p_recover
         up = state
         for k in range(num_steps):
             out[k] = up
-            u = rng.random(self.base.shape)
-            up = np.where(up, u >= self.p_fail, u < self.p_recover) & self.base
+            up = np.where(up, stay_up[k], come_back[k]) & self.base
         return out, up
 
     def to_dict(self) -> dict:
