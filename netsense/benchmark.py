@@ -516,7 +516,9 @@ def _fmt(mean: float, std: float, digits: int = 3) -> str:
     if not math.isfinite(mean):
         return "–"
     s = f"{mean:.{digits}g}"
-    return s if not math.isfinite(std) or std == 0 else f"{s} ± {std:.2g}"
+    if not math.isfinite(std) or std <= 1e-9 * abs(mean):  # identical up to rounding
+        return s
+    return f"{s} ± {std:.2g}"
 
 
 def markdown_table(rows: Sequence[dict], eps: float = 1e-2) -> str:
