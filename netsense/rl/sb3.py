@@ -152,6 +152,12 @@ class VecActionMasks(VecEnvWrapper):
             return list(self.action_masks())
         return self.venv.env_method(method_name, *args, indices=indices, **kwargs)
 
+    def get_attr(self, attr_name: str, indices=None) -> list:
+        """``render_mode`` per slot (SuperSuit's concat env has no ``get_attr`` for it)."""
+        if attr_name == "render_mode":
+            return [getattr(self.venv, "render_mode", None)] * self.venv.num_envs
+        return self.venv.get_attr(attr_name, indices)
+
     def has_attr(self, attr_name: str) -> bool:
         """True for ``action_masks``; otherwise asks the wrapped env."""
         if attr_name == "action_masks":
