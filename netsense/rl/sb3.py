@@ -188,6 +188,9 @@ class TrainConfig:
         PPO coefficients.
     net_arch : tuple of int
         Hidden layers of the policy and value networks.
+    normalize_reward : bool
+        Scale rewards by a running estimate of the return's standard deviation
+        (SB3 ``VecNormalize(norm_obs=False)``); inference is unaffected.
     overrides : dict
         Keyword overrides for ``netsense.make``.
     """
@@ -204,6 +207,7 @@ class TrainConfig:
     gae_lambda: float = 0.95
     ent_coef: float = 0.01
     net_arch: tuple[int, ...] = (64, 64)
+    normalize_reward: bool = False
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -274,8 +278,27 @@ def _callback(total: int, progress: bool):
     return CurveCallback()
 
 
+def baseline_returns(config: TrainConfig, policies: tuple[str, ...] = ("freshness",),
+                     episodes: int = 5) -> dict[str, float]:
+    """Mean episode return per agent of scripted policies on the training scenario.
+
+    Same scenario and overrides as the training run (seeds ``10_000 + e``), so the
+    numbers sit on the training curve's axis.
+    """
+    from netsense.benchmark import rollout
+
+    out = {}
+    for name in policies:
+        rets = [np.mean(np.sum(rollout(config.scenario, name, 10_000 + e,
+                                       config.overrides).rewards, axis=0))
+                for e in range(episodes)]
+        out[name] = float(np.mean(rets))
+    return out
+
+
 def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
-          env_fn: Callable[[], Any] | None = None, verbose: int = 0) -> TrainResult:
+          env_fn: Callable[[], Any] | None = None, verbose: int = 0,
+          baselines: tuple[str, ...] = ("freshness", "uniform_consensus")) -> TrainResult:
     """Train a parameter-shared MaskablePPO policy and save it with its training curve.
 
     Writes ``policy.zip``, ``training_curve.csv``, ``training_curve.png`` and
@@ -292,6 +315,9 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
         Builds the ParallelEnv instead of ``netsense.make(config.scenario)``.
     verbose : int
         SB3 verbosity.
+    baselines : tuple of str
+        Scripted policies whose mean return is drawn on the curve (and stored in
+        ``train_config.json``); ignored with ``env_fn``.
     """
     import torch
     from sb3_contrib import MaskablePPO
@@ -301,6 +327,11 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
     torch.set_num_threads(1)
     env = make_vec_env(None if env_fn else config.scenario, num_vec_envs=config.num_vec_envs,
                        seed=config.seed, overrides=config.overrides, env_fn=env_fn)
+    monitor = env
+    if config.normalize_reward:
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        env = VecNormalize(env, norm_obs=False, norm_reward=True, gamma=config.gamma)
     batch = min(config.batch_size, config.n_steps * env.num_envs)
     model = MaskablePPO("MlpPolicy", env, n_steps=config.n_steps, batch_size=batch,
                         n_epochs=config.n_epochs, learning_rate=config.learning_rate,
@@ -311,7 +342,7 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
     t0 = time.perf_counter()
     model.learn(total_timesteps=config.steps, callback=cb)
     wall = time.perf_counter() - t0
-    masks = env.venv  # VecMonitor -> VecActionMasks
+    masks = monitor.venv  # VecMonitor -> VecActionMasks
     policy_path = out / "policy.zip"
     model.save(policy_path)
     env.close()
@@ -321,15 +352,18 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
                                            "wall_s"])
         w.writeheader()
         w.writerows(cb.rows)
-    curve_png = _plot_curve(cb.rows, out / "training_curve.png", config.scenario)
+    refs = baseline_returns(config, baselines) if env_fn is None and baselines else {}
+    curve_png = _plot_curve(cb.rows, out / "training_curve.png", config.scenario, refs)
     meta = {**asdict(config), "algo": "maskable_ppo", "wall_s": round(wall, 2),
-            "mask_violations": masks.mask_violations, "actions_checked": masks.actions_checked}
+            "mask_violations": masks.mask_violations, "actions_checked": masks.actions_checked,
+            "baseline_returns": refs}
     (out / "train_config.json").write_text(json.dumps(meta, indent=2, default=list) + "\n")
     return TrainResult(policy_path, curve_csv, curve_png, cb.rows, wall,
                        masks.mask_violations, masks.actions_checked)
 
 
-def _plot_curve(rows: list[dict], path: Path, title: str) -> Path:
+def _plot_curve(rows: list[dict], path: Path, title: str,
+                refs: dict[str, float] | None = None) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -337,7 +371,12 @@ def _plot_curve(rows: list[dict], path: Path, title: str) -> Path:
 
     fig, ax = plt.subplots(figsize=(5.6, 3.6))
     if rows:
-        ax.plot([r["timesteps"] for r in rows], [r["mean_episode_reward"] for r in rows])
+        ax.plot([r["timesteps"] for r in rows], [r["mean_episode_reward"] for r in rows],
+                label="MaskablePPO (training, sampled actions)")
+    for i, (name, value) in enumerate((refs or {}).items()):
+        ax.axhline(value, ls="--", color=f"C{i + 1}", label=f"{name} (scripted)")
+    if rows or refs:
+        ax.legend(fontsize=8)
     ax.set_xlabel("agent-steps")
     ax.set_ylabel("mean episode return per agent")
     ax.set_title(f"MaskablePPO on {title}")
