@@ -214,3 +214,17 @@ def test_sb3_vec_env_trains_maskable_ppo_and_serves_masks():
                              n_epochs=1, seed=0, device="cpu")
     model.learn(total_timesteps=48)
     assert model.num_timesteps >= 48
+
+
+def test_agent_vector_env_works_with_gymnasium_vector_wrappers():
+    from gymnasium.wrappers.vector import RecordEpisodeStatistics
+
+    env = RecordEpisodeStatistics(AgentVectorEnv("fig1_scalar-v0", 2, horizon=3))
+    env.reset(seed=0)
+    ends = []
+    for k in range(7):
+        _, rew, _, trunc, info = env.step(np.zeros((6, 4), dtype=np.int64))
+        if "episode" in info:
+            ends.append(k)
+            assert info["_episode"].all() and (info["episode"]["l"] == 3).all()
+    assert ends == [2, 5]
