@@ -13,6 +13,8 @@ class                   what it is
 :func:`make_sb3_vec_env`  a Stable-Baselines3 ``VecEnv`` with the same ``B x N`` slots and an
                         ``action_masks()`` method, so ``sb3_contrib.MaskablePPO`` trains on it
                         directly (SB3 is imported only when this is called)
+:func:`rollout_seeds`   benchmark episodes of many seeds as one batch (scripted policies);
+                        the records equal :func:`netsense.benchmark.rollout`'s per seed
 ======================  ======================================================================
 
 No rule is re-implemented here: every step is one call of :meth:`BatchedCore.step` on the
@@ -64,6 +66,7 @@ Examples
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -74,7 +77,7 @@ from gymnasium.vector.utils import batch_space
 from netsense.env import FlatMaskMultiDiscrete
 from netsense.envcore import BatchedCore, CoreModel
 
-__all__ = ["AgentVectorEnv", "BatchedEnv", "load_model", "make_sb3_vec_env"]
+__all__ = ["AgentVectorEnv", "BatchedEnv", "load_model", "make_sb3_vec_env", "rollout_seeds"]
 
 _ENV_KW = ("render_mode", "action_mask_in")
 
@@ -352,6 +355,69 @@ class AgentVectorEnv(VectorEnv):
         if self.batched.action_mask is None:
             raise ValueError("reset() must be called before action_masks()")
         return self._flat(self.batched.action_mask).astype(bool)
+
+
+# ---------------------------------------------------------------------------- benchmark
+#: Scripted benchmark policies that :func:`rollout_seeds` runs as one batch (deterministic
+#: given the observations, so a batch member equals the single-env episode of its seed).
+BATCHABLE_POLICIES = {"freshness": "freshness", "uniform_consensus": "uniform",
+                      "tree_consensus": "tree", "open_loop": "open_loop"}
+
+
+def rollout_seeds(scenario: str | CoreModel, policy: str, seeds: Sequence[int],
+                  overrides: dict | None = None) -> list:
+    """Episodes of several seeds as **one** batched run; one record per seed.
+
+    The batched counterpart of :func:`netsense.benchmark.rollout` for the scripted
+    policies in :data:`BATCHABLE_POLICIES`: member ``b`` is seeded with ``seeds[b]``, so
+    its record equals ``rollout(scenario, policy, seeds[b], overrides)`` (same errors up
+    to matmul rounding, identical indices, transmissions and rewards). Members that end
+    early (``divergence_limit``) are cut at their last step, like the single episode.
+
+    Returns
+    -------
+    list of netsense.benchmark.EpisodeRecord
+    """
+    from netsense.benchmark import EpisodeRecord
+    from netsense.policies import make_policy
+
+    if policy not in BATCHABLE_POLICIES:
+        raise ValueError(f"policy {policy!r} cannot run batched; choose one of "
+                         f"{sorted(BATCHABLE_POLICIES)} (random and learned policies keep "
+                         "their per-episode seeding in netsense.benchmark)")
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("seeds must be non-empty")
+    model, _ = load_model(scenario, **dict(overrides or {}))
+    core = BatchedCore(model, len(seeds))
+    obs, mask = core.reset(seeds)
+    pol = make_policy(BATCHABLE_POLICIES[policy], core)
+    B = core.B
+    errs, xn, aoi, msgs, rews = [], [], [], [], []
+
+    def record() -> None:
+        x = core.x
+        errs.append(np.linalg.norm(core.estimates - x[:, None, :], axis=-1))
+        xn.append(np.linalg.norm(x, axis=-1))
+        aoi.append(core.tau.copy())
+
+    record()
+    end = np.full(B, -1)
+    k = 0
+    while (end < 0).any():
+        out = core.step(pol.act(obs, mask))
+        obs, mask = out.obs, out.action_mask
+        k += 1
+        record()
+        msgs.append(core.transmit.copy())
+        rews.append(out.reward)
+        end[((out.terminated | out.truncated) & (end < 0))] = k
+    E, X, A = np.stack(errs, 1), np.stack(xn, 1), np.stack(aoi, 1)
+    M, R = np.stack(msgs, 1), np.stack(rews, 1)
+    floor = model.reward.error_floor
+    return [EpisodeRecord(E[b, : end[b] + 1], X[b, : end[b] + 1], M[b, : end[b]],
+                          A[b, : end[b] + 1], R[b, : end[b]].astype(float), floor=floor)
+            for b in range(B)]
 
 
 # ---------------------------------------------------------------------------- SB3

@@ -228,3 +228,43 @@ def test_agent_vector_env_works_with_gymnasium_vector_wrappers():
             ends.append(k)
             assert info["_episode"].all() and (info["episode"]["l"] == 3).all()
     assert ends == [2, 5]
+
+
+@pytest.mark.parametrize("sid,policy", [("link_failures-v0", "freshness"),
+                                        ("fig1_scalar-v0", "tree_consensus"),
+                                        ("message_cost-v0", "uniform_consensus")])
+def test_rollout_seeds_equals_the_benchmark_rollout_per_seed(sid, policy):
+    from netsense.benchmark import rollout
+    from netsense.vector import rollout_seeds
+
+    seeds, over = [3, 8, 21], {"horizon": 12}
+    recs = rollout_seeds(sid, policy, seeds, over)
+    for s, rec in zip(seeds, recs, strict=True):
+        ref = rollout(sid, policy, s, over)
+        np.testing.assert_allclose(rec.errors, ref.errors, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(rec.x_norm, ref.x_norm, rtol=1e-12)
+        np.testing.assert_array_equal(rec.aoi, ref.aoi)
+        np.testing.assert_array_equal(rec.messages, ref.messages)
+        np.testing.assert_array_equal(rec.rewards, ref.rewards)
+        assert rec.floor == ref.floor
+    assert not np.array_equal(recs[0].errors, recs[1].errors)
+
+
+def test_rollout_seeds_cuts_members_at_their_own_end():
+    from netsense.vector import rollout_seeds
+
+    # open loop on an unstable plant diverges; a low limit ends members at different steps
+    recs = rollout_seeds("random_structured_n20_N10-v0", "open_loop", [0, 1, 2, 3],
+                         {"horizon": 40, "divergence_limit": 3.0})
+    lengths = [r.rewards.shape[0] for r in recs]
+    assert all(r.errors.shape[0] == n + 1 == r.aoi.shape[0] for r, n in zip(recs, lengths,
+                                                                           strict=True))
+    assert len(set(lengths)) > 1 and max(lengths) == 40
+    from netsense.benchmark import rollout
+
+    short = int(np.argmin(lengths))
+    ref = rollout("random_structured_n20_N10-v0", "open_loop", short,
+                  {"horizon": 40, "divergence_limit": 3.0})
+    np.testing.assert_array_equal(recs[short].rewards, ref.rewards)
+    with pytest.raises(ValueError, match="cannot run batched"):
+        rollout_seeds("fig1_scalar-v0", "random", [0])
