@@ -166,8 +166,10 @@ class BatchedEnv:
         info : dict
             ``action_mask`` (B, N, M) int8.
         """
-        if seed is not None and (isinstance(seed, bool) or int(seed) != seed or seed < 0):
-            raise ValueError(f"seed must be an integer >= 0 or None, got {seed!r}")
+        if seed is not None and (isinstance(seed, bool) or not np.isscalar(seed)
+                                 or int(seed) != seed or seed < 0):
+            raise ValueError(f"seed must be an integer >= 0 or None (member b gets seed + b), "
+                             f"got {seed!r}")
         self._seed_rng = np.random.default_rng(seed)
         if seed is None:
             seeds = self._draw_seeds(self.num_envs)

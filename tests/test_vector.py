@@ -138,6 +138,8 @@ def test_array_api_rejects_bad_input():
         be.reset_at([2])
     with pytest.raises(ValueError, match="seed"):
         be.reset(seed=-1)
+    with pytest.raises(ValueError, match="seed"):
+        be.reset(seed=[1, 2])
 
 
 # ----------------------------------------------------------------------------- Gymnasium
