@@ -143,7 +143,11 @@ class CoreModel:
     divergence_limit : float or None
         Terminate a member when some agent's normalised error (before clipping) exceeds it.
     source_estimator : callable returning a SourceEstimator, optional
-        Default :class:`LuenbergerSource` (eq. (7)).
+        Default :class:`LuenbergerSource` (eq. (7)). Called once per core; the object
+        keeps per-member state (see :mod:`netsense.observers.source`).
+    faults : tuple of netsense.faults.Fault
+        Crashed agents, stuck/stale sensors and at most one :class:`~netsense.faults.
+        LyingAgent` (message loss is ``message_arrivals``); see :class:`BatchedCore`.
     """
 
     plant: Plant
@@ -157,8 +161,20 @@ class CoreModel:
     initial_transmit: bool = True
     divergence_limit: float | None = None
     source_estimator: Callable[[], SourceEstimator] | None = None
+    faults: tuple = ()
 
     def __post_init__(self) -> None:
+        from netsense.faults import CrashedAgents, LyingAgent, StuckSensor
+
+        object.__setattr__(self, "faults", tuple(self.faults))
+        for f in self.faults:
+            if not isinstance(f, (CrashedAgents, StuckSensor, LyingAgent)):
+                raise ValueError(f"faults must be CrashedAgents, StuckSensor or LyingAgent "
+                                 f"(message loss is message_arrivals), got "
+                                 f"{type(f).__name__}")
+            f.check(self.plant.num_agents)
+        if sum(isinstance(f, LyingAgent) for f in self.faults) > 1:
+            raise ValueError("faults may hold at most one LyingAgent (list all liars in it)")
         if self.horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {self.horizon}")
         if self.graphs.num_nodes != self.plant.num_agents:
@@ -259,9 +275,11 @@ class BatchedCore:
     member (``chunk`` defaults to :data:`CHUNK`, less when the batch would exceed
     :data:`CHUNK_BUDGET`), and a member's realisation depends only on its seed, never on
     ``B`` or ``chunk``.
-    The source estimator is one object for the whole batch: it receives member 0's time
-    index and is reset only by full resets (the default :class:`LuenbergerSource` is
-    stateless and time-invariant, so this is exact for it).
+    The source estimator is one object for the whole batch that keeps per-member state:
+    it receives the per-member time vector ``k``, is given each member's own ``"source"``
+    generator, and partial resets restart only the selected members
+    (:meth:`~netsense.observers.source.SourceEstimator.reset_members`), so a member equals
+    a single run with the same seed for stateful estimators (KFIO, RSEIO, equalized) too.
     """
 
     def __init__(self, model: CoreModel, batch_size: int = 1, *,
@@ -357,8 +375,11 @@ class BatchedCore:
         for b in idx:
             self._reset_member(b, seeds[b])
         self._refill(idx)
-        if sel.all():  # partial resets leave the (batch-wide) source estimator alone
-            self.source.reset(self.model.design, B, self.rngs[0]["source"])
+        source_rngs = [r.get("source") for r in self.rngs]  # each member's own stream
+        if sel.all():
+            self.source.reset(self.model.design, B, source_rngs)
+        else:
+            self.source.reset_members(sel, source_rngs)
         self._seeded = True
         self._load_step()
         return self.observe()
@@ -548,7 +569,7 @@ class BatchedCore:
             tau_next = np.where(avg, kernels.average_indices(tau, self.nbr, self.msg), tau_next)
         Z_sel = kernels.keep_own_blocks(Z_sel, Z, self.own_block)
         Z_next = kernels.propagate(Z_sel, Z, self.A_diag, self.A_lower)
-        Z_next += self.source.correction(int(self.k[0]), Z, self.y, self.y_arrived)
+        Z_next += self.source.correction(self.k, Z, self.y, self.y_arrived)
         # --- plant, eq. (1) ----------------------------------------------------------------
         # (B, 1, n) stacks: every member is computed exactly as in a B = 1 run
         x_next = (self.x[:, None, :] @ self.model.plant.A.T)[:, 0]

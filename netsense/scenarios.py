@@ -38,6 +38,23 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     [arrivals]                         # ArrivalModel specs (always/bernoulli/
     measurement = {kind = "always"}    # gilbert_elliott/multirate)
     message = {kind = "bernoulli", p = 0.9}   # per directed link
+    # multirate: {kind = "multirate", periods = [1, 2, ...], phases = [...], jitter = 0,
+    #             drop_prob = 0.0}; one period per agent (measurements: sensor i; messages:
+    #             the sender l of link l -> i)
+
+    [source_estimator]                 # the sources' local update (default eq. (7))
+    kind = "luenberger"                # fixed gain L_j of the design, eq. (7)
+    # kind = "kfio"                    # KFIOSource: Q, R required; W, P0 optional
+    # kind = "rseio"                   # RSEIOSource: Q, R, mu required; W, P0, dA, dW, dC
+    # kind = "equalized"               # EqualizedSource: language, eta_v required;
+    #                                    eta_w, mu1, weights, truncate optional; language =
+    #   {kind = "each_delayed_at_most", m = 1, T = 3} | {kind = "at_most_missing", m, T}
+    #   | {kind = "words", words = ["210", "x00"], tau_bar = 2}
+
+    [[faults]]                         # netsense.faults.fault_from_dict, one table each
+    kind = "crash"                     # agents = [1], at = 20: stop transmitting
+    # kind = "stuck_sensor"            # agents, at, mode = "stuck" | "stale", delay
+    # kind = "liar"                    # agents, claim = 0, at: false freshness indices
 
     [reward]                           # netsense.envcore.RewardConfig
     error_weight = 1.0
@@ -53,6 +70,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import sys
 from dataclasses import dataclass, field
 from importlib import resources
@@ -69,7 +87,8 @@ else:  # pragma: no cover
 from netsense.envcore import CoreModel, RewardConfig
 
 _TOP = {"description", "horizon", "x0_std", "initial_transmit", "divergence_limit",
-        "plant", "graph", "design", "noise", "arrivals", "reward"}
+        "plant", "graph", "design", "noise", "arrivals", "reward", "source_estimator",
+        "faults"}
 _ENV_KWARGS = {"render_mode", "invalid_actions", "action_mask_in"}
 _PLANT_FIELDS = {
     "fig1_scalar": ({"kind"}, {"a"}),
@@ -77,6 +96,17 @@ _PLANT_FIELDS = {
                           {"num_sources", "outputs_per_source", "spectral_radius"}),
     "matrices": ({"kind", "A", "C"}, set()),
 }
+#: ``[source_estimator]`` kinds: (required, optional) fields besides ``kind``.
+_SOURCE_FIELDS = {
+    "luenberger": (set(), set()),
+    "kfio": ({"Q", "R"}, {"W", "P0"}),
+    "rseio": ({"Q", "R", "mu"}, {"W", "P0", "dA", "dW", "dC"}),
+    "equalized": ({"language", "eta_v"}, {"eta_w", "mu1", "weights", "truncate"}),
+}
+_LANGUAGE_FIELDS = {"each_delayed_at_most": {"m", "T"}, "at_most_missing": {"m", "T"},
+                    "words": {"words", "tau_bar"}}
+#: Fault kinds a scenario may list (message loss is ``[arrivals] message``).
+_FAULT_KINDS = ("crash", "stuck_sensor", "liar")
 
 
 def _err(source: str, path: str, msg: str) -> ValueError:
@@ -102,6 +132,10 @@ class Scenario:
     design, noise, arrivals : dict
         Gain design, noise and arrival specs.
     reward : RewardConfig
+    source_estimator : dict
+        ``[source_estimator]`` spec (empty: the fixed gain of eq. (7)).
+    faults : tuple of dict
+        ``[[faults]]`` specs (:func:`netsense.faults.fault_from_dict` form).
     source : str
         Where the scenario came from (file path), for error messages.
     """
@@ -118,6 +152,8 @@ class Scenario:
     noise: dict = field(default_factory=dict)
     arrivals: dict = field(default_factory=dict)
     reward: RewardConfig = field(default_factory=RewardConfig)
+    source_estimator: dict = field(default_factory=dict)
+    faults: tuple = ()
     source: str = "<memory>"
 
     @classmethod
@@ -134,7 +170,8 @@ class Scenario:
         horizon = raw["horizon"]
         if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
             raise _err(source, "horizon", f"must be an integer >= 1, got {horizon!r}")
-        for sec in ("plant", "graph", "design", "noise", "arrivals", "reward"):
+        for sec in ("plant", "graph", "design", "noise", "arrivals", "reward",
+                    "source_estimator"):
             if sec in raw and not isinstance(raw[sec], dict):
                 raise _err(source, sec, "must be a table")
         plant = dict(raw["plant"])
@@ -176,10 +213,13 @@ class Scenario:
         desc = raw.get("description", "")
         if not isinstance(desc, str):
             raise _err(source, "description", "must be a string")
+        est = _check_source_estimator(dict(raw.get("source_estimator", {})), source)
+        faults = _check_faults(raw.get("faults", []), source)
         sc = cls(id=id, horizon=horizon, plant=plant, graph=dict(raw["graph"]),
                  description=desc, x0_std=float(x0), initial_transmit=it,
                  divergence_limit=None if lim is None else float(lim), design=design,
-                 noise=noise, arrivals=arrivals, reward=reward, source=source)
+                 noise=noise, arrivals=arrivals, reward=reward, source_estimator=est,
+                 faults=faults, source=source)
         return sc
 
     def to_dict(self) -> dict:
@@ -192,12 +232,58 @@ class Scenario:
                "reward": dataclasses.asdict(self.reward)}
         if self.divergence_limit is not None:
             out["divergence_limit"] = self.divergence_limit
+        if self.source_estimator:
+            out["source_estimator"] = copy.deepcopy(self.source_estimator)
+        if self.faults:
+            out["faults"] = copy.deepcopy(list(self.faults))
         return out
 
     @property
     def num_agents(self) -> int:
         """``N`` (read from the plant section)."""
         return build_plant(self).num_agents
+
+
+def _check_source_estimator(est: dict, source: str) -> dict:
+    """Field names and kinds of ``[source_estimator]`` (values are checked when built)."""
+    if not est:
+        return est
+    kind = est.get("kind", "luenberger")
+    if kind not in _SOURCE_FIELDS:
+        raise _err(source, "source_estimator.kind", f"must be one of "
+                   f"{sorted(_SOURCE_FIELDS)}, got {kind!r}")
+    req, opt = _SOURCE_FIELDS[kind]
+    for k in sorted(req - set(est)):
+        raise _err(source, f"source_estimator.{k}", f"is required for kind {kind!r}")
+    for k in sorted(set(est) - req - opt - {"kind"}):
+        raise _err(source, f"source_estimator.{k}", f"unknown key for kind {kind!r}; "
+                   f"allowed: {sorted(req | opt)}")
+    if kind == "equalized":
+        lang = est["language"]
+        if not isinstance(lang, dict) or lang.get("kind") not in _LANGUAGE_FIELDS:
+            raise _err(source, "source_estimator.language.kind", "must be a table with kind "
+                       f"one of {sorted(_LANGUAGE_FIELDS)}, got {lang!r}")
+        allowed = _LANGUAGE_FIELDS[lang["kind"]]
+        for k in sorted(set(lang) - allowed - {"kind"}):
+            raise _err(source, f"source_estimator.language.{k}",
+                       f"unknown key; allowed: {sorted(allowed)}")
+        for k in sorted(allowed - set(lang) - {"tau_bar"}):
+            raise _err(source, f"source_estimator.language.{k}", "is required")
+    return est
+
+
+def _check_faults(faults: Any, source: str) -> tuple:
+    """``[[faults]]``: a list of tables whose kinds the environment supports."""
+    if not isinstance(faults, list) or not all(isinstance(f, dict) for f in faults):
+        raise _err(source, "faults", "must be an array of tables ([[faults]])")
+    for i, f in enumerate(faults):
+        if f.get("kind") == "link_drops":
+            raise _err(source, f"faults[{i}].kind", "message loss on links is the "
+                       "scenario's [arrivals] message model; use that section")
+        if f.get("kind") not in _FAULT_KINDS:
+            raise _err(source, f"faults[{i}].kind", f"must be one of {list(_FAULT_KINDS)}, "
+                       f"got {f.get('kind')!r}")
+    return tuple(dict(f) for f in faults)
 
 
 # ----------------------------------------------------------------------------- files
@@ -318,13 +404,118 @@ def _arrival(spec: dict, path: str, source: str):
     from netsense.sensing.drops import arrival_from_dict
 
     try:
-        if isinstance(spec, dict) and spec.get("kind") == "multirate":
-            from netsense.sensing.multirate import multirate_from_dict
-
-            return multirate_from_dict(spec)
-        return arrival_from_dict(spec)
+        return arrival_from_dict(spec)  # also dispatches kind = "multirate"
     except (ValueError, TypeError) as exc:
         raise _err(source, path, str(exc)) from exc
+
+
+def _field_of(msg: str, fields: set[str]) -> str:
+    """The first field name of ``fields`` that an estimator's error message mentions."""
+    for word in msg.replace("[", " ").replace("(", " ").replace(".", " ").split():
+        if word.strip("'\",.:") in fields:
+            return word.strip("'\",.:")
+    return ""
+
+
+def _number_or_array(v: Any) -> float | np.ndarray:
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return float(v)
+    return np.asarray(v, dtype=float)
+
+
+def build_language(spec: dict, source: str = "<memory>"):
+    """The :class:`netsense.sensing.delays.DelayLanguage` of a ``language`` table."""
+    from netsense.sensing.delays import DelayLanguage
+
+    spec = dict(spec)
+    kind = spec.pop("kind")
+    for k in ("m", "T", "tau_bar"):
+        v = spec.get(k)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int)):
+            raise _err(source, f"source_estimator.language.{k}", f"must be an integer, "
+                       f"got {v!r}")
+    try:
+        if kind == "words":
+            words = spec["words"]
+            if not isinstance(words, list) or not words:
+                raise ValueError(f"words must be a non-empty list, got {words!r}")
+            return DelayLanguage.from_words(words, tau_bar=spec.get("tau_bar"))
+        if kind == "each_delayed_at_most":
+            return DelayLanguage.each_delayed_at_most(spec["m"], spec["T"])
+        return DelayLanguage.at_most_missing(spec["m"], spec["T"])
+    except (ValueError, TypeError) as exc:
+        raise _err(source, "source_estimator.language", str(exc)) from exc
+
+
+def build_source_estimator(sc: Scenario, design):
+    """The ``[source_estimator]`` of a scenario as a picklable factory, or None (eq. (7)).
+
+    The estimator is built and validated once (for ``equalized`` this solves the design
+    LPs of every source); the factory returns independent copies, one per core.
+    """
+    from netsense.observers.source_estimators import KFIOSource, RSEIOSource
+    from netsense.observers.source_estimators_equalized import EqualizedSource
+
+    spec = dict(sc.source_estimator)
+    kind = spec.pop("kind", "luenberger")
+    if kind == "luenberger":
+        return None
+    src = sc.source
+    fields = set(_SOURCE_FIELDS[kind][0] | _SOURCE_FIELDS[kind][1])
+    for k in ("eta_v", "eta_w", "mu1", "mu"):
+        v = spec.get(k)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
+            raise _err(src, f"source_estimator.{k}", f"must be a number, got {v!r}")
+    try:
+        if kind in ("kfio", "rseio"):
+            arrays = {k: _number_or_array(v) for k, v in spec.items() if k != "mu"}
+            for k in ("R", "dC"):  # per-agent lists (R may also be one number)
+                if isinstance(spec.get(k), list):
+                    arrays[k] = [np.zeros((0, 0)) if isinstance(v, list) and not v
+                                 else np.atleast_2d(np.asarray(v, dtype=float))
+                                 for v in spec[k]]
+            est = (KFIOSource(**arrays) if kind == "kfio"
+                   else RSEIOSource(mu=spec["mu"], **arrays))
+            copy.deepcopy(est).reset(design, 1)  # validates shapes and PD covariances
+        else:
+            lang = build_language(spec.pop("language"), src)
+            weights = spec.pop("weights", None)
+            truncate = spec.pop("truncate", True)
+            if not isinstance(truncate, bool):
+                raise ValueError(f"truncate must be true or false, got {truncate!r}")
+            from netsense.sensing.delays import DelayChannel
+
+            channel = DelayChannel(lang, None if weights is None else tuple(weights),
+                                   truncate)
+            est = EqualizedSource(lang, channel=channel, **spec)
+            est.designs(design)  # solves the LPs once; copies reuse them
+    except (ValueError, TypeError, RuntimeError) as exc:
+        if isinstance(exc, ValueError) and str(exc).startswith(src):
+            raise
+        name = _field_of(str(exc), fields)
+        raise _err(src, f"source_estimator.{name}" if name else "source_estimator",
+                   str(exc)) from exc
+    return functools.partial(copy.deepcopy, est)
+
+
+def build_faults(sc: Scenario, num_agents: int) -> tuple:
+    """The ``[[faults]]`` of a scenario as :class:`netsense.faults.Fault` objects."""
+    from netsense.faults import LyingAgent, fault_from_dict
+
+    out = []
+    for i, spec in enumerate(sc.faults):
+        try:
+            f = fault_from_dict(spec)
+            f.check(num_agents)
+        except (ValueError, TypeError) as exc:
+            name = _field_of(str(exc), {"agents", "at", "mode", "delay", "claim"})
+            raise _err(sc.source, f"faults[{i}].{name}" if name else f"faults[{i}]",
+                       str(exc)) from exc
+        out.append(f)
+    if sum(isinstance(f, LyingAgent) for f in out) > 1:
+        raise _err(sc.source, "faults", "at most one liar table (list every liar in its "
+                   "agents)")
+    return tuple(out)
 
 
 def build_model(sc: Scenario) -> CoreModel:
@@ -345,13 +536,21 @@ def build_model(sc: Scenario) -> CoreModel:
     except (ValueError, TypeError) as exc:
         raise _err(sc.source, "design", str(exc)) from exc
     arr = {k: _arrival(v, f"arrivals.{k}", sc.source) for k, v in sc.arrivals.items()}
+    for k, model in arr.items():
+        S = getattr(model, "num_sensors", plant.num_agents)  # multirate: one per agent
+        if S != plant.num_agents:
+            raise _err(sc.source, f"arrivals.{k}", f"multirate needs one period per agent "
+                       f"({plant.num_agents}), got {S}")
+    source_estimator = build_source_estimator(sc, design)
+    faults = build_faults(sc, plant.num_agents)
     try:
         return CoreModel(plant=plant, design=design, graphs=graphs, horizon=sc.horizon,
                          measurement_arrivals=arr.get("measurement", AlwaysArrive()),
                          message_arrivals=arr.get("message", AlwaysArrive()),
                          reward=sc.reward, x0_std=sc.x0_std,
                          initial_transmit=sc.initial_transmit,
-                         divergence_limit=sc.divergence_limit)
+                         divergence_limit=sc.divergence_limit,
+                         source_estimator=source_estimator, faults=faults)
     except ValueError as exc:
         raise _err(sc.source, "<scenario>", str(exc)) from exc
 

@@ -11,29 +11,75 @@ update), the padded measurements and their arrival flags, return the ``(B, N, n)
 added to the open-loop propagation. Rows outside agent ``j``'s own block must be zero for
 agent ``j`` (``own_block_mask`` helps); the new own-block value of source ``j`` is then
 ``(A_bar z_j)^{(j)} + correction_j^{(j)}`` — i.e. any estimator in predictor form.
+
+Per-member state. The ``B`` copies are independent runs that need not be in step: the
+batched environment core resets single members (auto-reset), so ``k`` is either one int
+(every member at the same time, as in the observers) or a ``(B,)`` array of per-member
+time indices, and :meth:`SourceEstimator.reset_members` restarts the selected members
+only. A stateful estimator keeps its state with a leading batch axis (or per member), so
+that member ``b`` of a batch equals a single run with the same inputs. ``rng`` may be one
+generator shared by the batch or a sequence of ``B`` per-member generators (the core
+passes each member's own ``"source"`` stream).
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
 from netsense.design import ObserverDesign
 from netsense.kernels import innovation_correction
 
+#: One generator for the whole batch, one per member, or None (a fixed default).
+Rngs = np.random.Generator | Sequence[np.random.Generator] | None
+
 
 class SourceEstimator:
     """Base class of source-node estimators (see the module docstring)."""
 
     def reset(self, design: ObserverDesign, batch_size: int,
-              rng: np.random.Generator | None = None) -> None:
+              rng: Rngs = None) -> None:
         """Prepare for a run of ``batch_size`` independent copies."""
         self.design = design
         self.batch_size = batch_size
 
-    def correction(self, k: int, Z: np.ndarray, y: np.ndarray,
+    def reset_members(self, members: np.ndarray, rng: Rngs = None) -> None:
+        """Restart only the members selected by the ``(B,)`` bool mask ``members``.
+
+        Their next :meth:`correction` is at their time ``k = 0``; the other members are
+        untouched. ``rng`` as in :meth:`reset` (entries of unselected members are unused).
+        Stateless estimators need not override this; stateful ones must.
+        """
+        raise NotImplementedError(f"{type(self).__name__} keeps state per run but does not "
+                                  "implement reset_members(members, rng)")
+
+    def correction(self, k: int | np.ndarray, Z: np.ndarray, y: np.ndarray,
                    arrived: np.ndarray | None) -> np.ndarray:
-        """``(B, N, n)`` correction added to the open-loop step (zero off own blocks)."""
+        """``(B, N, n)`` correction added to the open-loop step (zero off own blocks).
+
+        ``k`` is the time index of every member (int) or of each member (``(B,)``).
+        """
         raise NotImplementedError  # pragma: no cover
+
+    @staticmethod
+    def member_rngs(rng: Rngs, batch_size: int) -> list[np.random.Generator]:
+        """``rng`` as ``batch_size`` generators (one shared generator is repeated)."""
+        if rng is None:
+            rng = np.random.default_rng(0)
+        if isinstance(rng, np.random.Generator):
+            return [rng] * batch_size
+        rngs = list(rng)
+        if len(rngs) != batch_size:
+            raise ValueError(f"rng must be a Generator or {batch_size} Generators, "
+                             f"got {len(rngs)}")
+        return rngs
+
+    @staticmethod
+    def member_times(k: int | np.ndarray, batch_size: int) -> np.ndarray:
+        """``k`` as a ``(B,)`` int array (an int is every member's time)."""
+        out = np.broadcast_to(np.asarray(k, dtype=np.int64), (batch_size,))
+        return out
 
     @staticmethod
     def own_block_mask(design: ObserverDesign) -> np.ndarray:
@@ -45,11 +91,15 @@ class SourceEstimator:
 class LuenbergerSource(SourceEstimator):
     """The fixed-gain source update of eq. (7): ``L_j (y_j - C_bar_j z_j)``.
 
-    A measurement that did not arrive contributes nothing (open loop for that step).
+    A measurement that did not arrive contributes nothing (open loop for that step). The
+    update is stateless and time-invariant, so per-member resets change nothing.
     """
 
+    def reset_members(self, members: np.ndarray, rng: Rngs = None) -> None:
+        """Nothing to restart (stateless)."""
+
     def reset(self, design: ObserverDesign, batch_size: int,
-              rng: np.random.Generator | None = None) -> None:
+              rng: Rngs = None) -> None:
         super().reset(design, batch_size, rng)
         d = design.decomposition
         r_max = max([C.shape[0] for C in d.C_bar] + [1])
@@ -58,6 +108,6 @@ class LuenbergerSource(SourceEstimator):
             self.C_bar_pad[i, : Cb.shape[0]] = Cb
         self.L_pad = design.gain_padded(r_max)
 
-    def correction(self, k: int, Z: np.ndarray, y: np.ndarray,
+    def correction(self, k: int | np.ndarray, Z: np.ndarray, y: np.ndarray,
                    arrived: np.ndarray | None) -> np.ndarray:
         return innovation_correction(Z, y, arrived, self.C_bar_pad, self.L_pad)

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike
 from netsense.design import ObserverDesign
 from netsense.observers.kalman import KFIO, StateSpaceModel, check_matrix
 from netsense.observers.robust import RSEIO
-from netsense.observers.source import SourceEstimator
+from netsense.observers.source import Rngs, SourceEstimator
 
 __all__ = ["KFIOSource", "RSEIOSource"]
 
@@ -82,7 +82,7 @@ class KFIOSource(SourceEstimator):
         return KFIO(model)
 
     def reset(self, design: ObserverDesign, batch_size: int,
-              rng: np.random.Generator | None = None) -> None:
+              rng: Rngs = None) -> None:
         super().reset(design, batch_size, rng)
         d = design.decomposition
         mats = self._matrices(design)
@@ -94,27 +94,45 @@ class KFIOSource(SourceEstimator):
             model = StateSpaceModel(d.A_jj(j), mats["W_z"][b], d.C_jj(j), mats["Q"],
                                     mats["R"][j])       # raises if Q or R_j is not PD
             P0_j = mats["P0_z"][b, b]
-            self.sources.append((j, b, self._filter(j, model, design), P0_j))
-        self._first = True
+            f = self._filter(j, model, design)
+            f.reset(np.zeros(model.n), P0_j, batch=batch_size)
+            self.sources.append((j, b, f, P0_j))
+        self._first = np.ones(batch_size, dtype=bool)
+
+    def reset_members(self, members: np.ndarray, rng: Rngs = None) -> None:
+        """Restart the selected members: their next step re-initialises their filters."""
+        members = np.asarray(members, dtype=bool)
+        if members.shape != self._first.shape:
+            raise ValueError(f"members must have shape {self._first.shape}, "
+                             f"got {members.shape}")
+        self._first = self._first | members
 
     # ------------------------------------------------------------------- steps
-    def correction(self, k: int, Z: np.ndarray, y: np.ndarray,
+    def correction(self, k: int | np.ndarray, Z: np.ndarray, y: np.ndarray,
                    arrived: np.ndarray | None) -> np.ndarray:
+        """One KFIO (or RSEIO) step per source block and member.
+
+        A member at its first step (after :meth:`reset` or :meth:`reset_members`) starts
+        its filter from its current own-block estimate with covariance ``(T' P0 T)_jj``
+        and makes a measurement update only; the other members make a full step. The
+        block models are time-invariant, so ``k`` is not needed.
+        """
         d = self.design.decomposition
         out = np.zeros_like(Z)
+        first = self._first
         for j, b, f, P0_j in self.sources:
             C_bar = d.C_bar[j]
             z_own = Z[:, j, b]
             y_loc = (y[:, j, : C_bar.shape[0]] - Z[:, j] @ C_bar.T
                      + z_own @ f.model.C.T)              # C_jj z^{(j)} + v_j
             gamma = np.ones(Z.shape[0], bool) if arrived is None else arrived[:, j]
-            if self._first:
-                f.reset(z_own, P0_j, batch=Z.shape[0])
-                f.update(y_loc, gamma)
-            else:
+            if not first.all():
                 f.step(y_loc, gamma, u=z_own - f.x @ f.model.A.T)
+            if first.any():
+                f.x[first], f.P[first] = z_own[first], P0_j
+                f.update(y_loc, gamma & first)
             out[:, j, b] = (f.x - z_own) @ f.model.A.T
-        self._first = False
+        self._first = np.zeros_like(first)
         return out
 
     def covariances(self) -> dict[int, np.ndarray]:

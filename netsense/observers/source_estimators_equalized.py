@@ -27,7 +27,7 @@ from netsense.design import ObserverDesign
 from netsense.observers.equalized import EqualizedRecoveryEstimator
 from netsense.observers.equalized_design import EqualizedDesign, EqualizedProblem
 from netsense.observers.equalized_design import design as design_equalized
-from netsense.observers.source import SourceEstimator
+from netsense.observers.source import Rngs, SourceEstimator
 from netsense.sensing.delays import DelayChannel, DelayLanguage
 
 __all__ = ["EqualizedSource"]
@@ -85,18 +85,30 @@ class EqualizedSource(SourceEstimator):
         return self._designs
 
     def reset(self, design: ObserverDesign, batch_size: int,
-              rng: np.random.Generator | None = None) -> None:
+              rng: Rngs = None) -> None:
+        """Fresh estimators and delay samplers for every member (``rng``: one generator
+        shared by the batch, or one per member, see :mod:`netsense.observers.source`)."""
         super().reset(design, batch_size, rng)
-        rng = rng if rng is not None else np.random.default_rng(0)
         self.dec = design.decomposition
-        ds = self.designs(design)
-        self.est = [{j: EqualizedRecoveryEstimator(d) for j, d in ds.items()}
-                    for _ in range(batch_size)]
-        self.samplers = [{j: self.channel.sampler(rng) for j in ds}
-                         for _ in range(batch_size)]
-        self._buf: list[dict[int, dict[int, np.ndarray]]] = [{j: {} for j in ds}
-                                                             for _ in range(batch_size)]
-        self.k = 0
+        self.designs(design)
+        self.est: list[dict[int, EqualizedRecoveryEstimator]] = [{}] * batch_size
+        self.samplers: list[dict] = [{}] * batch_size
+        self._buf: list[dict[int, dict[int, np.ndarray]]] = [{}] * batch_size
+        self.k = np.zeros(batch_size, dtype=np.int64)
+        self.reset_members(np.ones(batch_size, dtype=bool), rng)
+
+    def reset_members(self, members: np.ndarray, rng: Rngs = None) -> None:
+        """Restart the selected members at ``k = 0`` (new estimators, samplers, buffers)."""
+        members = np.asarray(members, dtype=bool)
+        if members.shape != self.k.shape:
+            raise ValueError(f"members must have shape {self.k.shape}, got {members.shape}")
+        rngs = self.member_rngs(rng, self.batch_size)
+        ds = self._designs
+        for b in np.flatnonzero(members):
+            self.est[b] = {j: EqualizedRecoveryEstimator(d) for j, d in ds.items()}
+            self.samplers[b] = {j: self.channel.sampler(rngs[b]) for j in ds}
+            self._buf[b] = {j: {} for j in ds}
+            self.k[b] = 0
 
     @property
     def bounds(self) -> np.ndarray:
@@ -108,26 +120,27 @@ class EqualizedSource(SourceEstimator):
                 out[b, j] = e.bound
         return out
 
-    def correction(self, k: int, Z: np.ndarray, y: np.ndarray,
+    def correction(self, k: int | np.ndarray, Z: np.ndarray, y: np.ndarray,
                    arrived: np.ndarray | None) -> np.ndarray:
-        if k != self.k:
-            raise ValueError(f"EqualizedSource expected step k = {self.k}, got {k}; "
-                             "reset it together with the observer")
+        kk = self.member_times(k, len(self.est))
+        if not np.array_equal(kk, self.k):
+            raise ValueError(f"EqualizedSource expected steps k = {self.k.tolist()}, got "
+                             f"{kk.tolist()}; reset it together with the observer")
         out = np.zeros_like(Z)
         for b, ests in enumerate(self.est):
+            kb = int(kk[b])
             for j, est in ests.items():
                 blk = self.dec.block(j)
                 Cb = self.dec.C_bar[j]
                 x_hat = Z[b, j, blk]
-                if k == 0:
+                if kb == 0:
                     est.reset(x_hat)
                 est.estimate = x_hat.copy()
                 if arrived is None or arrived[b, j]:
                     up = Cb[:, : blk.start] @ Z[b, j, : blk.start]
-                    self._buf[b][j][k] = y[b, j, : Cb.shape[0]] - up
+                    self._buf[b][j][kb] = y[b, j, : Cb.shape[0]] - up
                 got = {i: self._buf[b][j].pop(i) for i in self.samplers[b][j].next()
                        if i in self._buf[b][j]}
                 out[b, j, blk] = est.step(got) - self.dec.A_jj(j) @ x_hat
         self.k += 1
         return out
-

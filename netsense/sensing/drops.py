@@ -222,7 +222,8 @@ def arrival_from_dict(spec: dict) -> ArrivalModel:
     spec : dict
         ``{"kind": "bernoulli", "p": 0.8}``, ``{"kind": "gilbert_elliott",
         "p_good_to_bad": ..., "p_bad_to_good": ..., ["loss_good", "loss_bad", "start"]}`` or
-        ``{"kind": "always"}``.
+        ``{"kind": "always"}``; ``{"kind": "multirate", ...}`` is dispatched (lazily) to
+        :func:`netsense.sensing.multirate.multirate_from_dict`.
 
     Raises
     ------
@@ -233,9 +234,13 @@ def arrival_from_dict(spec: dict) -> ArrivalModel:
     if not isinstance(spec, dict):
         raise ValueError(f"arrival spec must be a dict, got {type(spec).__name__}")
     kind = spec.get("kind")
+    if kind == "multirate":
+        from netsense.sensing.multirate import multirate_from_dict
+
+        return multirate_from_dict(spec)
     if kind not in _FIELDS:
-        raise ValueError(f"arrival spec field 'kind' must be one of {sorted(_FIELDS)}, "
-                         f"got {kind!r}")
+        raise ValueError(f"arrival spec field 'kind' must be one of "
+                         f"{sorted([*_FIELDS, 'multirate'])}, got {kind!r}")
     required, optional = _FIELDS[kind]
     for name in required:
         if name not in spec:
