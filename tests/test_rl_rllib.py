@@ -33,3 +33,22 @@ def test_rllib_observation_keys_match_the_masking_module():
     space = env.observation_space("sensor_0")
     assert set(space.spaces) == {"observations", "action_mask"}
     assert all(space.contains(o) for o in obs.values())
+
+
+def test_benchmark_ray_backend_matches_serial():
+    import numpy as np
+
+    from netsense import benchmark as bm
+
+    jobs = bm.make_jobs(["fig1_scalar-v0"], ["freshness", "random"], [0, 1],
+                        overrides={"horizon": 10})
+    serial = bm.execute(jobs, backend="serial", progress=False)
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False,
+             ignore_reinit_error=True)
+    try:
+        remote = bm.execute(jobs, backend="ray", progress=False)
+    finally:
+        ray.shutdown()
+    for a, b in zip(serial, remote, strict=True):
+        assert a["job"] == b["job"]
+        np.testing.assert_equal(a["metrics"], b["metrics"])
