@@ -314,6 +314,17 @@ class BatchedCore:
         self.nvec = np.array([self.D + 2] * self.N + [2], dtype=np.int64)
         self.mask_size = int(self.nvec.sum())
         self.source = (model.source_estimator or LuenbergerSource)()
+        from netsense.faults import CrashedAgents, LyingAgent, StuckSensor
+
+        self._crashes = [f for f in model.faults if isinstance(f, CrashedAgents)]
+        self._stuck = [f for f in model.faults if isinstance(f, StuckSensor)]
+        self._liar = next((f for f in model.faults if isinstance(f, LyingAgent)), None)
+        alive = np.ones(self.N, dtype=bool)
+        for f in model.faults:
+            alive &= f.alive(self.N)
+        #: ``(N,)`` agents whose errors count (crashed agents and liars excluded)
+        self.alive = alive
+        self._all_alive = bool(alive.all())
         self._has_pnoise = not isinstance(plant.process_noise, NoNoise)
         self._has_mnoise = not isinstance(plant.measurement_noise, NoNoise)
         self._meas_always = isinstance(model.measurement_arrivals, AlwaysArrive)
@@ -416,6 +427,7 @@ class BatchedCore:
         self.buf_v = np.zeros((B, K, N, r)) if self._has_mnoise else None
         self.buf_meas = None if self._meas_always else np.ones((B, K, N), dtype=bool)
         self.buf_msg = None if self._msg_always else np.ones((B, K, N, N), dtype=bool)
+        self._stuck_memory = [f.new_state(B, r) for f in self._stuck]
 
     def _reset_member(self, b: int, seed: int) -> None:
         m = self.model
@@ -429,6 +441,7 @@ class BatchedCore:
         self.tau[b, self._arangeN, self._arangeN] = 0
         self.k[b] = 0
         self.transmit[b] = bool(m.initial_transmit)
+        self.transmit[b] &= ~self._silenced(np.zeros(1, np.int64))[0]
         self.errors[b] = 0.0
         self.raw_errors[b] = 0.0
         self.messages_sent[b] = 0
@@ -491,6 +504,8 @@ class BatchedCore:
         y = y.reshape(self.B, self.N, self.r)
         if self._has_mnoise:
             y += self.buf_v[b, p]
+        for f, memory in zip(self._stuck, self._stuck_memory, strict=True):
+            y = f.apply(self.k, y, memory)  # stuck/stale readings replace y_i[k]
         self.y = y
         self.y_arrived = self._ones_BN if self._meas_always else self.buf_meas[b, p]
         msg = self.valid & self.transmit[self._bI, safe]
@@ -557,7 +572,7 @@ class BatchedCore:
         choice, tx_next, masked = self._validate(actions)
         self.last_invalid = masked
         B, D = self.B, self.D
-        Z, tau = self.Z, self.tau
+        Z, tau = self.Z, self.reported_indices()  # a liar's claims are what others adopt
         # --- update rule: what every agent propagates, per substate --------------------
         src = self.nbr_ext[self._bI, self._iI, choice]
         Z_sel = kernels.gather_substates(Z, src, self.block_of)
@@ -578,6 +593,8 @@ class BatchedCore:
             x_next += (w @ self.W.T)[:, 0]
         self.x, self.Z, self.tau = x_next, Z_next, tau_next
         self.k += 1
+        if self._crashes:  # crashed agents send nothing from their crash step on
+            tx_next = tx_next & ~self._silenced(self.k)  # (k already advanced)
         self.transmit = tx_next
         self.messages_sent += tx_next.sum(1)
         self.ptr += 1
@@ -595,8 +612,12 @@ class BatchedCore:
         e = np.fmin(raw, rw.error_clip)  # fmin: nan -> the clip value
         self.errors = e
         if rw.team_weight:
-            e = (1 - rw.team_weight) * e + rw.team_weight * e.mean(1, keepdims=True)
+            mean = (e.mean(1, keepdims=True) if self._all_alive
+                    else e[:, self.alive].mean(1, keepdims=True))
+            e = (1 - rw.team_weight) * e + rw.team_weight * mean
         reward = -rw.error_weight * e
+        if not self._all_alive:
+            reward[:, ~self.alive] = 0.0  # faulty agents' errors are not rewarded
         if rw.message_cost:
             reward -= rw.message_cost * tx_next
         lim = self.model.divergence_limit
@@ -604,10 +625,26 @@ class BatchedCore:
         if lim is None:
             terminated = np.zeros(B, bool)
         else:
-            terminated = ~(raw.max(1) <= lim)  # nan counts as diverged
+            terminated = ~(raw[:, self.alive].max(1) <= lim)  # nan counts as diverged
             truncated &= ~terminated
         obs, mask = self.observe()
         return StepResult(obs, mask, reward, terminated, truncated)
+
+    # ------------------------------------------------------------------ faults
+    def _silenced(self, k: np.ndarray) -> np.ndarray:
+        """``(len(k), N)``: agents crashed at times ``k`` (never transmit)."""
+        out = np.zeros((len(k), self.N), dtype=bool)
+        for f in self._crashes:
+            out |= f.silenced(k, self.N)
+        return out
+
+    def reported_indices(self) -> np.ndarray:
+        """Freshness indices as the network sees them, ``(B, N, N)``: ``tau`` with a liar's
+        rows replaced by its claim from its start step (:meth:`netsense.faults.LyingAgent.
+        reported`); ``tau`` itself without a liar."""
+        if self._liar is None:
+            return self.tau
+        return self._liar.reported(self.tau, self.k)
 
     # ------------------------------------------------------------------ observations
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
@@ -620,7 +657,7 @@ class BatchedCore:
         y = self.y if self._meas_always else self.y * arr[..., None]
         obs[:, :, L.y] = np.sign(y) * np.log1p(np.abs(y))  # symlog
         obs[:, :, L.y_arrived] = arr[..., None]
-        tau = self.tau
+        tau = self.reported_indices()
         obs[:, :, L.own_omega] = tau < 0
         obs[:, :, L.own_age] = np.maximum(tau, 0) / H
         Z = self.Z

@@ -34,6 +34,11 @@ their unmodified update rules:
     consensus baseline (:class:`LyingConsensusObserver`) the same agent just keeps its
     open-loop estimate and keeps sending it.
 
+The batched environment core (:class:`netsense.envcore.BatchedCore`, scenario section
+``[[faults]]``) applies crashes, stuck sensors and liars through the same per-member
+methods the hooks use (:meth:`CrashedAgents.silenced`, :meth:`StuckSensor.apply`,
+:meth:`LyingAgent.reported`), so each fault's semantics live here only.
+
 :func:`run_with_faults` builds the observer (freshness or consensus, lying variant when a
 :class:`LyingAgent` is present), composes the hooks and returns a
 :class:`~netsense.topology.Trajectory`.
@@ -162,14 +167,19 @@ class CrashedAgents(Fault):
         object.__setattr__(self, "agents", _agents("CrashedAgents", self.agents))
         _check_start("CrashedAgents", "at", self.at)
 
-    def hook(self, rng, batch_size, num_agents):
-        self.check(num_agents)
+    def silenced(self, k: int | np.ndarray, num_agents: int) -> np.ndarray:
+        """``(B, N)`` mask of the agents that cannot transmit at per-member times ``k``
+        (``(B,)``; an int gives ``(1, N)``)."""
         dead = np.zeros(num_agents, dtype=bool)
         dead[list(self.agents)] = True
-        at = self.at
+        k = np.atleast_1d(np.asarray(k))
+        return dead[None, :] & (k[:, None] >= self.at)
+
+    def hook(self, rng, batch_size, num_agents):
+        self.check(num_agents)
 
         def h(k, x, y, adj, tx, arr):
-            return y, adj, (tx & ~dead) if k >= at else tx, arr
+            return y, adj, tx & ~self.silenced(k, num_agents), arr
         return h
 
     def alive(self, num_agents):
@@ -212,27 +222,57 @@ class StuckSensor(Fault):
                 or self.delay < 1:
             raise ValueError(f"StuckSensor.delay must be an int >= 1, got {self.delay!r}")
 
+    def new_state(self, batch_size: int, num_outputs: int) -> np.ndarray:
+        """Per-member memory of :meth:`apply`: the frozen value (``"stuck"``) or the last
+        ``delay + 1`` true readings (``"stale"``), ``(B, H, len(agents), r)``."""
+        H = 1 if self.mode == "stuck" else self.delay + 1
+        return np.zeros((batch_size, H, len(self.agents), num_outputs))
+
+    def apply(self, k: int | np.ndarray, y: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """The readings the faulty sensors report at per-member times ``k``.
+
+        Parameters
+        ----------
+        k : int or (B,) int array
+            Time index of every member (consecutive calls must follow ``k = 0, 1, ...``
+            per member; a member restarting at ``k = 0`` restarts its memory).
+        y : (B, N, r) array
+            True readings ``y_i[k]``.
+        state : array from :meth:`new_state`
+            Updated in place.
+
+        Returns
+        -------
+        (B, N, r) array
+            ``y`` with the faulty rows replaced from step ``at`` on (a copy if changed).
+        """
+        B = y.shape[0]
+        k = np.broadcast_to(np.asarray(k, dtype=np.int64), (B,))
+        idx, b = list(self.agents), np.arange(B)
+        true = y[:, idx]
+        if self.mode == "stuck":
+            now = k == self.at
+            state[now, 0] = true[now]
+            held = state[:, 0]
+        else:
+            H = state.shape[1]
+            state[b, k % H] = true
+            held = state[b, np.maximum(k - self.delay, 0) % H]
+        on = k >= self.at
+        if not on.any():
+            return y
+        y = np.array(y)
+        y[:, idx] = np.where(on[:, None, None], held, true)
+        return y
+
     def hook(self, rng, batch_size, num_agents):
         self.check(num_agents)
-        idx = list(self.agents)
-        history: list[np.ndarray] = []
-        frozen: dict[str, np.ndarray] = {}
-        at, mode, delay = self.at, self.mode, self.delay
+        memory: list[np.ndarray] = []
 
         def h(k, x, y, adj, tx, arr):
-            history.append(np.array(y[:, idx]))
-            if mode == "stale" and len(history) > delay + 1:
-                history.pop(0)
-            if k < at:
-                return y, adj, tx, arr
-            y = np.array(y)
-            if mode == "stuck":
-                if "y" not in frozen:
-                    frozen["y"] = history[-1].copy()
-                y[:, idx] = frozen["y"]
-            else:
-                y[:, idx] = history[0]
-            return y, adj, tx, arr
+            if not memory:
+                memory.append(self.new_state(y.shape[0], y.shape[-1]))
+            return self.apply(k, y, memory[0]), adj, tx, arr
         return h
 
     def to_dict(self) -> dict:
@@ -263,6 +303,19 @@ class LyingAgent(Fault):
         object.__setattr__(self, "agents", _agents("LyingAgent", self.agents))
         _check_start("LyingAgent", "at", self.at)
         _check_start("LyingAgent", "claim", self.claim)
+
+    def reported(self, tau: np.ndarray, k: int | np.ndarray) -> np.ndarray:
+        """The indices ``(B, N, N)`` as the network sees them at per-member times ``k``:
+        from step ``at`` on the liars' rows read ``claim`` (their own substate keeps 0)."""
+        k = np.broadcast_to(np.asarray(k, dtype=np.int64), tau.shape[:1])
+        on = k >= self.at
+        if not on.any():
+            return tau
+        liars = np.array(self.agents)
+        rep = tau.copy()
+        rep[:, liars, :] = self.claim
+        rep[:, liars, liars] = 0
+        return np.where(on[:, None, None], rep, tau)
 
     def alive(self, num_agents):
         """Only honest agents' errors are reported."""
@@ -305,13 +358,9 @@ class LyingFreshnessObserver(FreshnessObserver):
         self.origin[:, np.arange(N), np.arange(N)] = np.arange(N)
 
     def reported(self, tau: np.ndarray) -> np.ndarray:
-        """The indices as the network sees them at the current step."""
-        if self.k < self.liar.at:
-            return tau
-        rep = tau.copy()
-        rep[:, self._liars, :] = self.liar.claim
-        rep[:, self._liars, self._liars] = 0
-        return rep
+        """The indices as the network sees them at the current step
+        (:meth:`LyingAgent.reported`)."""
+        return self.liar.reported(tau, self.k)
 
     def _select(self, Z, tau, nbr, valid, tx):
         lying = self.k >= self.liar.at

@@ -193,7 +193,7 @@ def test_malformed_sections_name_file_and_field(tmp_path, section, field):
 
 
 def test_sections_round_trip_through_to_dict():
-    for sid in ("drops_kfio-v0", "delayed_equalized-v0"):
+    for sid in ("drops_kfio-v0", "delayed_equalized-v0", "fault_liar-v0", "fault_crash-v0"):
         sc = load(sid)
         again = with_overrides(sc, horizon=sc.horizon)
         assert again.to_dict() == sc.to_dict()
