@@ -110,6 +110,8 @@ Arguments
 * ``render_mode``: ``None``, ``"ansi"``, ``"rgb_array"`` or ``"human"``;
 * ``invalid_actions``: ``"raise"`` (default) or ``"keep"``;
 * ``action_mask_in``: ``"observation"`` (default) or ``"info"``;
+* ``aoi_info``: ``False`` (default) or ``True`` to add the age-of-information field
+  ``infos[agent]["aoi"]`` (see Infos; it costs ~30-60 us per step, so it is opt-in);
 * scenario overrides (``horizon=``, ``reward={"message_cost": 0.1}``, ...), see
   :func:`netsense.scenarios.make`.
 
@@ -117,11 +119,29 @@ Infos
 -----
 ``infos[agent]``: ``error`` (normalised, clipped), ``transmitted`` (bool), plus
 ``action_mask`` with ``action_mask_in="info"`` and ``invalid_actions`` (count) in
-``"keep"`` mode.
+``"keep"`` mode; ``faulty`` (bool) when the scenario has ``[[faults]]`` (crashed agents
+and liars are faulty: their errors are left out of the team error and of their rewards).
+
+With ``aoi_info=True``, ``infos[agent]["aoi"]`` (also after :meth:`reset`) holds the
+agent's age of information over the steps ``0..k`` of the episode so far, exactly
+:func:`netsense.topology.aoi_stats` of its freshness-index history (the running form,
+:class:`RunningAoI`, merges one ``aoi_stats`` call per step):
+
+==================  ==========================================================
+key                 content (arrays of length ``N``, entry ``j`` = substate ``j``)
+==================  ==========================================================
+``tau``             the current indices ``tau_i^{(j)}[k]`` (int, omega = ``-1``)
+``mean``            time-average age over the steps with a finite index (NaN if none)
+``peak``            average peak age: the age just before each refresh (NaN if none)
+``max``             largest index so far (``-1`` while always omega)
+``omega_fraction``  fraction of the steps spent at omega
+==================  ==========================================================
 
 Version History
 ---------------
-* v0: initial release.
+* v0: initial release. Later additions keep every existing scenario's dynamics:
+  ``[source_estimator]``, ``[[faults]]`` and multirate arrivals in scenario files, the
+  ``faulty`` info with faults, the opt-in ``aoi`` info.
 """
 
 from __future__ import annotations
@@ -134,6 +154,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from netsense.envcore import BatchedCore, CoreModel
+from netsense.topology import aoi_stats
 
 RENDER_MODES = ("ansi", "rgb_array", "human")
 MASK_LOCATIONS = ("observation", "info")
@@ -156,6 +177,58 @@ class FlatMaskMultiDiscrete(spaces.MultiDiscrete):
         return super().sample(mask=mask, probability=probability)
 
 
+class RunningAoI:
+    """Running :func:`netsense.topology.aoi_stats` of one index sequence ``tau[0..k]``.
+
+    Every per-step quantity comes from one ``aoi_stats`` call on the last two index
+    arrays (window ``[tau[k-1], tau[k]]`` for the refresh/peak rule, window ``[tau[k],
+    tau[k]]`` for the current age and omega flag); the running result merges their sums
+    and counts, so :meth:`stats` equals ``aoi_stats(tau[0..k])`` up to summation order,
+    at ``O(N^2)`` cost per step instead of ``O(k N^2)``.
+
+    Parameters
+    ----------
+    tau0 : (N, N) int array
+        Indices at ``k = 0`` (``OMEGA = -1``).
+    """
+
+    def __init__(self, tau0: np.ndarray) -> None:
+        self.prev = np.array(tau0)
+        zero = np.zeros(self.prev.shape)
+        self.steps, self.finite, self.total = 0, zero.copy(), zero.copy()
+        self.peaks, self.peak_total = zero.copy(), zero.copy()
+        self.max = np.full(self.prev.shape, -np.inf)
+        self._add(self.prev, None)
+
+    def _add(self, tau: np.ndarray, peak: np.ndarray | None) -> None:
+        cur = aoi_stats(np.stack([tau, tau])[:, None])  # window of the current step only
+        fin = 1.0 - cur["omega_fraction"][0]
+        self.steps += 1
+        self.finite += fin
+        self.total += np.where(fin > 0, cur["mean"][0], 0.0)
+        self.max = np.maximum(self.max, cur["max"][0])
+        if peak is not None:
+            hit = ~np.isnan(peak)
+            self.peaks += hit
+            self.peak_total += np.where(hit, peak, 0.0)
+
+    def update(self, tau: np.ndarray) -> None:
+        """Append ``tau[k]``."""
+        tau = np.array(tau)
+        pair = aoi_stats(np.stack([self.prev, tau])[:, None])  # refresh at this step?
+        self._add(tau, pair["peak"][0])
+        self.prev = tau
+
+    def stats(self) -> dict[str, np.ndarray]:
+        """``mean``, ``peak``, ``max`` and ``omega_fraction`` as ``aoi_stats`` gives them
+        for ``tau[0..k]`` (``(N, N)`` arrays)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return {"mean": np.where(self.finite > 0, self.total / self.finite, np.nan),
+                    "peak": np.where(self.peaks > 0, self.peak_total / self.peaks, np.nan),
+                    "max": self.max.copy(),
+                    "omega_fraction": 1.0 - self.finite / self.steps}
+
+
 class NetSenseEnv(ParallelEnv):
     """PettingZoo parallel environment; see the module docstring for the full doc page.
 
@@ -168,6 +241,8 @@ class NetSenseEnv(ParallelEnv):
     render_mode : {None, "ansi", "rgb_array", "human"}
     invalid_actions : {"raise", "keep"}
     action_mask_in : {"observation", "info"}
+    aoi_info : bool
+        Add ``infos[agent]["aoi"]`` (age-of-information statistics, see the module doc).
     """
 
     metadata = {"name": "netsense_v0", "render_modes": list(RENDER_MODES),
@@ -175,14 +250,18 @@ class NetSenseEnv(ParallelEnv):
 
     def __init__(self, model: CoreModel, *, scenario_id: str = "custom",
                  render_mode: str | None = None, invalid_actions: str = "raise",
-                 action_mask_in: str = "observation") -> None:
+                 action_mask_in: str = "observation", aoi_info: bool = False) -> None:
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be None or one of {RENDER_MODES}, "
                              f"got {render_mode!r}")
         if action_mask_in not in MASK_LOCATIONS:
             raise ValueError(f"action_mask_in must be one of {MASK_LOCATIONS}, "
                              f"got {action_mask_in!r}")
+        if not isinstance(aoi_info, bool):
+            raise ValueError(f"aoi_info must be True or False, got {aoi_info!r}")
         self.core = BatchedCore(model, 1, invalid_actions=invalid_actions)
+        self.aoi_info = aoi_info
+        self._aoi: RunningAoI | None = None
         self.model = model
         self.scenario_id = scenario_id
         self.render_mode = render_mode
@@ -236,7 +315,18 @@ class NetSenseEnv(ParallelEnv):
         self.agents = list(self.possible_agents)
         self.history = []
         o, infos = self._package(obs[0], mask[0])
+        if self.aoi_info:
+            self._aoi = RunningAoI(self.core.tau[0])
+            self._add_aoi(infos)
         return o, infos
+
+    def _add_aoi(self, infos: dict[str, dict]) -> None:
+        tau = self.core.tau[0]
+        st = self._aoi.stats()
+        for i, a in enumerate(self.possible_agents):
+            infos[a]["aoi"] = {"tau": tau[i].copy(), "mean": st["mean"][i],
+                               "peak": st["peak"][i], "max": st["max"][i].astype(np.int64),
+                               "omega_fraction": st["omega_fraction"][i]}
 
     def _package(self, obs: np.ndarray, mask: np.ndarray, extra: dict | None = None):
         agents = self.possible_agents
@@ -254,6 +344,9 @@ class NetSenseEnv(ParallelEnv):
             if inv is not None:
                 for a, v in zip(agents, inv, strict=True):
                     infos[a]["invalid_actions"] = v
+            if self.model.faults:
+                for a, ok in zip(agents, self.core.alive.tolist(), strict=True):
+                    infos[a]["faulty"] = not ok
         if self.action_mask_in == "info":
             for i, a in enumerate(agents):
                 infos[a]["action_mask"] = mask[i]
@@ -294,6 +387,9 @@ class NetSenseEnv(ParallelEnv):
         if self.core.invalid_actions == "keep":
             extra["invalid"] = self.core.last_invalid[0].sum(1).tolist()
         obs, infos = self._package(out.obs[0], out.action_mask[0], extra)
+        if self.aoi_info:
+            self._aoi.update(self.core.tau[0])
+            self._add_aoi(infos)
         rewards = dict(zip(agents, out.reward[0].tolist(), strict=True))
         term, trunc = bool(out.terminated[0]), bool(out.truncated[0])
         terminations = dict.fromkeys(agents, term)

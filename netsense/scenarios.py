@@ -89,7 +89,7 @@ from netsense.envcore import CoreModel, RewardConfig
 _TOP = {"description", "horizon", "x0_std", "initial_transmit", "divergence_limit",
         "plant", "graph", "design", "noise", "arrivals", "reward", "source_estimator",
         "faults"}
-_ENV_KWARGS = {"render_mode", "invalid_actions", "action_mask_in"}
+_ENV_KWARGS = {"render_mode", "invalid_actions", "action_mask_in", "aoi_info"}
 _PLANT_FIELDS = {
     "fig1_scalar": ({"kind"}, {"a"}),
     "random_structured": ({"kind", "n", "num_agents", "seed"},
@@ -587,8 +587,8 @@ def make(scenario_id: str, **overrides):
     scenario_id : str
         An id from :func:`list_scenarios` (e.g. ``"fig1_scalar-v0"``).
     **overrides
-        Environment arguments (``render_mode``, ``invalid_actions``, ``action_mask_in``)
-        and scenario keys (``horizon=10``, ``reward={"message_cost": 0.05}``, ...).
+        Environment arguments (``render_mode``, ``invalid_actions``, ``action_mask_in``,
+        ``aoi_info``) and scenario keys (``horizon=10``, ``reward={"message_cost": 0.05}``, ...).
 
     Returns
     -------
