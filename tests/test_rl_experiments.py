@@ -52,3 +52,22 @@ def test_train_and_benchmark_scripts_smoke(tmp_path):
                        "--override", "horizon=8", "--no-progress"]) == 0
     table = (out / "summary.md").read_text()
     assert "| fig1_scalar-v0 | learned |" in table and "| fig1_scalar-v0 | kf_oracle |" in table
+
+
+@pytest.mark.parametrize("scenario", ["fig1_scalar-v0", "random_structured_n20_N10-v0",
+                                      "message_cost-v0"])
+def test_committed_policies_still_fit_their_scenarios(scenario):
+    """The committed policies act in the current env (else retrain: the layout changed)."""
+    pytest.importorskip("sb3_contrib")
+    import numpy as np
+
+    from netsense.benchmark import rollout
+    from netsense.rl.sb3 import LearnedPolicy
+    from netsense.rl.wrappers import MaskedFlatObs
+    from netsense.scenarios import make
+
+    path = EXP / "results" / f"train_{scenario}" / "policy.zip"
+    space = MaskedFlatObs(make(scenario)).observation_space("sensor_0")
+    assert LearnedPolicy(path).model.observation_space.shape == space.shape
+    rec = rollout(scenario, f"learned:{path}", 1000, {"horizon": 10})
+    assert np.all(np.isfinite(rec.errors))
