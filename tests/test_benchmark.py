@@ -146,3 +146,16 @@ def test_benchmark_command(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "| fig1_scalar-v0 | freshness |" in out
     assert (tmp_path / "summary.md").exists()
+
+
+def test_heavy_dependencies_stay_lazy():
+    import subprocess
+    import sys
+
+    code = ("import sys, netsense, netsense.benchmark, netsense.rl, netsense.rl.wrappers, "
+            "netsense.rl.rllib, netsense.rl.torchrl; from netsense.cli import build_parser; "
+            "build_parser(); heavy = [m for m in ('torch', 'stable_baselines3', 'sb3_contrib', "
+            "'supersuit', 'ray', 'torchrl') if m in sys.modules]; print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == "[]"
