@@ -112,3 +112,36 @@ def test_cli_list_prints_every_scenario(capsys):
     out = capsys.readouterr().out
     for sid in list_scenarios():
         assert sid in out
+
+
+def _returns(sid, policy, transmit_period=1, B=8):
+    """Mean per-agent return and message-cost share over B seeds (batched core)."""
+    from netsense.envcore import BatchedCore
+    from netsense.policies import make_policy
+
+    core = BatchedCore(scenarios.build_model(load(sid)), B)
+    o, m = core.reset(0)
+    pol = make_policy(policy, core)
+    total = cost = 0.0
+    for k in range(core.horizon):
+        a = pol.act(o, m)
+        a[..., -1] &= (k + 1) % transmit_period == 0  # bit set at k is sent at k + 1
+        out = core.step(a)
+        o, m = out.obs, out.action_mask
+        total += out.reward.sum(1).mean() / core.N
+        cost += core.model.reward.message_cost * core.transmit.sum(1).mean() / core.N
+    return total, cost
+
+
+def test_message_cost_v1_makes_messages_matter():
+    """v1's claims: freshness beats uniform consensus; the message cost is a large share
+    of the always-transmit return; halving the transmissions (same freshness rule) pays."""
+    fresh, fresh_cost = _returns("message_cost-v1", "freshness")
+    uniform, _ = _returns("message_cost-v1", "uniform")
+    half, _ = _returns("message_cost-v1", "freshness", transmit_period=2)
+    assert fresh > uniform
+    assert fresh_cost > 0.4 * -fresh
+    assert half > fresh
+    # v0 is unchanged (the RL engineer's scenario): cost 0.05, half-shared team error
+    v0 = load("message_cost-v0")
+    assert (v0.reward.message_cost, v0.reward.team_weight, v0.horizon) == (0.05, 0.5, 100)
