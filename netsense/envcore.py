@@ -40,6 +40,16 @@ uniform average over self and every in-neighbour whose message arrived (eq. (6),
 stalest contributor + 1). ``a[N]``: transmit at the next step (0/1). The source's entry
 for its own substate must be 0 (update (7) is not an action).
 
+Faults (``CoreModel.faults``, scenario ``[[faults]]``)
+-----------------------------------------------------
+A crashed agent's transmit bits are cleared from its crash step on; a stuck or stale
+sensor's ``y_i[k]`` is replaced before the observation and the source correction (eq. (7))
+use it; a liar's claimed indices replace its rows of ``tau`` in every agent's observation
+and in the index update (eqs. (9), (11), (14) via :func:`netsense.kernels.advance_indices`).
+The rules are those of :mod:`netsense.faults` (``silenced``, ``apply``, ``reported``),
+evaluated at each member's own time; crashed agents and liars are excluded from the team
+error, from error rewards and from the divergence check (:attr:`BatchedCore.alive`).
+
 Bad actions: entries outside ``0..D+1`` (or a transmit bit outside ``{0, 1}``) always
 raise ``ValueError``; masked choices (adopting from an empty slot or from a neighbour
 whose message did not arrive, or anything but 0 on the own substate) raise too when
