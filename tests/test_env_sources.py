@@ -198,3 +198,35 @@ def test_sections_round_trip_through_to_dict():
         again = with_overrides(sc, horizon=sc.horizon)
         assert again.to_dict() == sc.to_dict()
         assert type(sc).from_dict(sid, sc.to_dict()).to_dict() == sc.to_dict()
+
+
+def test_rseio_source_with_mu_one_is_kfio_in_the_environment():
+    """Theorem 1 with mu = 1 is KFIO: the same episode with either source; mu < 1 differs."""
+    base = {"Q": 1e-4, "R": 1e-2, "dA": np.full((1, 6, 6), 0.1)}
+    runs = {}
+    for name, spec in (("kfio", {"kind": "kfio", "Q": 1e-4, "R": 1e-2}),
+                       ("rseio1", {"kind": "rseio", "mu": 1.0, **base}),
+                       ("rseio05", {"kind": "rseio", "mu": 0.5, **base})):
+        env = make("drops_kfio-v0", horizon=30, source_estimator=spec)
+        _episode_error(env, 1)
+        runs[name] = env.core.Z[0].copy()
+    np.testing.assert_allclose(runs["rseio1"], runs["kfio"], rtol=0, atol=1e-12)
+    assert np.abs(runs["rseio05"] - runs["kfio"]).max() > 1e-4
+
+
+def test_equalized_designs_are_solved_once_per_model_and_survive_pickling(monkeypatch):
+    import pickle
+
+    import netsense.observers.source_estimators_equalized as eqmod
+
+    env = make("delayed_equalized-v0")
+    pickled = pickle.dumps(env)
+
+    def no_lp(*args, **kwargs):
+        raise AssertionError("an equalized design LP was solved again")
+
+    monkeypatch.setattr(eqmod, "design_equalized", no_lp)
+    make("delayed_equalized-v0").reset(seed=0)  # cached model: copies of the prototype
+    clone = pickle.loads(pickled)  # new design object, same content: no new LP either
+    clone.reset(seed=1)
+    assert clone.core.source._design_key == env.core.source._design_key

@@ -66,11 +66,21 @@ class EqualizedSource(SourceEstimator):
         self.language, self.eta_v, self.eta_w, self.mu1 = language, eta_v, eta_w, mu1
         self.channel = channel or language.channel()
         self._designs: dict[int, EqualizedDesign] = {}
-        self._design_key: int | None = None
+        self._design_key: tuple | None = None
+
+    @staticmethod
+    def _key(design: ObserverDesign) -> tuple:
+        """What the designs depend on: every source block's ``(A_jj, C_jj)``. A content key
+        (not ``id(design)``) survives pickling and deep copies, and never mistakes a new
+        design object for an old one whose id was reused."""
+        d = design.decomposition
+        return tuple((j, d.A_jj(j).shape, d.A_jj(j).tobytes(), d.C_jj(j).shape,
+                      d.C_jj(j).tobytes()) for j in range(d.num_agents) if d.sizes[j])
 
     def designs(self, design: ObserverDesign) -> dict[int, EqualizedDesign]:
         """The equalized design of every source agent (computed once per observer design)."""
-        if self._design_key != id(design):
+        key = self._key(design)
+        if self._design_key != key:
             d = design.decomposition
             out = {}
             for j in range(d.num_agents):
@@ -81,7 +91,7 @@ class EqualizedSource(SourceEstimator):
                                      W=np.eye(nj) if self.eta_w else None, eta_w=self.eta_w,
                                      eta_v=self.eta_v)
                 out[j] = design_equalized(P, mu1=self.mu1)
-            self._designs, self._design_key = out, id(design)
+            self._designs, self._design_key = out, key
         return self._designs
 
     def reset(self, design: ObserverDesign, batch_size: int,
