@@ -13,7 +13,8 @@ In one run (so every contender sees the same machine load; compare ratios):
    auto-resetting array API (:func:`netsense.speed.allocation_growth`).
 
 Writes ``results/bench_batched.csv`` (speed table), ``bench_batched_scaling.csv`` /
-``.png``, ``bench_batched_memory.txt`` and ``bench_batched_growth.csv`` / ``.png``.
+``.png``, ``bench_batched_growth.csv`` / ``.png`` and one ``bench_batched_<section>.txt``
+per section (speed, scaling, memory, growth) headed by the commits measured.
 
 Run: ``python experiments/bench_batched.py`` (about 10-15 minutes on 2 shared cores;
 ``--smoke`` for a seconds-long check).
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -32,6 +34,18 @@ import numpy as np
 from netsense import speed
 
 RESULTS = Path(__file__).parent / "results"
+
+
+def _commit(path: str) -> str:
+    """Short hash of the last commit touching ``path`` (``?`` outside a git checkout)."""
+    import subprocess
+
+    try:
+        return subprocess.run(["git", "log", "-1", "--format=%h", "--", path],
+                              cwd=Path(__file__).parents[1], capture_output=True,
+                              text=True, check=True).stdout.strip() or "?"
+    except (OSError, subprocess.CalledProcessError):
+        return "?"
 
 
 def _plt():
@@ -66,6 +80,9 @@ def plot_scaling(rows: list[dict], path: Path) -> dict[str, float]:
             ax.loglog(x, y0 * (x / x[0]) ** p, ls, color="gray", lw=0.8,
                       label=f"~ {axis}^{p}")
         fixed = (f"n = {rs[0]['n']}" if axis == "N" else f"N = {rs[0]['N']}")
+        ax.set_xticks(x)
+        ax.set_xticklabels([f"{v:g}" for v in x])
+        ax.minorticks_off()
         ax.set_xlabel(axis)
         ax.set_title(f"step time vs {axis} ({fixed}, B = {B}, D = {rs[0]['D']})")
         ax.grid(True, which="both", alpha=0.3)
@@ -117,17 +134,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         shapes, steps, rep = speed.SHAPES, args.steps, args.repeats
         Ns, ns, sB, mem, growth = (10, 20, 40, 80, 160), (5, 10, 20, 40, 80), 64, \
             (1024, 30, 20), args.growth_steps
-    summary = []
+    sections: dict[str, list[str]] = {}
     # %% 1. speed table
     if "speed" not in args.skip:
         rows = speed.measure(shapes, steps=steps, repeats=rep, vmas=not args.no_vmas,
                              progress=prog)
         speed.write_csv(rows, out / f"{stem}.csv")
-        table = speed.format_table(rows)
-        print(table)
-        summary += [table, ""] + speed.verdicts(rows) + [""]
-        for line in speed.verdicts(rows):
-            print(line)
+        lines = [speed.format_table(rows), ""] + speed.verdicts(rows)
+        print("\n".join(lines))
+        sections["speed"] = lines
     # %% 2. scaling in N and n
     if "scaling" not in args.skip:
         srows = speed.scaling(Ns, ns, B=sB, N_fixed=min(30, max(Ns)), n_fixed=min(20, max(ns)),
@@ -136,7 +151,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         slopes = plot_scaling(srows, out / f"{stem}_scaling.png")
         line = "log-log slopes: " + ", ".join(f"{k} {v:.2f}" for k, v in slopes.items())
         print(line)
-        summary.append(line)
+        sections["scaling"] = [line]
     # %% 3. memory of the state
     if "memory" not in args.skip:
         m = speed.memory_footprint(*mem)
@@ -149,10 +164,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                  "largest arrays: " + ", ".join(f"{k} {v / 1e6:.1f} MB"
                                                 for k, v in m["largest"])]
         print("\n".join(lines))
-        summary += lines
+        sections["memory"] = lines
     # %% 4. allocation growth over many steps
     if "growth" not in args.skip:
-        grow = speed.allocation_growth(growth, every=max(growth // 100, 1), progress=prog)
+        grow, diff = speed.allocation_growth(growth, every=max(growth // 100, 1),
+                                             progress=prog)
         speed.write_csv(grow, out / f"{stem}_growth.csv")
         plot_growth(grow, out / f"{stem}_growth.png")
         g0, g1 = grow[0], grow[-1]
@@ -161,9 +177,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"step {g0['step']} -> {g1['traced_bytes'] / 1e6:.3f} MB at the end "
                 f"(max {max(r['traced_bytes'] for r in grow) / 1e6:.3f} MB); RSS "
                 f"{g0['rss_bytes'] / 1e6:.1f} -> {g1['rss_bytes'] / 1e6:.1f} MB")
-        print(line)
-        summary.append(line)
-    (out / f"{stem}_summary.txt").write_text("\n".join(summary) + "\n")
+        lines = [line, "largest growth by source line (first sample -> end):"] + diff
+        print("\n".join(lines))
+        sections["growth"] = lines
+    head = [f"netsense {_commit('.')}, envcore.py at {_commit('netsense/envcore.py')}, "
+            f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"]
+    for name, lines in sections.items():
+        (out / f"{stem}_{name}.txt").write_text("\n".join(head + lines) + "\n")
     print(f"wrote {out}/{stem}*")
     return 0
 

@@ -36,7 +36,7 @@ import os
 import pstats
 import time
 import tracemalloc
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -128,12 +128,17 @@ class _KernelRunner:
 
 
 class _VmasRunner:
-    """VMAS ``simple_spread`` on CPU (torch) with zero continuous actions."""
+    """VMAS ``simple_spread`` on CPU (torch) with zero continuous actions, ``threads``
+    torch threads (default 1)."""
 
-    def __init__(self, B: int, N: int, seed: int = 0) -> None:
+    def __init__(self, B: int, N: int, seed: int = 0, threads: int | None = 1) -> None:
         import torch
         import vmas
 
+        if threads is not None:
+            # like the numpy core (one thread); on a loaded machine torch's default
+            # thread pool is much slower and erratic (oversubscription)
+            torch.set_num_threads(int(threads))
         self.env = vmas.make_env("simple_spread", num_envs=B, device="cpu",
                                  continuous_actions=True, seed=seed, n_agents=N)
         self.env.reset()
@@ -158,7 +163,8 @@ def vmas_available() -> bool:
 
 # ----------------------------------------------------------------------------- measure
 def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
-                  vmas: bool = True, vmas_budget: float = 20.0, seed: int = 0) -> dict:
+                  vmas: bool = True, vmas_budget: float = 20.0, vmas_threads: int | None = 1,
+                  seed: int = 0) -> dict:
     """Time core, kernel and (optionally) VMAS at one shape; returns one result row.
 
     Parameters
@@ -172,6 +178,9 @@ def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
     vmas_budget : float
         Seconds VMAS may use per repeat; it runs fewer steps (at least 1) when one step
         is slower than ``vmas_budget / steps`` (VMAS scales like ``B N^2``).
+    vmas_threads : int or None
+        torch threads for VMAS (default 1, like the single-threaded numpy core; None
+        keeps torch's default).
     seed : int
 
     Returns
@@ -186,7 +195,7 @@ def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
     kern = _KernelRunner(core.core, seed)
     vm = None
     if vmas and vmas_available():
-        vm = _VmasRunner(B, N, seed)
+        vm = _VmasRunner(B, N, seed, vmas_threads)
     core.block(2)
     kern.block(2)
     vm_steps = steps
@@ -334,13 +343,14 @@ def _rss_bytes() -> int:
 
 def allocation_growth(steps: int = 100_000, *, scenario: str = "link_failures-v0",
                       B: int = 8, every: int = 1000, seed: int = 0,
-                      progress: bool = True,
-                      callback: Callable[[int], None] | None = None) -> list[dict]:
+                      progress: bool = True, top: int = 5) -> tuple[list[dict], list[str]]:
     """Run ``steps`` steps of :class:`netsense.vector.BatchedEnv` (auto-reset, freshness
     policy) under tracemalloc and sample the live allocations and the RSS.
 
-    Returns rows ``{"step", "traced_bytes", "rss_bytes", "episodes"}`` every ``every``
-    steps. Growth = last sample minus the first sample after warm-up (step ``every``).
+    The sample buffers are allocated before tracing starts, so the bookkeeping itself does
+    not count. Returns the rows ``{"step", "traced_bytes", "rss_bytes", "episodes"}``
+    (every ``every`` steps) and the ``top`` source lines whose live allocations grew most
+    between the first sample and the end (tracemalloc snapshot difference).
     """
     from tqdm import tqdm
 
@@ -350,23 +360,36 @@ def allocation_growth(steps: int = 100_000, *, scenario: str = "link_failures-v0
     env = BatchedEnv(scenario, B)
     pol = FreshnessPolicy(env.layout)
     obs, info = env.reset(seed=seed)
-    rows = []
-    episodes = 0
+    m = steps // every
+    traced = np.zeros(m, dtype=np.int64)
+    rss = np.zeros(m, dtype=np.int64)
+    eps = np.zeros(m, dtype=np.int64)
+    episodes = np.zeros(1, dtype=np.int64)
+    bar = tqdm(total=steps, desc="steps", disable=not progress, mininterval=2.0)
     gc.collect()
     tracemalloc.start()
+    first = None
     try:
-        for k in tqdm(range(1, steps + 1), desc="steps", disable=not progress,
-                      mininterval=2.0):
+        for k in range(1, steps + 1):
             obs, rew, term, trunc, info = env.step(pol.act(obs, info["action_mask"]))
-            episodes += int((term | trunc).sum())
+            episodes += (term | trunc).sum()
             if k % every == 0:
-                rows.append({"step": k, "traced_bytes": tracemalloc.get_traced_memory()[0],
-                             "rss_bytes": _rss_bytes(), "episodes": episodes})
-                if callback is not None:
-                    callback(k)
+                j = k // every - 1
+                traced[j] = tracemalloc.get_traced_memory()[0]
+                rss[j] = _rss_bytes()
+                eps[j] = episodes[0]
+                if j == 0:
+                    first = tracemalloc.take_snapshot()
+                bar.update(every)
+        last = tracemalloc.take_snapshot()
     finally:
         tracemalloc.stop()
-    return rows
+        bar.close()
+    diff = [] if first is None else [
+        str(d) for d in last.compare_to(first, "lineno")[:top]]
+    rows = [{"step": (j + 1) * every, "traced_bytes": int(traced[j]),
+             "rss_bytes": int(rss[j]), "episodes": int(eps[j])} for j in range(m)]
+    return rows, diff
 
 
 # ----------------------------------------------------------------------------- profile
@@ -452,6 +475,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--no-vmas", action="store_true", help="skip VMAS")
     p.add_argument("--vmas-budget", type=float, default=20.0,
                    help="seconds per VMAS block at most (default 20)")
+    p.add_argument("--vmas-threads", type=int, default=1,
+                   help="torch threads for VMAS (default 1, like the numpy core)")
     p.add_argument("--profile", action="store_true", help="print where the core's time goes")
     p.add_argument("--memory", action="store_true",
                    help="measure the state size at B=1024, N=30, n=20")
@@ -467,7 +492,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.steps < 1 or args.repeats < 1:
         p.error("--steps and --repeats must be >= 1")
     rows = measure(shapes, steps=args.steps, repeats=args.repeats, vmas=not args.no_vmas,
-                   progress=not args.no_progress, vmas_budget=args.vmas_budget)
+                   progress=not args.no_progress, vmas_budget=args.vmas_budget,
+                   vmas_threads=args.vmas_threads)
     print(format_table(rows))
     for line in verdicts(rows):
         print(line)
