@@ -2,8 +2,9 @@
 
 ``ansi``: one line per agent (up to 12, then a summary) with its normalised error, how
 many freshness indices are finite, the largest finite age, its in-neighbours and whether it
-transmits. ``rgb_array``/``human``: the current graph ``G[k]`` with agents coloured by
-``log10`` of their error, next to the error curves so far (every agent for ``N <= 10``,
+transmits; faulty agents (crashed, liars) are starred and left out of the mean error.
+``rgb_array``/``human``: the current graph ``G[k]`` with agents coloured by ``log10`` of
+their error, next to the error curves so far (every agent for ``N <= 10``,
 otherwise mean and max). Matplotlib is imported lazily and drawn with the Agg canvas.
 """
 
@@ -26,15 +27,18 @@ def ansi_table(env) -> str:
     tau = c.tau[0]
     finite = (tau != kernels.OMEGA).sum(1)
     age = np.where(tau == kernels.OMEGA, -1, tau).max(1)
-    lines = [f"{env.scenario_id}  k = {k}/{c.horizon}  mean error = {err.mean():.3g}  "
-             f"max error = {err.max():.3g}  messages = {int(c.messages_sent[0])}",
+    alive = c.alive
+    lines = [f"{env.scenario_id}  k = {k}/{c.horizon}  mean error = {err[alive].mean():.3g}  "
+             f"max error = {err[alive].max():.3g}  messages = {int(c.messages_sent[0])}"
+             + ("" if alive.all() else "  (* faulty, not in the mean)"),
              f"{'agent':>9} {'error':>10} {'finite tau':>10} {'max age':>7} {'tx':>3}  "
              "in-neighbours"]
     N = c.N
     rows = range(N) if N <= _MAX_ROWS else range(_MAX_ROWS - 2)
     for i in rows:
         nb = [int(v) for v, ok in zip(c.nbr[0, i], c.msg[0, i], strict=True) if ok]
-        lines.append(f"{'sensor_' + str(i):>9} {err[i]:10.3g} {int(finite[i]):>6}/{N:<3} "
+        name = f"sensor_{i}" + ("" if alive[i] else "*")
+        lines.append(f"{name:>9} {err[i]:10.3g} {int(finite[i]):>6}/{N:<3} "
                      f"{int(age[i]):>7} {'y' if c.transmit[0, i] else 'n':>3}  {nb}")
     if N > _MAX_ROWS:
         lines.append(f"{'...':>9} ({N - len(rows)} more agents; median error "

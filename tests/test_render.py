@@ -52,3 +52,15 @@ def test_render_without_mode_returns_none():
     env = make("fig1_scalar-v0")
     env.reset(seed=0)
     assert env.render() is None
+
+
+def test_ansi_marks_faulty_agents_and_leaves_them_out_of_the_mean():
+    env = make("fault_crash-v0", render_mode="ansi", horizon=5)
+    _run(env, 3)
+    lines = env.render().splitlines()
+    assert "faulty" in lines[0]
+    names = [ln.split()[0] for ln in lines[2:]]
+    assert names[4] == "sensor_4*" and sum(n.endswith("*") for n in names) == 1
+    err = env.core.errors[0]
+    mean = float(lines[0].split("mean error = ")[1].split()[0])
+    assert mean == float(f"{np.delete(err, 4).mean():.3g}")
