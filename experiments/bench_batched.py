@@ -6,6 +6,7 @@ In one run (so every contender sees the same machine load; compare ratios):
    {(1024, 10, 10), (1024, 30, 20), (64, 100, 20)}, of the bare update kernel on the same
    arrays (gather + block-triangular multiply) and of VMAS ``simple_spread`` on CPU
    (:func:`netsense.speed.measure`);
+   and a cProfile of the core's step at each shape (:func:`netsense.speed.profile_core`);
 2. step time against ``N`` (``n = 20``) and against ``n`` (``N = 30``) at ``B = 64``, as
    a log-log figure with fitted slopes (:func:`netsense.speed.scaling`);
 3. the state size at ``B = 1024, N = 30, n = 20`` (:func:`netsense.speed.memory_footprint`);
@@ -14,7 +15,7 @@ In one run (so every contender sees the same machine load; compare ratios):
 
 Writes ``results/bench_batched.csv`` (speed table), ``bench_batched_scaling.csv`` /
 ``.png``, ``bench_batched_growth.csv`` / ``.png`` and one ``bench_batched_<section>.txt``
-per section (speed, scaling, memory, growth) headed by the commits measured.
+per section (speed, profile, scaling, memory, growth) headed by the commits measured.
 
 Run: ``python experiments/bench_batched.py`` (about 10-15 minutes on 2 shared cores;
 ``--smoke`` for a seconds-long check).
@@ -94,6 +95,18 @@ def plot_scaling(rows: list[dict], path: Path) -> dict[str, float]:
     return slopes
 
 
+def growth_rates(rows: list[dict], parts: int = 4) -> list[tuple[int, int, float]]:
+    """``(first step, last step, bytes per step)`` of the live allocations per part."""
+    k = np.array([r["step"] for r in rows])
+    t = np.array([r["traced_bytes"] for r in rows], dtype=float)
+    out = []
+    for idx in np.array_split(np.arange(len(rows)), parts):
+        if len(idx) >= 2:
+            a, b = idx[0], idx[-1]
+            out.append((int(k[a]), int(k[b]), float((t[b] - t[a]) / (k[b] - k[a]))))
+    return out
+
+
 def plot_growth(rows: list[dict], path: Path) -> None:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
@@ -119,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--growth-steps", type=int, default=100_000)
     p.add_argument("--no-vmas", action="store_true")
     p.add_argument("--skip", nargs="*", default=[],
-                   choices=["speed", "scaling", "memory", "growth"])
+                   choices=["speed", "profile", "scaling", "memory", "growth"])
     p.add_argument("--smoke", action="store_true", help="tiny shapes, seconds")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
@@ -143,6 +156,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         lines = [speed.format_table(rows), ""] + speed.verdicts(rows)
         print("\n".join(lines))
         sections["speed"] = lines
+    # %% 1b. where the core's time goes
+    if "profile" not in args.skip:
+        lines = []
+        for B, N, n in shapes:
+            lines.append(f"cProfile of BatchedCore.step at (B, N, n) = ({B}, {N}, {n}), "
+                         f"{steps} steps (own time per function):")
+            for where, sec, share in speed.profile_core(B, N, n, steps=steps):
+                lines.append(f"  {share:6.1%}  {sec * 1e3:8.2f} ms/step  {where}")
+        print("\n".join(lines))
+        sections["profile"] = lines
     # %% 2. scaling in N and n
     if "scaling" not in args.skip:
         srows = speed.scaling(Ns, ns, B=sB, N_fixed=min(30, max(Ns)), n_fixed=min(20, max(ns)),
@@ -177,7 +200,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"step {g0['step']} -> {g1['traced_bytes'] / 1e6:.3f} MB at the end "
                 f"(max {max(r['traced_bytes'] for r in grow) / 1e6:.3f} MB); RSS "
                 f"{g0['rss_bytes'] / 1e6:.1f} -> {g1['rss_bytes'] / 1e6:.1f} MB")
-        lines = [line, "largest growth by source line (first sample -> end):"] + diff
+        lines = [line, "growth rate of the live allocations per quarter of the run: "
+                 + ", ".join(f"steps {a}-{b}: {v:.3f} B/step"
+                             for a, b, v in growth_rates(grow)),
+                 "largest growth by source line (first sample -> end):"] + diff
         print("\n".join(lines))
         sections["growth"] = lines
     head = [f"netsense {_commit('.')}, envcore.py at {_commit('netsense/envcore.py')}, "
