@@ -1,7 +1,7 @@
 """The committed RL benchmark: learned MaskablePPO policies vs the scripted observers.
 
-Three scenarios (Fig. 1 scalar, random structured N = 10, message cost) x the policies
-``learned`` (``experiments/results/train_<scenario>/policy.zip``, from
+Four scenarios (Fig. 1 scalar, random structured N = 10, message cost v0 and v1) x the
+policies ``learned`` (``experiments/results/train_<scenario>/policy.zip``, from
 ``experiments/train_maskable_ppo.py``), ``freshness``, ``uniform_consensus``,
 ``tree_consensus`` (periodic-graph scenarios only), ``open_loop``, ``random`` and the
 centralized ``kf_oracle``, over 10 seeds (1000..1009, disjoint from the training seeds).
@@ -23,7 +23,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-SCENARIOS = ("fig1_scalar-v0", "random_structured_n20_N10-v0", "message_cost-v0")
+SCENARIOS = ("fig1_scalar-v0", "random_structured_n20_N10-v0", "message_cost-v0",
+             "message_cost-v1")
 POLICIES = ("learned", "freshness", "uniform_consensus", "tree_consensus", "open_loop",
             "random", "kf_oracle")
 

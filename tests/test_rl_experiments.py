@@ -36,6 +36,8 @@ def test_train_config_covers_the_benchmark_scenarios():
     for scenario, cfg in configs.items():
         assert cfg.scenario == scenario
         assert cfg.overrides["reward"]["team_weight"] == 1.0
+    # v1 trains on cost / N (see the config's comment); the others on the scenario's cost
+    assert configs["message_cost-v1"].overrides["reward"]["message_cost"] == 0.01
 
 
 def test_train_and_benchmark_scripts_smoke(tmp_path):
@@ -55,7 +57,7 @@ def test_train_and_benchmark_scripts_smoke(tmp_path):
 
 
 @pytest.mark.parametrize("scenario", ["fig1_scalar-v0", "random_structured_n20_N10-v0",
-                                      "message_cost-v0"])
+                                      "message_cost-v0", "message_cost-v1"])
 def test_committed_policies_still_fit_their_scenarios(scenario):
     """The committed policies act in the current env (else retrain: the layout changed)."""
     pytest.importorskip("sb3_contrib")
