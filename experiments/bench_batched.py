@@ -6,7 +6,8 @@ In one run (so every contender sees the same machine load; compare ratios):
    {(1024, 10, 10), (1024, 30, 20), (64, 100, 20)}, of the bare update kernel on the same
    arrays (gather + block-triangular multiply) and of VMAS ``simple_spread`` on CPU
    (:func:`netsense.speed.measure`);
-   and a cProfile of the core's step at each shape (:func:`netsense.speed.profile_core`);
+   a cProfile of the core's step at each shape (:func:`netsense.speed.profile_core`) and
+   its step time without building observations (:func:`netsense.speed.observation_cost`);
 2. step time against ``N`` (``n = 20``) and against ``n`` (``N = 30``) at ``B = 64``, as
    a log-log figure with fitted slopes (:func:`netsense.speed.scaling`);
 3. the state size at ``B = 1024, N = 30, n = 20`` (:func:`netsense.speed.memory_footprint`);
@@ -15,7 +16,7 @@ In one run (so every contender sees the same machine load; compare ratios):
 
 Writes ``results/bench_batched.csv`` (speed table), ``bench_batched_scaling.csv`` /
 ``.png``, ``bench_batched_growth.csv`` / ``.png`` and one ``bench_batched_<section>.txt``
-per section (speed, profile, scaling, memory, growth) headed by the commits measured.
+per section (speed, profile, observations, scaling, memory, growth) headed by the commits measured.
 
 Run: ``python experiments/bench_batched.py`` (about 10-15 minutes on 2 shared cores;
 ``--smoke`` for a seconds-long check).
@@ -132,7 +133,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--growth-steps", type=int, default=100_000)
     p.add_argument("--no-vmas", action="store_true")
     p.add_argument("--skip", nargs="*", default=[],
-                   choices=["speed", "profile", "scaling", "memory", "growth"])
+                   choices=["speed", "profile", "observations", "scaling", "memory",
+                            "growth"])
     p.add_argument("--smoke", action="store_true", help="tiny shapes, seconds")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
@@ -166,6 +168,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                 lines.append(f"  {share:6.1%}  {sec * 1e3:8.2f} ms/step  {where}")
         print("\n".join(lines))
         sections["profile"] = lines
+    # %% 1c. what building the observations costs
+    if "observations" not in args.skip:
+        lines = ["core step with and without building observations (same actions), vs the "
+                 "bare kernel:"]
+        for B, N, n in shapes:
+            o = speed.observation_cost(B, N, n, steps=steps, repeats=rep)
+            lines.append(f"  (B, N, n) = ({B}, {N}, {n}): full {o['full_s'] * 1e3:.2f} ms, "
+                         f"without observations {o['no_obs_s'] * 1e3:.2f} ms, kernel "
+                         f"{o['kernel_s'] * 1e3:.2f} ms per step -> core/kernel "
+                         f"{o['full_vs_kernel']:.3f} (full), {o['no_obs_vs_kernel']:.3f} "
+                         "(without observations)")
+        print("\n".join(lines))
+        sections["observations"] = lines
     # %% 2. scaling in N and n
     if "scaling" not in args.skip:
         srows = speed.scaling(Ns, ns, B=sB, N_fixed=min(30, max(Ns)), n_fixed=min(20, max(ns)),

@@ -425,6 +425,43 @@ def profile_core(B: int, N: int, n: int, *, steps: int = 64, top: int = 15,
     return rows[:top]
 
 
+def observation_cost(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
+                     seed: int = 0) -> dict:
+    """Diagnostic: the core's step with and without building observations.
+
+    Replays the same freshness-policy actions (recorded on a twin) on a normal core and on
+    one whose ``observe`` is stubbed out (no observation array; masks are still built for
+    validation) — what a ``step(..., observe=False)`` option would save. Best of
+    ``repeats`` interleaved blocks; returns seconds per step ``full_s``, ``no_obs_s``,
+    ``kernel_s`` and the rate ratios ``full_vs_kernel``, ``no_obs_vs_kernel``.
+    """
+    model = bench_model(N, n, seed=seed)
+    twin = _CoreRunner(model, B, seed)
+    acts = []
+    for _ in range(steps):
+        a = twin.policy.act(twin.obs, twin.mask)
+        acts.append(a)
+        out = twin.core.step(a)
+        twin.obs, twin.mask = out.obs, out.action_mask
+    full, bare = BatchedCore(model, B), BatchedCore(model, B)
+    bare.observe = lambda: (None, None)  # instance attribute shadows the method
+    kern = _KernelRunner(twin.core, seed)
+    best = {"full": math.inf, "no_obs": math.inf, "kernel": math.inf}
+    for _ in range(repeats):
+        for name, core in (("full", full), ("no_obs", bare)):
+            core.reset(seed)
+            t0 = time.perf_counter()
+            for a in acts:
+                core.step(a)
+            best[name] = min(best[name], (time.perf_counter() - t0) / steps)
+        best["kernel"] = min(best["kernel"], kern.block(steps) / steps)
+    if not np.array_equal(full.Z, bare.Z):
+        raise AssertionError("the stubbed core diverged from the full one")
+    return {"B": B, "N": N, "n": n, "full_s": best["full"], "no_obs_s": best["no_obs"],
+            "kernel_s": best["kernel"], "full_vs_kernel": best["kernel"] / best["full"],
+            "no_obs_vs_kernel": best["kernel"] / best["no_obs"]}
+
+
 # ----------------------------------------------------------------------------- report
 def format_table(rows: Sequence[dict]) -> str:
     """The speed table (Markdown) with the ratios and whether each target is met."""

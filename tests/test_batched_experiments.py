@@ -98,6 +98,8 @@ def test_speed_helpers():
     assert sizes["Z"] == core.Z.nbytes and sizes["tau"] == core.tau.nbytes
     prof = speed.profile_core(3, 11, 5, steps=3, top=5)
     assert len(prof) == 5 and all(0 <= share <= 1 for _, _, share in prof)
+    o = speed.observation_cost(3, 11, 5, steps=3, repeats=1)
+    assert o["full_s"] > 0 and o["no_obs_s"] > 0 and o["kernel_s"] > 0
     assert speed.loglog_slope([1, 2, 4], [3, 12, 48]) == pytest.approx(2.0)
     rows = [{"B": 1024, "N": 10, "n": 10, "core_rate": 2.0, "kernel_rate": 3.0,
              "vmas_rate": 0.1, "core_vs_kernel": 2 / 3, "core_vs_vmas": 20.0}]
