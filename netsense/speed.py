@@ -21,9 +21,10 @@ Rates are agent-steps/s ``= B N / (time of one step)``; each figure is the best 
 ``repeats`` blocks of ``steps`` steps. Targets (issue 8): core >= 10x VMAS at
 ``B = 1024, N = 10`` and core >= 0.5x the kernel at every shape.
 
-Run ``python -m netsense.speed`` (the function behind ``netsense bench batched`` is
-:func:`main`); ``experiments/bench_batched.py`` adds the scaling figure, the memory
-figures and the CSV files.
+Run ``python -m netsense.speed`` or :func:`main`; ``netsense bench batched`` is this
+module's :data:`HELP`, :func:`add_arguments` and :func:`run` (the :mod:`netsense.cli`
+contract), and ``experiments/bench_batched.py`` adds the profile, the scaling figure, the
+memory figures and the CSV files.
 """
 
 from __future__ import annotations
@@ -50,8 +51,9 @@ SHAPES: tuple[tuple[int, int, int], ...] = ((1024, 10, 10), (1024, 30, 20), (64,
 TARGET_VS_VMAS = 10.0
 TARGET_VS_KERNEL = 0.5
 
-__all__ = ["SHAPES", "allocation_growth", "bench_model", "core_state_bytes", "main",
-           "measure", "measure_shape", "memory_footprint", "profile_core", "scaling"]
+__all__ = ["HELP", "SHAPES", "add_arguments", "allocation_growth", "bench_model",
+           "core_state_bytes", "main", "measure", "measure_shape", "memory_footprint",
+           "observation_cost", "profile_core", "run", "scaling"]
 
 
 # ----------------------------------------------------------------------------- model
@@ -495,16 +497,13 @@ def verdicts(rows: Sequence[dict]) -> list[str]:
     return out
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``netsense bench batched``: agent-steps/s of core, kernel and VMAS; ratios.
+#: One-line help of ``netsense bench batched``.
+HELP = ("Agent-steps/s of the batched core vs the bare update kernel and VMAS simple_spread "
+        "(issue 8 targets), optional profile and memory.")
 
-    Options: ``--shapes B,N,n ...``, ``--steps``, ``--repeats``, ``--no-vmas``,
-    ``--profile`` (cProfile of the core at every shape), ``--memory`` (state size at
-    ``B = 1024, N = 30, n = 20``), ``--csv PATH``.
-    """
-    p = argparse.ArgumentParser(prog="netsense bench batched",
-                                description="Speed of the batched core vs the bare kernel "
-                                            "and VMAS simple_spread (issue 8).")
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of ``netsense bench batched`` (the :mod:`netsense.cli` contract)."""
     p.add_argument("--shapes", nargs="+", default=[",".join(map(str, s)) for s in SHAPES],
                    metavar="B,N,n", help="shapes (default: the three of issue 8)")
     p.add_argument("--steps", type=int, default=64, help="steps per timed block")
@@ -519,15 +518,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="measure the state size at B=1024, N=30, n=20")
     p.add_argument("--csv", default=None, help="write the rows to this CSV file")
     p.add_argument("--no-progress", action="store_true")
-    args = p.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``netsense bench batched`` with parsed ``args`` (see :func:`add_arguments`)."""
     try:
         shapes = [tuple(int(v) for v in s.split(",")) for s in args.shapes]
     except ValueError:
-        p.error("--shapes takes B,N,n triples of integers")
+        raise SystemExit("--shapes takes B,N,n triples of integers") from None
     if any(len(s) != 3 or min(s) < 1 for s in shapes):
-        p.error("--shapes takes B,N,n triples of positive integers")
+        raise SystemExit("--shapes takes B,N,n triples of positive integers")
     if args.steps < 1 or args.repeats < 1:
-        p.error("--steps and --repeats must be >= 1")
+        raise SystemExit("--steps and --repeats must be >= 1")
     rows = measure(shapes, steps=args.steps, repeats=args.repeats, vmas=not args.no_vmas,
                    progress=not args.no_progress, vmas_budget=args.vmas_budget,
                    vmas_threads=args.vmas_threads)
@@ -550,6 +552,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name, b in m["largest"]:
             print(f"  {name:20s} {b / 1e6:8.1f} MB")
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``netsense bench batched``: agent-steps/s of core, kernel and VMAS; ratios.
+
+    Options: ``--shapes B,N,n ...``, ``--steps``, ``--repeats``, ``--no-vmas``,
+    ``--vmas-threads``, ``--profile`` (cProfile of the core at every shape), ``--memory``
+    (state size at ``B = 1024, N = 30, n = 20``), ``--csv PATH``.
+    """
+    p = argparse.ArgumentParser(prog="netsense bench batched", description=HELP)
+    add_arguments(p)
+    return run(p.parse_args(argv))
 
 
 def write_csv(rows: Sequence[dict], path: str | Path) -> None:
