@@ -438,6 +438,11 @@ class BatchedCore:
         self.buf_meas = None if self._meas_always else np.ones((B, K, N), dtype=bool)
         self.buf_msg = None if self._msg_always else np.ones((B, K, N, N), dtype=bool)
         self._stuck_memory = [f.new_state(B, r) for f in self._stuck]
+        # observation tables (see observe): rows b N + i, plus one empty-slot row
+        self._obs_omega = np.ones((B * N + 1, N), dtype=np.float32)
+        self._obs_age = np.zeros((B * N + 1, N), dtype=np.float32)
+        self._row0 = (np.arange(B) * N)[:, None, None]
+        self._slot_base = ((np.arange(B)[:, None] * N + self._arangeN) * (self.D + 2))[..., None]
 
     def _reset_member(self, b: int, seed: int) -> None:
         m = self.model
@@ -552,15 +557,23 @@ class BatchedCore:
             if a.dtype.kind not in "fb" or np.any(a != np.round(a)):
                 raise ValueError(f"actions must be integers, got dtype {a.dtype}")
             a = a.astype(np.int64)
-        bad = (a < 0) | (a >= self.nvec)
-        if bad.any():
+        elif a.dtype == np.uint64:  # uint64 + int64 offsets would promote to float
+            a = a.astype(np.int64)
+        choice, tx = a[..., :N], a[..., N]
+        # range check by two reductions (no (B, N, N + 1) temporaries); locate on failure
+        if a.size and (a.min() < 0 or choice.max(initial=0) > D + 1 or tx.max() > 1):
+            bad = (a < 0) | (a >= self.nvec)
             b, i, j = (int(v) for v in np.argwhere(bad)[0])
             what = f"substate {j}" if j < N else "transmit"
             raise ValueError(f"action of agent {i} (batch member {b}) for {what} is "
                              f"{int(a[b, i, j])}, outside 0..{int(self.nvec[j]) - 1}")
-        choice, tx = a[..., :N], a[..., N]
-        mask4 = self.action_mask()[:, :, : N * (D + 2)].reshape(B, N, N, D + 2)
-        masked = mask4[self._bJ, self._iJ, self._jJ, choice[..., None]][..., 0] == 0
+        # masked choices, read from the (B, N, D + 2) slot table ok_row (the rule that
+        # action_mask() spells out per substate): a slot must hold a message that
+        # arrived, and an agent's own substate allows only 0 (keep)
+        flat = choice + self._slot_base  # flat index into (B, N, D + 2) tables
+        masked = ~np.take(self.ok_row.reshape(-1), flat)
+        diag = choice[:, self._arangeN, self._arangeN] != 0
+        masked[:, self._arangeN, self._arangeN] |= diag
         if masked.any():
             if self.invalid_actions == "raise":
                 b, i, j = (int(v) for v in np.argwhere(masked)[0])
@@ -570,6 +583,8 @@ class BatchedCore:
                 raise ValueError(f"masked action: agent {i} (batch member {b}), substate {j}, "
                                  f"choice {c}: {why}")
             choice = np.where(masked, 0, choice)
+            flat = choice + self._slot_base
+        self._flat_choice = flat
         return choice, tx.astype(bool), masked
 
     def step(self, actions) -> StepResult:
@@ -584,7 +599,8 @@ class BatchedCore:
         B, D = self.B, self.D
         Z, tau = self.Z, self.reported_indices()  # a liar's claims are what others adopt
         # --- update rule: what every agent propagates, per substate --------------------
-        src = self.nbr_ext[self._bI, self._iI, choice]
+        # the source of every substate: nbr_ext[b, i, choice[b, i, j]] (flat take)
+        src = np.take(self.nbr_ext.reshape(-1), self._flat_choice)
         Z_sel = kernels.gather_substates(Z, src, self.block_of)
         tau_next = kernels.advance_indices(tau, src)
         avg = choice == D + 1
@@ -592,7 +608,8 @@ class BatchedCore:
             mix = kernels.uniform_mix(Z, self.nbr, self.msg)
             Z_sel = np.where(avg[:, :, self.block_of], mix, Z_sel)
             tau_next = np.where(avg, kernels.average_indices(tau, self.nbr, self.msg), tau_next)
-        Z_sel = kernels.keep_own_blocks(Z_sel, Z, self.own_block)
+        # (kernels.keep_own_blocks is not needed: validation leaves every own substate at
+        # choice 0 = keep, so src[b, i, i] = i and no average touches an own block)
         Z_next = kernels.propagate(Z_sel, Z, self.A_diag, self.A_lower)
         Z_next += self.source.correction(self.k, Z, self.y, self.y_arrived)
         # --- plant, eq. (1) ----------------------------------------------------------------
@@ -668,8 +685,17 @@ class BatchedCore:
         obs[:, :, L.y] = np.sign(y) * np.log1p(np.abs(y))  # symlog
         obs[:, :, L.y_arrived] = arr[..., None]
         tau = self.reported_indices()
-        obs[:, :, L.own_omega] = tau < 0
-        obs[:, :, L.own_age] = np.maximum(tau, 0) / H
+        # own and slot fields come from one float32 table of every agent's (omega, age)
+        # rows plus a constant row for an empty slot (omega 1, age 0): the D x N slot
+        # blocks are then one row gather each, written straight into obs (no int64
+        # (B, N, D, N) temporaries); values equal float32(tau < 0), float32(max(tau,0)/H)
+        BN = B * N
+        om, age = self._obs_omega, self._obs_age
+        t2 = tau.reshape(BN, N)
+        np.less(t2, 0, out=om[:BN], casting="unsafe")
+        np.divide(np.maximum(t2, 0), H, out=age[:BN], casting="unsafe")
+        obs[:, :, L.own_omega] = om[:BN].reshape(B, N, N)
+        obs[:, :, L.own_age] = age[:BN].reshape(B, N, N)
         Z = self.Z
         norm = np.sqrt(np.einsum("bin,bin->bi", Z, Z))[..., None]
         obs[:, :, L.z_dir] = Z / np.where(norm > 0, norm, 1.0)
@@ -678,14 +704,15 @@ class BatchedCore:
             msg = self.msg
             obs[:, :, L.slot_arrived] = msg
             obs[:, :, L.slot_id] = self.slot_id
-            seen = kernels.neighbor_indices(tau, self.nbr, msg).reshape(B, N, D * N)
-            # written straight into the float32 slices: no (B, N, D, N) float64 temporaries
-            np.less(seen, 0, out=obs[:, :, L.slot_omega], casting="unsafe")
-            np.maximum(seen, 0, out=seen)
-            np.divide(seen, H, out=obs[:, :, L.slot_age], casting="unsafe")
-        # every field is bounded by construction (|symlog| <= 710 for finite float64);
-        # only a numerical blow-up of the estimates (inf/nan) needs repair
-        if not np.isfinite(obs).all():
+            rows = np.where(msg, self.nbr + self._row0, BN)  # (B, N, D); BN = empty row
+            for table, f in ((om, L.slot_omega), (age, L.slot_age)):
+                np.take(table, rows, axis=0, mode="clip",
+                        out=obs[:, :, f].reshape(B, N, D, N))
+        # every field is bounded by construction (|symlog| <= 710 for finite float64,
+        # indices and flags in [0, 1]); only a numerical blow-up of the estimates or
+        # measurements (inf/nan) needs repair, and only those fields can show it
+        if not (np.isfinite(obs[:, :, L.y]).all()
+                and np.isfinite(obs[:, :, L.z_dir.start:L.z_lognorm.stop]).all()):
             np.nan_to_num(obs, copy=False, nan=0.0, posinf=1e3, neginf=-1e3)
             np.clip(obs, -1e3, 1e3, out=obs)
         return obs, self.action_mask()

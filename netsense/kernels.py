@@ -40,12 +40,17 @@ def neighbor_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     Entry ``[b, i, d, j]`` is ``tau_l^{(j)}`` for the neighbour ``l`` in slot ``d`` of
     ``i``, or ``OMEGA`` when the slot is empty or ``l`` did not transmit.
     """
-    B = tau.shape[0]
-    safe = np.where(valid, nbr, 0)
-    seen = tau[np.arange(B)[:, None, None], safe]  # (B, N, D, N)
-    usable = valid if transmit is None else valid & np.take_along_axis(
-        transmit[:, None, :].repeat(nbr.shape[1], 1), safe, axis=2)
-    return np.where(usable[..., None], seen, OMEGA)
+    B, N, D = nbr.shape
+    M = tau.shape[-1]
+    usable = valid if transmit is None else valid & transmit[
+        np.arange(B)[:, None, None], np.where(valid, nbr, 0)]
+    # one row gather from a flat (B N + 1, M) table whose last row is all omega: unusable
+    # slots point at that row, so no masking pass over the (B, N, D, N) result is needed
+    table = np.empty((B * N + 1, M), dtype=tau.dtype)
+    table[:-1] = tau.reshape(B * N, M)
+    table[-1] = OMEGA
+    rows = np.where(usable, nbr + (np.arange(B) * N)[:, None, None], B * N)
+    return np.take(table, rows, axis=0)
 
 
 def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
@@ -87,7 +92,9 @@ def advance_indices(tau: np.ndarray, src: np.ndarray) -> np.ndarray:
     keeps ``tau_j^{(j)} = 0``.
     """
     B, N, _ = tau.shape
-    t_src = tau[np.arange(B)[:, None, None], src, np.arange(N)[None, None, :]]
+    # flat offsets: tau[b, src, j] = tau.flat[(b N + src) N + j] (one np.take)
+    base = (np.arange(B) * N)[:, None, None] * N + np.arange(N)[None, None, :]
+    t_src = np.take(tau.reshape(-1), src * N + base)
     out = np.where(t_src < 0, OMEGA, t_src + 1)
     idx = np.arange(N)
     out[:, idx, idx] = 0
