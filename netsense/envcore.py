@@ -470,11 +470,20 @@ class BatchedCore:
 
     def _refill(self, members: np.ndarray) -> None:
         """Draw the next ``chunk`` steps of graphs, noise and arrivals for ``members``."""
-        m, K = self.model, self.chunk
+        m, K, N = self.model, self.chunk, self.N
+        # graphs for groups of members at once (each from its own "graph" generator, so
+        # equal to per-member sampling), in groups that keep the (M, K, N, N) temporaries
+        # near 16 MB; slot tables from one in_neighbor_slots call per group
+        group = max(1, (16 * 2**20) // (K * N * N * 11))
+        for g in range(0, len(members), group):
+            mem = members[g:g + group]
+            adj, states = m.graphs.sample_many([self.rngs[b]["graph"] for b in mem], K,
+                                               [self.graph_state[b] for b in mem])
+            for b, st in zip(mem, states, strict=True):
+                self.graph_state[b] = st
+            self.buf_nbr[mem] = in_neighbor_slots(adj, self.D)[0]
         for b in members:
             rngs = self.rngs[b]
-            adj, self.graph_state[b] = m.graphs.sample(rngs["graph"], K, self.graph_state[b])
-            self.buf_nbr[b] = in_neighbor_slots(adj, self.D)[0]
             if self._has_pnoise:
                 self.buf_w[b] = m.plant.process_noise.sample(
                     rngs["process_noise"], (K, self.W.shape[1]))

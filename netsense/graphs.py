@@ -122,6 +122,19 @@ class GraphProcess:
         """Next ``num_steps`` graphs ``(K, N, N)`` and the state to continue from."""
         raise NotImplementedError  # pragma: no cover
 
+    def sample_many(self, rngs: Sequence[np.random.Generator], num_steps: int,
+                    states: Sequence[Any]) -> tuple[np.ndarray, list]:
+        """:meth:`sample` for several independent runs at once: ``(M, K, N, N)`` and the
+        ``M`` states. Run ``m`` uses only ``rngs[m]`` and equals ``sample(rngs[m], ...)``
+        exactly (processes override this to batch the work; the default loops)."""
+        outs, new = [], []
+        for rng, st in zip(rngs, states, strict=True):
+            adj, st = self.sample(rng, num_steps, st)
+            outs.append(adj)
+            new.append(st)
+        N = self.num_nodes
+        return (np.stack(outs) if outs else np.zeros((0, num_steps, N, N), bool)), new
+
     @property
     def max_in_degree(self) -> int:
         """Upper bound on any node's in-degree (fixes the env's slot count)."""
@@ -288,6 +301,22 @@ class MarkovLinkFailures(GraphProcess):
             out[k] = up
             up = np.where(up, stay_up[k], come_back[k]) & self.base
         return out, up
+
+    def sample_many(self, rngs, num_steps, states):
+        # each run draws its own chunk from its own generator (the stream of sample());
+        # the two-state recursion then runs once over all runs instead of once per run
+        M, K, shape = len(rngs), num_steps, self.base.shape
+        u = np.empty((M, K) + shape)
+        for m, rng in enumerate(rngs):
+            rng.random(out=u[m])  # same values as rng.random((K,) + shape)
+        stay_up, come_back = u >= self.p_fail, u < self.p_recover
+        del u
+        out = np.empty((M, K) + shape, dtype=bool)
+        up = np.array(states, dtype=bool).reshape((M,) + shape)
+        for k in range(K):
+            out[:, k] = up
+            up = np.where(up, stay_up[:, k], come_back[:, k]) & self.base
+        return out, list(up)
 
     def to_dict(self) -> dict:
         i, l = np.nonzero(self.base)
