@@ -67,7 +67,7 @@ import numpy as np
 
 from netsense import kernels
 from netsense.design import ObserverDesign
-from netsense.graphs import GraphProcess, in_neighbor_slots
+from netsense.graphs import GraphProcess
 from netsense.observers.source import LuenbergerSource, SourceEstimator
 from netsense.sensing.arrivals import AlwaysArrive, ArrivalModel
 from netsense.sensing.noise import NoNoise
@@ -477,11 +477,12 @@ class BatchedCore:
         group = max(1, (16 * 2**20) // (K * N * N * 11))
         for g in range(0, len(members), group):
             mem = members[g:g + group]
-            adj, states = m.graphs.sample_many([self.rngs[b]["graph"] for b in mem], K,
-                                               [self.graph_state[b] for b in mem])
+            nbr, states = m.graphs.sample_slots_many([self.rngs[b]["graph"] for b in mem],
+                                                     K, [self.graph_state[b] for b in mem],
+                                                     self.D)
             for b, st in zip(mem, states, strict=True):
                 self.graph_state[b] = st
-            self.buf_nbr[mem] = in_neighbor_slots(adj, self.D)[0]
+            self.buf_nbr[mem] = nbr
         for b in members:
             rngs = self.rngs[b]
             if self._has_pnoise:
@@ -548,9 +549,17 @@ class BatchedCore:
         """
         if self._mask is None:
             B, N, D = self.B, self.N, self.D
-            out = np.ones((B, N, self.mask_size), dtype=np.int8)
-            sub = out[:, :, : N * (D + 2)].reshape(B, N, N, D + 2)
-            sub[...] = self.ok_row[:, :, None, :]
+            W = D + 2
+            out = np.empty((B, N, self.mask_size), dtype=np.int8)
+            out[:, :, N * W:] = 1
+            # the (D + 2)-wide row ok_row repeated for every substate, by doubling copies
+            # (long contiguous runs instead of N short broadcast copies)
+            out[:, :, :W] = self.ok_row.view(np.int8)
+            filled = 1
+            while filled < N:
+                c = min(filled, N - filled)
+                out[:, :, filled * W:(filled + c) * W] = out[:, :, :c * W]
+                filled += c
             out[:, self._arangeN[:, None], self._diag_mask_pos.reshape(N, D + 1)] = 0
             self._mask = out
         return self._mask

@@ -99,7 +99,8 @@ def in_neighbor_slots(adj: np.ndarray, max_degree: int | None = None
     # is the ascending order an argsort would give, at the cost of one nonzero().
     flat = adj.reshape(-1, N)
     rows, cols = np.nonzero(flat)
-    pos = (np.cumsum(flat, axis=1) - 1)[rows, cols]
+    cdt = np.int16 if N < 2**15 else np.int64  # counts <= N: small cumsum temporaries
+    pos = np.cumsum(flat, axis=1, dtype=cdt)[rows, cols] - 1
     nbr = np.full((flat.shape[0], D), -1, dtype=np.int64)
     nbr[rows, pos] = cols
     nbr = nbr.reshape(adj.shape[:-1] + (D,))
@@ -108,6 +109,11 @@ def in_neighbor_slots(adj: np.ndarray, max_degree: int | None = None
 
 
 # ----------------------------------------------------------------------------- processes
+#: How :class:`MarkovLinkFailures` draws its uniforms: ``"all"`` one per node pair and
+#: step (the original stream, every ``-v0`` scenario), ``"base"`` one per base edge and
+#: step (O(N D) instead of O(N^2); a different realisation, so only new scenario versions).
+MARKOV_DRAWS = ("all", "base")
+
 class GraphProcess:
     """Frozen description of a random or deterministic graph sequence."""
 
@@ -134,6 +140,13 @@ class GraphProcess:
             new.append(st)
         N = self.num_nodes
         return (np.stack(outs) if outs else np.zeros((0, num_steps, N, N), bool)), new
+
+    def sample_slots_many(self, rngs: Sequence[np.random.Generator], num_steps: int,
+                          states: Sequence[Any], max_degree: int) -> tuple[np.ndarray, list]:
+        """:meth:`sample_many` as slot tables: ``nbr (M, K, N, max_degree)`` (the
+        :func:`in_neighbor_slots` of the graphs, ``-1`` = empty slot) and the states."""
+        adj, new = self.sample_many(rngs, num_steps, states)
+        return in_neighbor_slots(adj, max_degree)[0], new
 
     @property
     def max_in_degree(self) -> int:
@@ -270,6 +283,7 @@ class MarkovLinkFailures(GraphProcess):
     base: np.ndarray
     p_fail: float
     p_recover: float
+    draws: str = "all"
     num_nodes: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -280,18 +294,43 @@ class MarkovLinkFailures(GraphProcess):
                 raise ValueError(f"{name} must be in [0, 1], got {v}")
         if self.p_fail + self.p_recover == 0:
             raise ValueError("p_fail and p_recover cannot both be 0")
+        if self.draws not in MARKOV_DRAWS:
+            raise ValueError(f"draws must be one of {MARKOV_DRAWS}, got {self.draws!r}")
         object.__setattr__(self, "base", base)
         object.__setattr__(self, "num_nodes", base.shape[0])
+        # base edges in row-major order (node i, then ascending l) and their base slot
+        ei, el = np.nonzero(base)
+        eq = np.cumsum(base, axis=1)[ei, el] - 1
+        slot_nbr = np.full((base.shape[0], max(int(base.sum(-1).max(initial=0)), 1)), -1)
+        slot_nbr[ei, eq] = el
+        object.__setattr__(self, "_edges", (ei, el, eq, slot_nbr))
 
     @property
     def max_in_degree(self) -> int:
         return int(self.base.sum(-1).max())
 
+    def _edge_uniforms(self, rng, shape) -> np.ndarray:
+        """Uniforms of the base edges, ``shape + (E,)``: ``draws = "all"`` draws one per
+        node pair (the original stream) and keeps the edges', ``"base"`` only the E."""
+        ei, el = self._edges[:2]
+        if self.draws == "base":
+            return rng.random(shape + (ei.size,))
+        return rng.random(shape + self.base.shape)[..., ei, el]
+
     def initial_state(self, rng):
         p_up = self.p_recover / (self.p_fail + self.p_recover)
+        if self.draws == "base":
+            ei, el = self._edges[:2]
+            up = np.zeros(self.base.shape, dtype=bool)
+            up[ei, el] = self._edge_uniforms(rng, ()) < p_up
+            return up
         return (rng.random(self.base.shape) < p_up) & self.base
 
     def sample(self, rng, num_steps, state):
+        if self.draws == "base":
+            nbr, (state,) = self.sample_slots_many([rng], num_steps, [state],
+                                                   self.max_in_degree, _adjacency=True)
+            return nbr[0], state
         out = np.empty((num_steps,) + self.base.shape, dtype=bool)
         # One draw for the chunk: the same stream as one draw of base.shape per step.
         u = rng.random((num_steps,) + self.base.shape)
@@ -303,26 +342,48 @@ class MarkovLinkFailures(GraphProcess):
         return out, up
 
     def sample_many(self, rngs, num_steps, states):
-        # each run draws its own chunk from its own generator (the stream of sample());
-        # the two-state recursion then runs once over all runs instead of once per run
-        M, K, shape = len(rngs), num_steps, self.base.shape
-        u = np.empty((M, K) + shape)
+        return self.sample_slots_many(rngs, num_steps, states, self.max_in_degree,
+                                      _adjacency=True)
+
+    def sample_slots_many(self, rngs, num_steps, states, max_degree, _adjacency=False):
+        # Works on the E base edges only: each run draws its own chunk from its own
+        # generator (the stream of sample()), keeps the edges' uniforms, and the two-state
+        # recursion and the slot tables run once over all runs on (M, K, E) arrays.
+        ei, el, eq, slot_nbr = self._edges
+        M, K, N, E = len(rngs), num_steps, self.num_nodes, ei.size
+        ue = np.empty((M, K, E))
         for m, rng in enumerate(rngs):
-            rng.random(out=u[m])  # same values as rng.random((K,) + shape)
-        stay_up, come_back = u >= self.p_fail, u < self.p_recover
-        del u
-        out = np.empty((M, K) + shape, dtype=bool)
-        up = np.array(states, dtype=bool).reshape((M,) + shape)
+            ue[m] = self._edge_uniforms(rng, (K,))
+        stay_up, come_back = ue >= self.p_fail, ue < self.p_recover
+        del ue
+        up = np.array([np.asarray(st, dtype=bool)[ei, el] for st in states]).reshape(M, E)
+        ups = np.empty((M, K, E), dtype=bool)
         for k in range(K):
-            out[:, k] = up
-            up = np.where(up, stay_up[:, k], come_back[:, k]) & self.base
-        return out, list(up)
+            ups[:, k] = up
+            up = np.where(up, stay_up[:, k], come_back[:, k])
+        new = np.zeros((M, N, N), dtype=bool)
+        new[:, ei, el] = up
+        if _adjacency:
+            out = np.zeros((M, K, N, N), dtype=bool)
+            out[:, :, ei, el] = ups
+            return out, list(new)
+        # slots: the up base slots of each node, compressed to the left (ascending order)
+        S = np.zeros((M, K, N, slot_nbr.shape[1]), dtype=bool)
+        S[:, :, ei, eq] = ups
+        if int(S.sum(-1).max(initial=0)) > max_degree:
+            raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
+        pos = np.cumsum(S, axis=-1, dtype=np.int16) - 1
+        m, k, i, q = np.nonzero(S)
+        nbr = np.full((M, K, N, max_degree), -1, dtype=np.int64)
+        nbr[m, k, i, pos[m, k, i, q]] = slot_nbr[i, q]
+        return nbr, list(new)
 
     def to_dict(self) -> dict:
         i, l = np.nonzero(self.base)
         return {"kind": "markov", "num_nodes": self.num_nodes, "p_fail": self.p_fail,
                 "p_recover": self.p_recover,
-                "base_edges": [[int(a), int(b)] for a, b in zip(l, i, strict=True)]}
+                "base_edges": [[int(a), int(b)] for a, b in zip(l, i, strict=True)],
+                **({} if self.draws == "all" else {"draws": self.draws})}
 
 
 @dataclass(frozen=True, eq=False)
@@ -461,10 +522,11 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     fields = {
         "periodic": {"num_nodes", "edges"},
         "random_jsc": {"num_nodes", "period", "extra_edge_prob"},
-        "markov": {"num_nodes", "p_fail", "p_recover", "base_edges"},
+        "markov": {"num_nodes", "p_fail", "p_recover", "base_edges", "draws"},
         "gossip": {"num_nodes", "base_edges"},
     }
-    optional = {"random_jsc": {"extra_edge_prob"}, "gossip": {"base_edges"}}
+    optional = {"random_jsc": {"extra_edge_prob"}, "gossip": {"base_edges"},
+                "markov": {"draws"}}
     if kind not in fields:
         known = sorted(fields) + ["random_walk", "random_waypoint", "round_robin_ring", "static"]
         raise ValueError(f"graph kind must be one of {known}, got {kind!r}")
@@ -481,7 +543,8 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
                                       float(spec.get("extra_edge_prob", 0.0)))
     if kind == "markov":
         return MarkovLinkFailures(as_adjacency([tuple(e) for e in spec["base_edges"]], N),
-                                  float(spec["p_fail"]), float(spec["p_recover"]))
+                                  float(spec["p_fail"]), float(spec["p_recover"]),
+                                  str(spec.get("draws", "all")))
     if "base_edges" in spec:
         return Gossip(as_adjacency([tuple(e) for e in spec["base_edges"]], N))
     return Gossip.complete(N)

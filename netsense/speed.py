@@ -61,7 +61,7 @@ def bench_model(N: int, n: int, *, seed: int = 0, horizon: int = 200,
                 offsets: Sequence[int] = (1, 3, 7)) -> CoreModel:
     """The benchmark scenario at size ``(N, n)``.
 
-    ``large_n20_N100-v0`` resized: ``random_structured(n, N)`` plant (spectral radius
+    ``large_n20_N100-v1`` resized: ``random_structured(n, N)`` plant (spectral radius
     1.1), Markov link failures (fail 0.1, recover 0.5) on the circulant graph with the
     given offsets (in-degree ``D = len(offsets)``), Gaussian measurement noise 0.01.
     """
@@ -71,7 +71,7 @@ def bench_model(N: int, n: int, *, seed: int = 0, horizon: int = 200,
     if not offs:
         raise ValueError(f"offsets {list(offsets)} give no edge for N = {N}")
     sc = with_overrides(
-        load("large_n20_N100-v0"), horizon=int(horizon),
+        load("large_n20_N100-v1"), horizon=int(horizon),
         plant={"kind": "random_structured", "n": int(n), "num_agents": int(N),
                "seed": int(seed), "spectral_radius": 1.1},
         graph={"kind": "markov", "num_nodes": int(N), "p_fail": 0.1, "p_recover": 0.5,

@@ -301,3 +301,37 @@ def test_large_batch_path_equals_small_batch_path(monkeypatch):
         r, r_ref = lean.step(act), ref.step(act)
         o, m, o_ref, m_ref = r.obs, r.action_mask, r_ref.obs, r_ref.action_mask
     np.testing.assert_array_equal(lean.Z, ref.Z)
+
+
+@pytest.mark.parametrize("draws", ["all", "base"])
+def test_markov_slot_sampler_equals_per_run_sampling(draws):
+    """MarkovLinkFailures.sample_slots_many (the core's batched refill) gives, per run, the
+    slot tables of sample() with that run's generator, and the same continuation state."""
+    from netsense.graphs import MarkovLinkFailures, in_neighbor_slots
+
+    base = np.zeros((9, 9), bool)
+    for o in (1, 2, 5):
+        base[(np.arange(9) + o) % 9, np.arange(9)] = True
+    g = MarkovLinkFailures(base, 0.3, 0.4, draws=draws)
+    seeds = [3, 4, 5]
+    states = [g.initial_state(np.random.default_rng(s)) for s in seeds]
+    rngs = [np.random.default_rng(s + 10) for s in seeds]
+    nbr, new = g.sample_slots_many(rngs, 6, states, g.max_in_degree)
+    adj_many, new2 = g.sample_many([np.random.default_rng(s + 10) for s in seeds], 6, states)
+    for m, s in enumerate(seeds):
+        adj, st = g.sample(np.random.default_rng(s + 10), 6, states[m])
+        np.testing.assert_array_equal(nbr[m], in_neighbor_slots(adj, g.max_in_degree)[0])
+        np.testing.assert_array_equal(adj_many[m], adj)
+        np.testing.assert_array_equal(new[m], st)
+        np.testing.assert_array_equal(new2[m], st)
+        assert not (adj & ~base).any()
+
+
+def test_markov_base_draws_are_a_new_version_only():
+    """large_n20_N100-v1 differs from -v0 only in the Markov draws (opt-in); v0 keeps the
+    original one-uniform-per-node-pair stream."""
+    v0, v1 = load("large_n20_N100-v0"), load("large_n20_N100-v1")
+    assert v1.graph.get("draws") == "base" and "draws" not in v0.graph
+    assert build_model(v0).graphs.draws == "all"
+    assert with_overrides(v1, graph={"draws": "all"}).to_dict()["graph"] == \
+        {**v0.to_dict()["graph"], "draws": "all"}
