@@ -124,8 +124,13 @@ def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
 
 def gather_substates(Z: np.ndarray, src: np.ndarray, block_of: np.ndarray) -> np.ndarray:
     """``Zg[b, i, c] = Z[b, src[b, i, block_of[c]], c]``: each substate from its chosen agent."""
-    src_c = src[:, :, block_of]  # (B, N, n)
-    return np.take_along_axis(Z, src_c, axis=1)
+    B, N, n = Z.shape
+    # flat offsets into Z: (b N + src) n + c, then one np.take (about 2x faster than
+    # take_along_axis, which builds a three-array fancy index)
+    idx = np.take(src, block_of, axis=2).astype(np.intp, copy=False)  # (B, N, n), fresh
+    idx *= n
+    idx += np.arange(B)[:, None, None] * (N * n) + np.arange(n)
+    return np.take(Z.reshape(-1), idx)
 
 
 def uniform_mix(Z: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
