@@ -94,8 +94,9 @@ def advance_indices(tau: np.ndarray, src: np.ndarray) -> np.ndarray:
     B, N, _ = tau.shape
     # flat offsets: tau[b, src, j] = tau.flat[(b N + src) N + j] (one np.take)
     base = (np.arange(B) * N)[:, None, None] * N + np.arange(N)[None, None, :]
-    t_src = np.take(tau.reshape(-1), src * N + base)
-    out = np.where(t_src < 0, OMEGA, t_src + 1)
+    out = np.take(tau.reshape(-1), src * N + base)  # tau_src, a fresh array
+    out += 1  # omega (-1) becomes 0, which no finite index + 1 can be
+    np.copyto(out, OMEGA, where=out == 0)
     idx = np.arange(N)
     out[:, idx, idx] = 0
     return out
