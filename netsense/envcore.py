@@ -605,12 +605,18 @@ class BatchedCore:
         self._flat_choice = flat
         return choice, tx.astype(bool), masked
 
-    def step(self, actions) -> StepResult:
+    def step(self, actions, *, observe: bool = True) -> StepResult:
         """Advance every member from ``k`` to ``k + 1`` under ``actions (B, N, N + 1)``.
 
         Estimates: eqs. (7), (9)-(12) via the kernels; indices: eqs. (9), (11), (14), and
         the stalest-contributor rule for averages. Then the plant (eq. (1)), the next
         graph, measurements (eq. (2)) and messages, rewards and observations.
+
+        With ``observe=False`` the result's ``obs`` and ``action_mask`` are ``None`` and
+        nothing of size ``obs_dim`` is built (for callers that act on the state, e.g.
+        Monte Carlo runs of scripted rules); :meth:`observe` returns them for the current
+        step on demand, equal to what ``observe=True`` would have returned. Validation of
+        the next actions never needs them.
         """
         choice, tx_next, masked = self._validate(actions)
         self.last_invalid = masked
@@ -672,7 +678,7 @@ class BatchedCore:
         else:
             terminated = ~(raw[:, self.alive].max(1) <= lim)  # nan counts as diverged
             truncated &= ~terminated
-        obs, mask = self.observe()
+        obs, mask = self.observe() if observe else (None, None)
         return StepResult(obs, mask, reward, terminated, truncated)
 
     # ------------------------------------------------------------------ faults

@@ -335,3 +335,23 @@ def test_markov_base_draws_are_a_new_version_only():
     assert build_model(v0).graphs.draws == "all"
     assert with_overrides(v1, graph={"draws": "all"}).to_dict()["graph"] == \
         {**v0.to_dict()["graph"], "draws": "all"}
+
+
+def test_step_without_observations_builds_them_on_demand():
+    """step(observe=False) returns no obs/mask but leaves the same state; observe() then
+    gives exactly what step(observe=True) returned."""
+    model = model_of("link_failures-v0", horizon=12)
+    a, b = BatchedCore(model, 3), BatchedCore(model, 3)
+    oa, ma = a.reset(5)
+    b.reset(5)
+    pol = make_policy("freshness", a)
+    for _ in range(12):
+        act = pol.act(oa, ma)
+        out = a.step(act)
+        lean = b.step(act, observe=False)
+        assert lean.obs is None and lean.action_mask is None
+        np.testing.assert_array_equal(lean.reward, out.reward)
+        ob, mb = b.observe()
+        np.testing.assert_array_equal(ob, out.obs)
+        np.testing.assert_array_equal(mb, out.action_mask)
+        oa, ma = out.obs, out.action_mask
