@@ -565,7 +565,7 @@ class BatchedCore:
         return self._mask
 
     # ------------------------------------------------------------------ step
-    def _validate(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _validate(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         B, N, D = self.B, self.N, self.D
         a = np.asarray(actions)
         if a.shape != (B, N, N + 1):
@@ -602,8 +602,7 @@ class BatchedCore:
                                  f"choice {c}: {why}")
             choice = np.where(masked, 0, choice)
             flat = choice + self._slot_base
-        self._flat_choice = flat
-        return choice, tx.astype(bool), masked
+        return choice, tx.astype(bool), masked, flat
 
     def step(self, actions, *, observe: bool = True) -> StepResult:
         """Advance every member from ``k`` to ``k + 1`` under ``actions (B, N, N + 1)``.
@@ -618,13 +617,13 @@ class BatchedCore:
         step on demand, equal to what ``observe=True`` would have returned. Validation of
         the next actions never needs them.
         """
-        choice, tx_next, masked = self._validate(actions)
+        choice, tx_next, masked, flat_choice = self._validate(actions)
         self.last_invalid = masked
         B, D = self.B, self.D
         Z, tau = self.Z, self.reported_indices()  # a liar's claims are what others adopt
         # --- update rule: what every agent propagates, per substate --------------------
         # the source of every substate: nbr_ext[b, i, choice[b, i, j]] (flat take)
-        src = np.take(self.nbr_ext.reshape(-1), self._flat_choice)
+        src = np.take(self.nbr_ext.reshape(-1), flat_choice)
         Z_sel = kernels.gather_substates(Z, src, self.block_of)
         tau_next = kernels.advance_indices(tau, src)
         avg = choice == D + 1
