@@ -442,6 +442,9 @@ class BatchedCore:
         self._obs_omega = np.ones((B * N + 1, N), dtype=np.float32)
         self._obs_age = np.zeros((B * N + 1, N), dtype=np.float32)
         self._row0 = (np.arange(B) * N)[:, None, None]
+        self._slot_buf = np.empty((B, N, self.D, N), dtype=np.float32)
+        # largest index a liar injects (indices are <= k + claim: exact in float32 below)
+        self._claim = 0 if self._liar is None else int(self._liar.claim)
         self._slot_base = ((np.arange(B)[:, None] * N + self._arangeN) * (self.D + 2))[..., None]
 
     def _reset_member(self, b: int, seed: int) -> None:
@@ -716,7 +719,16 @@ class BatchedCore:
         om, age = self._obs_omega, self._obs_age
         t2 = tau.reshape(BN, N)
         np.less(t2, 0, out=om[:BN], casting="unsafe")
-        np.divide(np.maximum(t2, 0), H, out=age[:BN], casting="unsafe")
+        if H < 2**24 and int(self.k.max()) + self._claim < 2**24:
+            # in float32: equal to float32(max(tau, 0) / H) computed in float64, because
+            # tau (<= k + a liar's claim) and H are exact in float32 and double rounding
+            # of a quotient through a format with >= 2 p + 2 bits (53 >= 50) is innocuous
+            a = age[:BN]
+            np.copyto(a, t2, casting="unsafe")
+            np.maximum(a, 0, out=a)
+            np.divide(a, np.float32(H), out=a)
+        else:
+            np.divide(np.maximum(t2, 0), H, out=age[:BN], casting="unsafe")
         obs[:, :, L.own_omega] = om[:BN].reshape(B, N, N)
         obs[:, :, L.own_age] = age[:BN].reshape(B, N, N)
         Z = self.Z
@@ -728,9 +740,10 @@ class BatchedCore:
             obs[:, :, L.slot_arrived] = msg
             obs[:, :, L.slot_id] = self.slot_id
             rows = np.where(msg, self.nbr + self._row0, BN)  # (B, N, D); BN = empty row
-            for table, f in ((om, L.slot_omega), (age, L.slot_age)):
-                np.take(table, rows, axis=0, mode="clip",
-                        out=obs[:, :, f].reshape(B, N, D, N))
+            buf = self._slot_buf  # contiguous: a take into it and one copy beat a take
+            for table, f in ((om, L.slot_omega), (age, L.slot_age)):  # into obs slices
+                np.take(table, rows, axis=0, mode="clip", out=buf)
+                obs[:, :, f] = buf.reshape(B, N, D * N)
         # every field is bounded by construction (|symlog| <= 710 for finite float64,
         # indices and flags in [0, 1]); only a numerical blow-up of the estimates or
         # measurements (inf/nan) needs repair, and only those fields can show it
