@@ -24,7 +24,9 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     [graph]                            # required; netsense.graphs.graph_process_from_dict
     kind = "fig1"                      # or periodic / random_jsc / markov / gossip;
     # markov and gossip accept base = {kind = "circulant", offsets = [1, 3]} or
-    # base = {kind = "complete"} instead of an explicit base_edges list
+    # base = {kind = "complete"} instead of an explicit base_edges list; markov takes
+    # draws = "all" (default: one uniform per node pair and step, the -v0 stream) or
+    # "base" (one per base link: O(N D) draws, a different realisation)
 
     [design]                           # netsense.design_observer
     deadbeat = false
