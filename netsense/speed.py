@@ -463,50 +463,6 @@ def observation_cost(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 
             "no_obs_vs_kernel": best["kernel"] / best["no_obs"]}
 
 
-def masked_from_slots(ok_row: np.ndarray, choice: np.ndarray) -> np.ndarray:
-    """Prototype for ``BatchedCore._validate``: which choices are masked, read from the
-    ``(B, N, D + 2)`` slot table ``ok_row`` instead of the ``(B, N, N, D + 2)`` mask.
-
-    ``choice[b, i, j]`` is allowed iff ``ok_row[b, i, choice]`` and (``j != i`` or
-    ``choice == 0``) — the same rule :meth:`BatchedCore.action_mask` encodes.
-    """
-    allowed = np.take_along_axis(ok_row, choice, axis=2)
-    N = choice.shape[1]
-    allowed &= ~(np.eye(N, dtype=bool)[None] & (choice != 0))
-    return ~allowed
-
-
-def validation_prototype(B: int, N: int, n: int, *, steps: int = 16, seed: int = 0) -> dict:
-    """Time the masked-choice lookup of ``_validate`` (full mask + 4-array fancy index)
-    against :func:`masked_from_slots` on the same freshness-policy actions; checks that
-    both agree (also on random, partly invalid choices)."""
-    model = bench_model(N, n, seed=seed)
-    run = _CoreRunner(model, B, seed)
-    c = run.core
-    D = c.D
-    rng = np.random.default_rng(seed)
-    t_old = t_new = 0.0
-    for _ in range(steps):
-        act = run.policy.act(run.obs, run.mask)
-        for choice in (act[..., :N], rng.integers(0, D + 2, size=(B, N, N))):
-            t0 = time.perf_counter()
-            mask4 = c.action_mask()[:, :, : N * (D + 2)].reshape(B, N, N, D + 2)
-            old = mask4[c._bJ, c._iJ, c._jJ, choice[..., None]][..., 0] == 0
-            t1 = time.perf_counter()
-            new = masked_from_slots(c.ok_row, choice)
-            t2 = time.perf_counter()
-            if not np.array_equal(old, new):
-                raise AssertionError("masked_from_slots disagrees with the core's mask")
-            c._mask = None  # the core caches the mask per step: rebuild it each time
-            t_old += t1 - t0
-            t_new += t2 - t1
-        out = c.step(act)
-        run.obs, run.mask = out.obs, out.action_mask
-    return {"B": B, "N": N, "n": n, "current_s": t_old / (2 * steps),
-            "prototype_s": t_new / (2 * steps), "speedup": t_old / t_new}
-
-
-# ----------------------------------------------------------------------------- report
 def format_table(rows: Sequence[dict]) -> str:
     """The speed table (Markdown) with the ratios and whether each target is met."""
     head = ("| B | N | n | core agent-steps/s | kernel agent-steps/s | VMAS agent-steps/s | "

@@ -1,0 +1,169 @@
+"""Observations and action masks of the environment, written in one pass (numba).
+
+The layout of the flat per-agent vector is :class:`netsense.envcore.ObsLayout` (and the
+table in :mod:`netsense.env`). :func:`fill` writes the observations of every member and
+agent of a :class:`~netsense.envcore.BatchedCore` and their action masks straight into
+their output arrays, with no temporaries of size ``obs_dim``: at ``B = 1024``,
+``N = 30`` the observation is ~33 MB per step, so the number of passes over it is what
+costs (issue 8). :func:`slot_messages` builds the message table the masks and the update
+read.
+
+Values (per agent ``i`` of member ``b``; ``H`` the horizon):
+
+* ``time = k / H``; ``y = symlog(y_i)`` (0 when the measurement did not arrive),
+  ``y_arrived``;
+* ``own_omega[j] = [tau_i^{(j)} = omega]``, ``own_age[j] = max(tau_i^{(j)}, 0) / H``
+  (computed in float32; exact below ``2^24``, see :func:`fill`);
+* ``z_dir = z_hat_i / ||z_hat_i||`` (0 for a zero estimate), ``z_lognorm =
+  log(1 + ||z_hat_i||)``;
+* per slot ``d``: ``slot_arrived``, ``slot_id = (l + 1) / N`` (0 for an empty slot), and
+  the neighbour's ``omega`` and ``age`` rows (``1`` and ``0`` when no message arrived);
+* a non-finite ``y`` or estimate (numerical blow-up) is written as 0 (nan) or
+  ``+-1e3`` (inf); every other field is bounded by construction.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["fill", "slot_messages"]
+
+
+def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
+                  link: np.ndarray | None = None) -> np.ndarray:
+    """``(B, N, D)`` bool: slot ``d`` of agent ``i`` holds a message at this step.
+
+    The slot holds a neighbour ``l = nbr[b, i, d] >= 0`` that transmitted
+    (``transmit[b, l]``) and whose link ``l -> i`` delivered (``link[b, i, l]``, when
+    given).
+    """
+    out = np.empty(nbr.shape, dtype=bool)
+    if link is None:
+        _messages(nbr, transmit, np.ones((1, 1, 1), bool), False, out)
+    else:
+        _messages(nbr, transmit, link, True, out)
+    return out
+
+
+def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
+         horizon: float, y: np.ndarray, y_arrived: np.ndarray, tau: np.ndarray,
+         Z: np.ndarray, nbr: np.ndarray, msg: np.ndarray, exact_f32: bool, *,
+         observations: bool = True, masks: bool = True) -> None:
+    """Write observations ``obs (B, N, size)`` float32 and masks ``mask (B, N, M)`` int8.
+
+    ``starts`` holds the offsets of the layout's fields in the order of
+    :meth:`netsense.envcore.ObsLayout.table`. ``exact_f32`` (every index and the horizon
+    below ``2^24``) selects float32 arithmetic for the ages, equal to the float64
+    quotient rounded to float32 (both operands are exact in float32 and double rounding of
+    a quotient through float64 is innocuous); otherwise the quotient is taken in float64.
+
+    The mask block of substate ``j`` is ``[keep, slot 0 .. slot D-1, average]``: keep is
+    always allowed, a slot only when its message arrived, average always, and an agent's
+    own substate allows only keep; the last two entries (transmit 0/1) are 1.
+    ``observations=False`` or ``masks=False`` skips that output (its array is not
+    touched).
+    """
+    _fill(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
+          bool(exact_f32), bool(observations), bool(masks))
+
+
+@njit(cache=True)
+def _messages(nbr, transmit, link, has_link, out):
+    B, N, D = nbr.shape
+    for b in range(B):
+        for i in range(N):
+            for d in range(D):
+                v = nbr[b, i, d]
+                ok = v >= 0
+                if ok:
+                    ok = transmit[b, v]
+                    if ok and has_link:
+                        ok = link[b, i, v]
+                out[b, i, d] = ok
+
+
+@njit(cache=True)
+def _finite_or_repair(v):
+    if np.isnan(v):
+        return 0.0
+    if np.isinf(v):
+        return 1e3 if v > 0 else -1e3
+    return v
+
+
+@njit(cache=True)
+def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do_obs, do_mask):
+    B, N, n = Z.shape
+    r = y.shape[2]
+    D = nbr.shape[2]
+    M = tau.shape[2]
+    (o_time, o_y, o_yarr, o_om, o_age, o_zdir, o_zlog, o_sarr, o_sid, o_som,
+     o_sage) = (starts[0], starts[1], starts[2], starts[3], starts[4], starts[5],
+                starts[6], starts[7], starts[8], starts[9], starts[10])
+    H32 = np.float32(H)
+    for b in range(B):
+        t_b = np.float32(k[b] / H)
+        for i in range(N):
+            if do_mask:
+                _mask_row(mask[b, i], msg[b, i], i, M, D)
+            if not do_obs:
+                continue
+            o = obs[b, i]
+            o[o_time] = t_b
+            arr = y_arrived[b, i]
+            for q in range(r):
+                v = y[b, i, q] if arr else 0.0
+                s = np.sign(v) * np.log1p(np.abs(v))
+                o[o_y + q] = _finite_or_repair(s)
+            o[o_yarr] = 1.0 if arr else 0.0
+            for j in range(M):
+                t = tau[b, i, j]
+                o[o_om + j] = 1.0 if t < 0 else 0.0
+                tt = t if t > 0 else 0
+                if exact_f32:
+                    o[o_age + j] = np.float32(tt) / H32
+                else:
+                    o[o_age + j] = np.float32(tt / H)
+            zz = 0.0
+            for c in range(n):
+                zz += Z[b, i, c] * Z[b, i, c]
+            norm = np.sqrt(zz)
+            den = norm if norm > 0 else 1.0
+            for c in range(n):
+                o[o_zdir + c] = _finite_or_repair(Z[b, i, c] / den)
+            o[o_zlog] = _finite_or_repair(np.log1p(norm))
+            for d in range(D):
+                got = msg[b, i, d]
+                o[o_sarr + d] = 1.0 if got else 0.0
+                l = nbr[b, i, d]
+                o[o_sid + d] = np.float32((l + 1) / N) if l >= 0 else 0.0
+                base_om = o_som + d * M
+                base_age = o_sage + d * M
+                if got:
+                    for j in range(M):
+                        t = tau[b, l, j]
+                        o[base_om + j] = 1.0 if t < 0 else 0.0
+                        tt = t if t > 0 else 0
+                        if exact_f32:
+                            o[base_age + j] = np.float32(tt) / H32
+                        else:
+                            o[base_age + j] = np.float32(tt / H)
+                else:
+                    for j in range(M):
+                        o[base_om + j] = 1.0
+                        o[base_age + j] = 0.0
+
+
+@njit(cache=True)
+def _mask_row(m, msg_row, i, M, D):
+    W = D + 2
+    for j in range(M):
+        base = j * W
+        mine = j == i
+        m[base] = 1
+        for d in range(D):
+            m[base + 1 + d] = 0 if mine else (1 if msg_row[d] else 0)
+        m[base + D + 1] = 0 if mine else 1
+    m[M * W] = 1
+    m[M * W + 1] = 1
