@@ -315,16 +315,17 @@ class BatchedCore:
         self.T = dec.T
         self.block_of = dec.block_of
         self.A_diag, self.A_lower = dec.A_diag, dec.A_lower
-        self._ADT = np.ascontiguousarray(self.A_diag.T)
         self._ALT = np.ascontiguousarray(self.A_lower.T)
         self._band = kernels.diag_band(self.A_diag)
         self._block_of = np.ascontiguousarray(self.block_of, dtype=np.int64)
         self._TT = np.ascontiguousarray(dec.T)
+        self._A_T = np.ascontiguousarray(plant.A.T)
         self.own_block = SourceEstimator.own_block_mask(design)
         self.C_padded = plant.C_padded
         self._C_flat_T = self.C_padded.reshape(-1, self.n).T.copy()  # y = C x, eq. (2)
         self.output_mask = plant.output_mask
         self.W = plant.W_effective
+        self._W_T = np.ascontiguousarray(self.W.T)
         self.layout = ObsLayout.build(self.N, self.n, self.r, self.D)
         self.nvec = np.array([self.D + 2] * self.N + [2], dtype=np.int64)
         self.mask_size = int(self.nvec.sum())
@@ -493,8 +494,7 @@ class BatchedCore:
         b, p = (slice(None), int(self.ptr[0])) if same else (self._bidx, self.ptr)
         self.nbr = self.buf_nbr[b, p].astype(np.int64)
         self._adjacency = None
-        y = self.x[:, None, :] @ self._C_flat_T  # stacked (B, 1, .): same rounding for any B
-        y = y.reshape(self.B, self.N, self.r)
+        y = kernels.vecmat(self.x, self._C_flat_T).reshape(self.B, self.N, self.r)  # eq. (2)
         if self._has_mnoise:
             y += self.buf_v[b, p]
         for f, memory in zip(self._stuck, self._stuck_memory, strict=True):
@@ -589,20 +589,27 @@ class BatchedCore:
         choice, tx_next, masked = self._validate(actions)
         B = self.B
         Z, tau = self.Z, self.reported_indices()  # a liar's claims are what others adopt
-        corr = self.source.correction(self.k, Z, self.y, self.y_arrived)
+        # the default fixed-gain source (eq. (7)) runs inside the fused update; any other
+        # estimator (KFIO, RSEIO, equalized, ...) returns its correction here
+        if type(self.source) is LuenbergerSource:
+            src_kw = {"luenberger": (self.y, self.y_arrived, self.source.C_bar_pad,
+                                     self.source.L_pad)}
+        else:
+            corr = self.source.correction(self.k, Z, self.y, self.y_arrived)
+            src_kw = {"corr": np.ascontiguousarray(corr, dtype=float)}
         # --- plant, eq. (1) ----------------------------------------------------------------
-        # (B, 1, n) stacks: every member is computed exactly as in a B = 1 run
-        x_next = (self.x[:, None, :] @ self.model.plant.A.T)[:, 0]
+        # per member (kernels.vecmat): every member is computed exactly as in a B = 1 run
+        x_next = kernels.vecmat(self.x, self._A_T)
         if self._has_pnoise:
             w = np.take_along_axis(self.buf_w, self.ptr[:, None, None], 1)  # (B, 1, p)
-            x_next += (w @ self.W.T)[:, 0]
-        z_true = (x_next[:, None, :] @ self._TT)[:, 0]  # T orthogonal: errors in z coords
+            x_next += kernels.vecmat(w[:, 0], self._W_T)
+        z_true = kernels.vecmat(x_next, self._TT)  # T orthogonal: errors in z coords
         # --- update rule, per agent and substate: keep / adopt / average, eqs. (6)-(14) ----
         # (kernels.keep_own_blocks is not needed: validation leaves every own substate at
         # choice 0 = keep, so the source of substate i of agent i is i itself)
         Z_next, tau_next, err = kernels.apply_actions(
-            Z, tau, choice, self.nbr, self.msg, self._block_of, self._ADT, self._ALT,
-            self._band, np.ascontiguousarray(corr, dtype=float), z_true)
+            Z, tau, choice, self.nbr, self.msg, self._block_of, self._ALT, self._band, z_true,
+            **src_kw)
         self.last_invalid = masked
         self.x, self.Z, self.tau = x_next, Z_next, tau_next
         self.k += 1

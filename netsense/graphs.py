@@ -22,6 +22,7 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
+from numba import njit
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -354,28 +355,26 @@ class MarkovLinkFailures(GraphProcess):
         ue = np.empty((M, K, E))
         for m, rng in enumerate(rngs):
             ue[m] = self._edge_uniforms(rng, (K,))
-        stay_up, come_back = ue >= self.p_fail, ue < self.p_recover
-        del ue
         up = np.array([np.asarray(st, dtype=bool)[ei, el] for st in states]).reshape(M, E)
-        ups = np.empty((M, K, E), dtype=bool)
-        for k in range(K):
-            ups[:, k] = up
-            up = np.where(up, stay_up[:, k], come_back[:, k])
-        new = np.zeros((M, N, N), dtype=bool)
-        new[:, ei, el] = up
         if _adjacency:
+            stay_up, come_back = ue >= self.p_fail, ue < self.p_recover
+            del ue
+            ups = np.empty((M, K, E), dtype=bool)
+            for k in range(K):
+                ups[:, k] = up
+                up = np.where(up, stay_up[:, k], come_back[:, k])
+            new = np.zeros((M, N, N), dtype=bool)
+            new[:, ei, el] = up
             out = np.zeros((M, K, N, N), dtype=bool)
             out[:, :, ei, el] = ups
             return out, list(new)
-        # slots: the up base slots of each node, compressed to the left (ascending order)
-        S = np.zeros((M, K, N, slot_nbr.shape[1]), dtype=bool)
-        S[:, :, ei, eq] = ups
-        if int(S.sum(-1).max(initial=0)) > max_degree:
+        # slots: the up base links of each node in ascending order (edges are row-major),
+        # and the two-state recursion, in one compiled pass over (run, step, edge)
+        nbr = np.empty((M, K, N, max_degree), dtype=np.int64)
+        if not _markov_slots(ue, up, ei, el, float(self.p_fail), float(self.p_recover), nbr):
             raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
-        pos = np.cumsum(S, axis=-1, dtype=np.int16) - 1
-        m, k, i, q = np.nonzero(S)
-        nbr = np.full((M, K, N, max_degree), -1, dtype=np.int64)
-        nbr[m, k, i, pos[m, k, i, q]] = slot_nbr[i, q]
+        new = np.zeros((M, N, N), dtype=bool)
+        new[:, ei, el] = up
         return nbr, list(new)
 
     def to_dict(self) -> dict:
@@ -548,3 +547,31 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     if "base_edges" in spec:
         return Gossip(as_adjacency([tuple(e) for e in spec["base_edges"]], N))
     return Gossip.complete(N)
+
+
+@njit(cache=True)
+def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr):
+    """Two-state link chains and slot tables of :class:`MarkovLinkFailures`.
+
+    ``u (M, K, E)`` uniforms, ``up (M, E)`` link states at the first step (advanced in
+    place to the state after the last), edges ``(ei, el)`` in row-major order. Step ``k``
+    uses the states before its transition (an up link stays up iff ``u >= p_fail``, a
+    down link comes back iff ``u < p_recover``). Writes ``nbr (M, K, N, D)`` (``-1`` =
+    empty slot); returns False if a node has more than ``D`` up links.
+    """
+    M, K, E = u.shape
+    N, D = nbr.shape[2], nbr.shape[3]
+    pos = np.empty(N, dtype=np.int64)
+    for m in range(M):
+        for k in range(K):
+            nbr[m, k] = -1
+            pos[:] = 0
+            for e in range(E):
+                if up[m, e]:
+                    i = ei[e]
+                    if pos[i] >= D:
+                        return False
+                    nbr[m, k, i, pos[i]] = el[e]
+                    pos[i] += 1
+                up[m, e] = u[m, k, e] >= p_fail if up[m, e] else u[m, k, e] < p_recover
+    return True

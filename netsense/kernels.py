@@ -22,7 +22,7 @@ Array conventions
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 #: Encoding of the freshness index's dummy value omega (eq. (8)ff.).
 OMEGA = -1
@@ -94,7 +94,7 @@ def advance_indices(tau: np.ndarray, src: np.ndarray) -> np.ndarray:
     """
     tau = np.asarray(tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
-    _advance_all(tau, np.asarray(src), out)
+    _advance_all.at(tau.size)(tau, np.asarray(src), out)
     return out
 
 
@@ -109,7 +109,7 @@ def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     """
     tau = np.asarray(tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
-    _average_all(tau, np.asarray(nbr), _usable(nbr, valid, transmit), out)
+    _average_all.at(tau.size)(tau, np.asarray(nbr), _usable(nbr, valid, transmit), out)
     return out
 
 
@@ -117,7 +117,7 @@ def gather_substates(Z: np.ndarray, src: np.ndarray, block_of: np.ndarray) -> np
     """``Zg[b, i, c] = Z[b, src[b, i, block_of[c]], c]``: each substate from its chosen agent."""
     Z = np.asarray(Z, dtype=float)
     out = np.empty(Z.shape)
-    _gather_all(Z, np.asarray(src), np.asarray(block_of), out)
+    _gather_all.at(Z.size)(Z, np.asarray(src), np.asarray(block_of), out)
     return out
 
 
@@ -129,13 +129,13 @@ def uniform_mix(Z: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     """
     Z = np.asarray(Z, dtype=float)
     out = np.empty(Z.shape)
-    _mix_all(Z, np.asarray(nbr), _usable(nbr, valid, transmit), out)
+    _mix_all.at(Z.size)(Z, np.asarray(nbr), _usable(nbr, valid, transmit), out)
     return out
 
 
 def propagate(Z_sel: np.ndarray, Z: np.ndarray, A_diag: np.ndarray,
-              A_lower: np.ndarray, band: tuple[np.ndarray, np.ndarray] | None = None
-              ) -> np.ndarray:
+              A_lower: np.ndarray,
+              band: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Open-loop part of eqs. (7), (10), (12): ``A_jj z_sel^{(j)} + sum_{q<j} A_jq z_i^{(q)}``.
 
     ``Z_sel`` holds, per substate, the estimate the agent decided to propagate (its own,
@@ -143,26 +143,25 @@ def propagate(Z_sel: np.ndarray, Z: np.ndarray, A_diag: np.ndarray,
     own estimates of the other substates. ``A_lower`` may carry the decomposition's
     rounding-level entries above the diagonal, so the model is exact. ``band`` is
     :func:`diag_band` of ``A_diag`` (computed when not given): the multiply by the
-    block-diagonal part visits only the non-zero rows of each column.
+    block-diagonal part visits only its non-zeros.
     """
     Z_sel = np.asarray(Z_sel, dtype=float)
-    lo, hi = diag_band(A_diag) if band is None else band
+    dq, dc, dv = diag_band(A_diag) if band is None else band
     out = np.empty(Z_sel.shape)
-    _propagate_all(Z_sel, np.asarray(Z, dtype=float), _t(A_diag), _t(A_lower), lo, hi, out)
+    _propagate_all.at(Z_sel.size * Z_sel.shape[-1])(
+        Z_sel, np.asarray(Z, dtype=float), dq, dc, dv, _t(A_lower), out)
     return out
 
 
-def diag_band(A_diag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows ``lo[q] <= c < hi[q]`` that hold the non-zeros of column ``q`` of ``A_diag``.
+def diag_band(A_diag: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The non-zeros ``A_diag[c, q] = v`` as ``(q, c, v)`` arrays, ``q`` major.
 
-    For a block-diagonal matrix these are the rows of column ``q``'s own block, so
-    :func:`propagate` costs ``sum_j n_j^2`` for ``A_diag`` instead of ``n^2``.
+    For the block-diagonal ``A_diag`` these are the ``sum_j n_j^2`` entries of the
+    diagonal blocks, so :func:`propagate` visits only them instead of ``n^2``.
     """
-    nz = np.asarray(A_diag) != 0
-    any_ = nz.any(0)
-    lo = np.where(any_, nz.argmax(0), 0).astype(np.int64)
-    hi = np.where(any_, nz.shape[0] - nz[::-1].argmax(0), 0).astype(np.int64)
-    return lo, hi
+    AT = np.asarray(A_diag, dtype=float).T
+    q, c = np.nonzero(AT)
+    return q.astype(np.int64), c.astype(np.int64), AT[q, c].copy()
 
 
 def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | None,
@@ -189,7 +188,35 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
         L = np.broadcast_to(L, (B,) + L.shape)
     arr = np.ones((B, N), bool) if arrived is None else np.asarray(arrived, dtype=bool)
     out = np.empty(Z.shape)
-    _innovation_all(Z, y, arr, np.asarray(C_bar_pad, dtype=float), L, out)
+    _innovation_all.at(Z.size)(Z, y, arr, np.asarray(C_bar_pad, dtype=float), L,
+                               gain_rows(L), out)
+    return out
+
+
+def gain_rows(L_pad: np.ndarray) -> np.ndarray:
+    """``(N, 2)``: rows ``lo <= c < hi`` that hold the non-zeros of each agent's gain
+    (its own block); ``lo = hi = 0`` for an agent with no gain (not a source)."""
+    nz = np.asarray(L_pad) != 0  # (..., N, n, r)
+    rows = nz.any(-1)
+    while rows.ndim > 2:
+        rows = rows.any(0)
+    any_ = rows.any(1)
+    lo = np.where(any_, rows.argmax(1), 0)
+    hi = np.where(any_, rows.shape[1] - rows[:, ::-1].argmax(1), 0)
+    return np.stack([lo, hi], 1).astype(np.int64)
+
+
+def vecmat(x: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``out[b] = x[b] @ M`` for ``x (B, p)``, ``M (p, m)``, in a fixed summation order.
+
+    Every member is computed alone (unlike one BLAS call on the stacked rows, whose
+    rounding may depend on ``B``), so a member of a batch equals a ``B = 1`` run bit for
+    bit. Used for the plant (eq. (1)), the outputs (eq. (2)) and ``z = T^T x``.
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    M = np.ascontiguousarray(M, dtype=float)
+    out = np.empty((x.shape[0], M.shape[1]))
+    _vecmat_all.at(x.shape[0] * M.size)(x, M, out)
     return out
 
 
@@ -210,15 +237,21 @@ def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
     ``masked``, and returns the ``status`` vector of :data:`STATUS_FIELDS`: the first
     (in C order) out-of-range entry and the first masked one, ``-1`` where there is none.
     """
+    first = np.full((act.shape[0], 4), -1, dtype=np.int64)
+    _check_actions.at(act.size)(act, msg, choice, masked, first)
     status = np.full(6, -1, dtype=np.int64)
-    _check_actions(act, msg, choice, masked, status)
+    for k, col in ((0, 0), (3, 2)):
+        hit = np.flatnonzero(first[:, col] >= 0)
+        if hit.size:
+            b = int(hit[0])
+            status[k:k + 3] = (b, first[b, col], first[b, col + 1])
     return status
 
 
 def apply_actions(Z: np.ndarray, tau: np.ndarray, choice: np.ndarray, nbr: np.ndarray,
-                  msg: np.ndarray, block_of: np.ndarray, A_diag_T: np.ndarray,
-                  A_lower_T: np.ndarray, band: tuple[np.ndarray, np.ndarray],
-                  corr: np.ndarray, z_true: np.ndarray
+                  msg: np.ndarray, block_of: np.ndarray, A_lower_T: np.ndarray,
+                  band: tuple[np.ndarray, np.ndarray, np.ndarray], z_true: np.ndarray, *,
+                  corr: np.ndarray | None = None, luenberger: tuple | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One step of every agent under validated choices, in one pass over ``(b, i)``.
 
@@ -226,9 +259,13 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, choice: np.ndarray, nbr: np.nd
     average, the slot's neighbour for adopt), the index update (:func:`advance_indices`,
     or :func:`average_indices` for an average), the estimate to propagate
     (:func:`gather_substates`, or :func:`uniform_mix` for an average), then
-    :func:`propagate` plus the source correction ``corr`` (eq. (7)). The very same row
-    functions as those public kernels do the work, so results are bit-identical to calling
-    them one after the other.
+    :func:`propagate` plus the source correction (eq. (7)). The very same row functions
+    as those public kernels do the work, so results are bit-identical to calling them
+    one after the other.
+
+    The correction is either given, ``corr (B, N, n)`` (any source estimator), or computed
+    on the row from ``luenberger = (y, arrived, C_bar_pad, L_pad)`` exactly as
+    :func:`innovation_correction` does (the fixed-gain source of eq. (7)).
 
     Returns
     -------
@@ -237,11 +274,22 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, choice: np.ndarray, nbr: np.nd
     err : (B, N)
         ``||Z_next[b, i] - z_true[b]||`` (the estimation error in Lemma 1 coordinates).
     """
+    B, N, n = Z.shape
     Z_next = np.empty(Z.shape)
     tau_next = np.empty(tau.shape, dtype=tau.dtype)
     err = np.empty(Z.shape[:2])
-    _apply_all(Z, tau, choice, nbr, msg, block_of, A_diag_T, A_lower_T, band[0], band[1],
-               corr, z_true, Z_next, tau_next, err)
+    if luenberger is not None:
+        y, arrived, C, L = luenberger
+        rows, corr = gain_rows(L), np.zeros((1, 1, 1))
+        L = np.broadcast_to(L, (B,) + L.shape[-3:]) if L.ndim == 3 else L
+    else:
+        if corr is None:
+            raise ValueError("apply_actions needs corr or luenberger")
+        y, arrived = np.zeros((1, 1, 1)), np.zeros((1, 1), bool)
+        C, L, rows = np.zeros((1, 1, 1)), np.zeros((1, 1, 1, 1)), np.zeros((1, 2), np.int64)
+    _apply_all.at(Z.size * n + tau.size)(
+        Z, tau, choice, nbr, msg, block_of, band[0], band[1], band[2], A_lower_T, corr,
+        luenberger is not None, y, arrived, C, L, rows, z_true, Z_next, tau_next, err)
     return Z_next, tau_next, err
 
 
@@ -263,185 +311,226 @@ def _usable(nbr: np.ndarray, valid: np.ndarray, transmit: np.ndarray | None) -> 
 # One agent's row of each rule. The public kernels above and apply_actions loop over
 # (b, i) and call these, so there is one implementation of every rule. No fastmath: the
 # arithmetic is IEEE in program order, hence identical wherever a row function runs.
-@njit(cache=True)
-def _advance_row(tau_b, src_row, i, out_row):  # eqs. (9), (11), (14)
-    for j in range(out_row.shape[0]):
-        t = tau_b[src_row[j], j]
-        out_row[j] = OMEGA if t < 0 else t + 1
-    out_row[i] = 0
+# Rows are addressed as (array, b, i) rather than passed as slices: a slice is a new
+# array object with a reference count, which at N = 30 cost as much as the rule itself.
+@njit(cache=True, inline="always")
+def _advance_row(tau, b, i, src, sb, si, out, ob, oi):  # eqs. (9), (11), (14)
+    for j in range(out.shape[2]):
+        t = tau[b, src[sb, si, j], j]
+        out[ob, oi, j] = OMEGA if t < 0 else t + 1
+    out[ob, oi, i] = 0
 
 
-@njit(cache=True)
-def _average_row(tau_b, nbr_row, use_row, i, out_row):  # age of an average, eq. (6)
-    for j in range(out_row.shape[0]):
-        t = tau_b[i, j]
+@njit(cache=True, inline="always")
+def _average_row(tau, b, i, nbr, use, out, ob, oi):  # age of an average, eq. (6)
+    for j in range(out.shape[2]):
+        t = tau[b, i, j]
         omega = t < 0
         worst = t
-        for d in range(nbr_row.shape[0]):
-            if use_row[d]:
-                v = tau_b[nbr_row[d], j]
+        for d in range(nbr.shape[2]):
+            if use[b, i, d]:
+                v = tau[b, nbr[b, i, d], j]
                 if v < 0:
                     omega = True
                 elif v > worst:
                     worst = v
-        out_row[j] = OMEGA if omega else worst + 1
-    out_row[i] = 0
+        out[ob, oi, j] = OMEGA if omega else worst + 1
+    out[ob, oi, i] = 0
 
 
-@njit(cache=True)
-def _mix_row(Z_b, nbr_row, use_row, i, out_row):  # eq. (6)
+@njit(cache=True, inline="always")
+def _mix_row(Z, b, i, nbr, use, out, ob, oi):  # eq. (6)
     count = 1.0
-    for d in range(nbr_row.shape[0]):
-        if use_row[d]:
+    for d in range(nbr.shape[2]):
+        if use[b, i, d]:
             count += 1.0
-    for c in range(out_row.shape[0]):
+    for c in range(Z.shape[2]):
         s = 0.0
-        for d in range(nbr_row.shape[0]):
-            if use_row[d]:
-                s += Z_b[nbr_row[d], c]
-        out_row[c] = (Z_b[i, c] + s) / count
+        for d in range(nbr.shape[2]):
+            if use[b, i, d]:
+                s += Z[b, nbr[b, i, d], c]
+        out[ob, oi, c] = (Z[b, i, c] + s) / count
 
 
-@njit(cache=True)
-def _gather_row(Z_b, src_row, block_of, out_row):
-    for c in range(out_row.shape[0]):
-        out_row[c] = Z_b[src_row[block_of[c]], c]
+@njit(cache=True, inline="always")
+def _gather_row(Z, b, src, sb, si, block_of, out, ob, oi):
+    for c in range(Z.shape[2]):
+        out[ob, oi, c] = Z[b, src[sb, si, block_of[c]], c]
 
 
-@njit(cache=True)
-def _propagate_row(zsel, z, ADT, ALT, lo, hi, out_row):  # eqs. (7), (10), (12)
-    n = out_row.shape[0]
+@njit(cache=True, inline="always")
+def _propagate_row(Z_sel, sb, si, Z, b, i, dq, dc, dv, ALT, out, ob, oi):
+    """Row of eqs. (7), (10), (12) (see :func:`propagate`)."""
+    n = Z.shape[2]
+    o, z, zs = out[ob, oi], Z[b, i], Z_sel[sb, si]  # n^2 work: three views pay off
     for c in range(n):
-        out_row[c] = 0.0
-    for q in range(n):  # block-diagonal part on the propagated estimate
-        v = zsel[q]
-        for c in range(lo[q], hi[q]):
-            out_row[c] += ADT[q, c] * v
-    for q in range(n):  # couplings on the agent's own estimates
-        v = z[q]
+        o[c] = 0.0
+    for k in range(dv.shape[0]):  # block-diagonal part on the propagated estimate
+        o[dc[k]] += dv[k] * zs[dq[k]]
+    # couplings on the agent's own estimates, four columns of A_lower^T at a time (a
+    # fixed association order, so the result is the same wherever this row runs)
+    q = 0
+    while q + 4 <= n:
+        v0, v1, v2, v3 = z[q], z[q + 1], z[q + 2], z[q + 3]
+        a0, a1, a2, a3 = ALT[q], ALT[q + 1], ALT[q + 2], ALT[q + 3]
         for c in range(n):
-            out_row[c] += ALT[q, c] * v
+            o[c] = o[c] + a0[c] * v0 + a1[c] * v1 + a2[c] * v2 + a3[c] * v3
+        q += 4
+    while q < n:
+        v0, a0 = z[q], ALT[q]
+        for c in range(n):
+            o[c] += a0[c] * v0
+        q += 1
 
 
-@njit(cache=True)
-def _innovation_row(z, y_row, arrived, C_i, L_i, innov, out_row):  # eq. (7)
-    r, n = C_i.shape
+@njit(cache=True, inline="always")
+def _innovation_row(Z, b, i, y, arrived, C, L, lo, hi, innov, out, ob, oi):  # eq. (7)
+    r, n = C.shape[1], C.shape[2]
+    for c in range(n):
+        out[ob, oi, c] = 0.0
+    if lo >= hi:  # no gain rows: not a source (or nothing to correct)
+        return
     for k in range(r):
         s = 0.0
         for c in range(n):
-            s += C_i[k, c] * z[c]
-        innov[k] = (y_row[k] - s) if arrived else 0.0
-    for c in range(n):
+            s += C[i, k, c] * Z[b, i, c]
+        innov[k] = (y[b, i, k] - s) if arrived[b, i] else 0.0
+    for c in range(lo, hi):
         s = 0.0
         for k in range(r):
-            s += L_i[c, k] * innov[k]
-        out_row[c] = s
+            s += L[b, i, c, k] * innov[k]
+        out[ob, oi, c] = s
 
 
 # ----------------------------------------------------------------------------- drivers
-@njit(cache=True)
 def _advance_all(tau, src, out):
-    for b in range(tau.shape[0]):
+    for b in prange(tau.shape[0]):
         for i in range(tau.shape[1]):
-            _advance_row(tau[b], src[b, i], i, out[b, i])
+            _advance_row(tau, b, i, src, b, i, out, b, i)
 
 
-@njit(cache=True)
 def _average_all(tau, nbr, use, out):
-    for b in range(tau.shape[0]):
+    for b in prange(tau.shape[0]):
         for i in range(tau.shape[1]):
-            _average_row(tau[b], nbr[b, i], use[b, i], i, out[b, i])
+            _average_row(tau, b, i, nbr, use, out, b, i)
 
 
-@njit(cache=True)
 def _gather_all(Z, src, block_of, out):
-    for b in range(Z.shape[0]):
+    for b in prange(Z.shape[0]):
         for i in range(Z.shape[1]):
-            _gather_row(Z[b], src[b, i], block_of, out[b, i])
+            _gather_row(Z, b, src, b, i, block_of, out, b, i)
 
 
-@njit(cache=True)
 def _mix_all(Z, nbr, use, out):
-    for b in range(Z.shape[0]):
+    for b in prange(Z.shape[0]):
         for i in range(Z.shape[1]):
-            _mix_row(Z[b], nbr[b, i], use[b, i], i, out[b, i])
+            _mix_row(Z, b, i, nbr, use, out, b, i)
 
 
-@njit(cache=True)
-def _propagate_all(Z_sel, Z, ADT, ALT, lo, hi, out):
-    for b in range(Z.shape[0]):
+def _propagate_all(Z_sel, Z, dq, dc, dv, ALT, out):
+    for b in prange(Z.shape[0]):
         for i in range(Z.shape[1]):
-            _propagate_row(Z_sel[b, i], Z[b, i], ADT, ALT, lo, hi, out[b, i])
+            _propagate_row(Z_sel, b, i, Z, b, i, dq, dc, dv, ALT, out, b, i)
 
 
-@njit(cache=True)
-def _innovation_all(Z, y, arrived, C, L, out):
-    innov = np.empty(C.shape[1])
-    for b in range(Z.shape[0]):
+def _innovation_all(Z, y, arrived, C, L, rows, out):
+    for b in prange(Z.shape[0]):
+        innov = np.empty(C.shape[1])
         for i in range(Z.shape[1]):
-            _innovation_row(Z[b, i], y[b, i], arrived[b, i], C[i], L[b, i], innov,
-                            out[b, i])
+            _innovation_row(Z, b, i, y, arrived, C, L, rows[i, 0], rows[i, 1], innov, out,
+                            b, i)
 
 
-@njit(cache=True)
-def _check_actions(act, msg, choice, masked, status):
+def _vecmat_all(x, M, out):
+    p, m = M.shape
+    for b in prange(x.shape[0]):
+        for c in range(m):
+            out[b, c] = 0.0
+        for q in range(p):
+            v = x[b, q]
+            for c in range(m):
+                out[b, c] += v * M[q, c]
+
+
+def _check_actions(act, msg, choice, masked, first):
     B, N, D = msg.shape
-    for b in range(B):
+    for b in prange(B):
+        okt = np.empty(D + 2, dtype=np.bool_)  # allowed choices on another's substate
+        okt[0] = True
+        okt[D + 1] = True
         for i in range(N):
-            for j in range(N + 1):
-                a = act[b, i, j]
-                top = D + 1 if j < N else 1
-                if (a < 0 or a > top) and status[0] < 0:
-                    status[0], status[1], status[2] = b, i, j
+            for d in range(D):
+                okt[d + 1] = msg[b, i, d]
+            bad = False
             for j in range(N):
                 a = act[b, i, j]
-                ok = a == 0 or (j != i and (a == D + 1 or (1 <= a <= D and msg[b, i, a - 1])))
+                inside = (a >= 0) & (a <= D + 1)
+                bad |= not inside
+                ok = inside and okt[a] and (j != i or a == 0)
                 masked[b, i, j] = not ok
-                if ok:
-                    choice[b, i, j] = a
-                else:
-                    choice[b, i, j] = 0
-                    if status[3] < 0:
-                        status[3], status[4], status[5] = b, i, j
+                choice[b, i, j] = a if ok else 0
+            t = act[b, i, N]
+            bad |= (t < 0) | (t > 1)
+            if bad and first[b, 0] < 0:
+                for j in range(N + 1):
+                    a = act[b, i, j]
+                    if a < 0 or a > (D + 1 if j < N else 1):
+                        first[b, 0], first[b, 1] = i, j
+                        break
+            if first[b, 2] < 0:
+                for j in range(N):
+                    if masked[b, i, j]:
+                        first[b, 2], first[b, 3] = i, j
+                        break
 
 
-@njit(cache=True)
-def _apply_all(Z, tau, choice, nbr, msg, block_of, ADT, ALT, lo, hi, corr, z_true,
-               Z_next, tau_next, err):
+def _apply_all(Z, tau, choice, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
+               arrived, C, L, rows, z_true, Z_next, tau_next, err):
     B, N, n = Z.shape
     D = nbr.shape[2]
-    src = np.empty(N, dtype=np.int64)
-    zsel = np.empty(n)
-    mix = np.empty(n)
-    avg_tau = np.empty(tau.shape[2], dtype=tau.dtype)
-    for b in range(B):
+    for b in prange(B):
+        # scratch rows private to each member, shaped (1, 1, .) for the row functions
+        src = np.empty((1, 1, N), dtype=np.int64)
+        zsel = np.empty((1, 1, n))
+        mix = np.empty((1, 1, n))
+        avg_tau = np.empty((1, 1, tau.shape[2]), dtype=tau.dtype)
+        ext = np.empty(D + 2, dtype=np.int64)
+        cor = np.empty((1, 1, n))
+        innov = np.empty(C.shape[1])
         for i in range(N):
-            ch = choice[b, i]
+            # choice -> agent: keep and average use the agent itself, slot d its neighbour
+            ext[0] = i
+            ext[D + 1] = i
+            for d in range(D):
+                ext[d + 1] = nbr[b, i, d] if nbr[b, i, d] >= 0 else i
             averaged = False
             for j in range(N):
-                a = ch[j]
-                if 1 <= a <= D:
-                    src[j] = nbr[b, i, a - 1]
-                else:
-                    src[j] = i
-                    averaged = averaged or a == D + 1
-            _advance_row(tau[b], src, i, tau_next[b, i])
-            _gather_row(Z[b], src, block_of, zsel)
+                a = choice[b, i, j]
+                src[0, 0, j] = ext[a]
+                averaged |= a == D + 1
+            _advance_row(tau, b, i, src, 0, 0, tau_next, b, i)
+            _gather_row(Z, b, src, 0, 0, block_of, zsel, 0, 0)
             if averaged:
-                _average_row(tau[b], nbr[b, i], msg[b, i], i, avg_tau)
-                _mix_row(Z[b], nbr[b, i], msg[b, i], i, mix)
+                _average_row(tau, b, i, nbr, msg, avg_tau, 0, 0)
+                _mix_row(Z, b, i, nbr, msg, mix, 0, 0)
                 for j in range(N):
-                    if ch[j] == D + 1:
-                        tau_next[b, i, j] = avg_tau[j]
+                    if choice[b, i, j] == D + 1:
+                        tau_next[b, i, j] = avg_tau[0, 0, j]
                 for c in range(n):
-                    if ch[block_of[c]] == D + 1:
-                        zsel[c] = mix[c]
-            out = Z_next[b, i]
-            _propagate_row(zsel, Z[b, i], ADT, ALT, lo, hi, out)
+                    if choice[b, i, block_of[c]] == D + 1:
+                        zsel[0, 0, c] = mix[0, 0, c]
+            _propagate_row(zsel, 0, 0, Z, b, i, dq, dc, dv, ALT, Z_next, b, i)
+            if fused:  # the fixed-gain source update, eq. (7), on the same row
+                _innovation_row(Z, b, i, y, arrived, C, L, rows[i, 0], rows[i, 1], innov,
+                                cor, 0, 0)
+            else:
+                for c in range(n):
+                    cor[0, 0, c] = corr[b, i, c]
             s = 0.0
             for c in range(n):
-                out[c] += corr[b, i, c]
-                e = out[c] - z_true[b, c]
+                v = Z_next[b, i, c] + cor[0, 0, c]
+                Z_next[b, i, c] = v
+                e = v - z_true[b, c]
                 s += e * e
             err[b, i] = np.sqrt(s)
 
@@ -452,3 +541,40 @@ def keep_own_blocks(Z_sel: np.ndarray, Z: np.ndarray, own_block: np.ndarray) -> 
     ``own_block`` is the ``(N, n)`` mask ``block_of[c] == i``.
     """
     return np.where(own_block[None], Z, Z_sel)
+
+
+# ----------------------------------------------------------------------------- dispatch
+#: Work (array elements touched) from which the drivers run on numba's thread pool
+#: (``prange`` over members); smaller calls (a single environment) run serially, where
+#: starting threads would cost more than it saves. Results are the same either way: every
+#: member is computed by the same row functions, independently.
+PARALLEL_WORK = 1 << 16
+
+
+class _Driver:
+    """A driver compiled twice from one source: serial and ``parallel=True``."""
+
+    def __init__(self, fn) -> None:
+        self.serial = njit(cache=True)(_renamed(fn, "serial"))
+        self.parallel = njit(cache=True, parallel=True)(_renamed(fn, "parallel"))
+
+    def at(self, work: int):
+        """The variant for a call that touches ``work`` array elements."""
+        return self.parallel if work >= PARALLEL_WORK else self.serial
+
+
+def _renamed(fn, tag: str):
+    """A copy of ``fn`` under its own qualified name (numba caches per name)."""
+    import types
+
+    out = types.FunctionType(fn.__code__, fn.__globals__, f"{fn.__name__}_{tag}",
+                             fn.__defaults__, fn.__closure__)
+    out.__qualname__ = f"{fn.__qualname__}_{tag}"
+    out.__module__ = fn.__module__
+    return out
+
+
+for _name in ("_advance_all", "_average_all", "_gather_all", "_mix_all", "_propagate_all",
+              "_innovation_all", "_vecmat_all", "_check_actions", "_apply_all"):
+    globals()[_name] = _Driver(globals()[_name])
+del _name

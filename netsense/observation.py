@@ -25,7 +25,9 @@ Values (per agent ``i`` of member ``b``; ``H`` the horizon):
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
+
+from netsense.kernels import _Driver
 
 __all__ = ["fill", "slot_messages"]
 
@@ -40,9 +42,9 @@ def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
     """
     out = np.empty(nbr.shape, dtype=bool)
     if link is None:
-        _messages(nbr, transmit, np.ones((1, 1, 1), bool), False, out)
+        _messages.at(out.size)(nbr, transmit, np.ones((1, 1, 1), bool), False, out)
     else:
-        _messages(nbr, transmit, link, True, out)
+        _messages.at(out.size)(nbr, transmit, link, True, out)
     return out
 
 
@@ -64,14 +66,14 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     ``observations=False`` or ``masks=False`` skips that output (its array is not
     touched).
     """
-    _fill(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
-          bool(exact_f32), bool(observations), bool(masks))
+    work = (obs.size if observations else 0) + (mask.size if masks else 0)
+    _fill.at(work)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
+                   bool(exact_f32), bool(observations), bool(masks))
 
 
-@njit(cache=True)
 def _messages(nbr, transmit, link, has_link, out):
     B, N, D = nbr.shape
-    for b in range(B):
+    for b in prange(B):
         for i in range(N):
             for d in range(D):
                 v = nbr[b, i, d]
@@ -83,7 +85,7 @@ def _messages(nbr, transmit, link, has_link, out):
                 out[b, i, d] = ok
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _finite_or_repair(v):
     if np.isnan(v):
         return 0.0
@@ -92,7 +94,6 @@ def _finite_or_repair(v):
     return v
 
 
-@njit(cache=True)
 def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do_obs, do_mask):
     B, N, n = Z.shape
     r = y.shape[2]
@@ -101,69 +102,83 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
     (o_time, o_y, o_yarr, o_om, o_age, o_zdir, o_zlog, o_sarr, o_sid, o_som,
      o_sage) = (starts[0], starts[1], starts[2], starts[3], starts[4], starts[5],
                 starts[6], starts[7], starts[8], starts[9], starts[10])
-    H32 = np.float32(H)
-    for b in range(B):
+    for b in prange(B):
+        if do_mask:
+            for i in range(N):
+                _mask_row(mask[b, i], msg[b, i], i, M, D)
+        if not do_obs:
+            continue
+        # every agent's (omega, age) row once per member; own and slot fields copy rows
+        om_tab = np.empty((N + 1, M), dtype=np.float32)
+        age_tab = np.empty((N + 1, M), dtype=np.float32)
+        _index_tables(tau[b], H, exact_f32, om_tab, age_tab)
         t_b = np.float32(k[b] / H)
         for i in range(N):
-            if do_mask:
-                _mask_row(mask[b, i], msg[b, i], i, M, D)
-            if not do_obs:
-                continue
             o = obs[b, i]
             o[o_time] = t_b
             arr = y_arrived[b, i]
             for q in range(r):
                 v = y[b, i, q] if arr else 0.0
-                s = np.sign(v) * np.log1p(np.abs(v))
-                o[o_y + q] = _finite_or_repair(s)
+                o[o_y + q] = _finite_or_repair(np.sign(v) * np.log1p(np.abs(v)))
             o[o_yarr] = 1.0 if arr else 0.0
-            for j in range(M):
-                t = tau[b, i, j]
-                o[o_om + j] = 1.0 if t < 0 else 0.0
-                tt = t if t > 0 else 0
-                if exact_f32:
-                    o[o_age + j] = np.float32(tt) / H32
-                else:
-                    o[o_age + j] = np.float32(tt / H)
+            _copy(om_tab[i], o[o_om:o_om + M])
+            _copy(age_tab[i], o[o_age:o_age + M])
+            z = Z[b, i]
             zz = 0.0
             for c in range(n):
-                zz += Z[b, i, c] * Z[b, i, c]
+                zz += z[c] * z[c]
             norm = np.sqrt(zz)
             den = norm if norm > 0 else 1.0
             for c in range(n):
-                o[o_zdir + c] = _finite_or_repair(Z[b, i, c] / den)
+                o[o_zdir + c] = _finite_or_repair(z[c] / den)
             o[o_zlog] = _finite_or_repair(np.log1p(norm))
             for d in range(D):
                 got = msg[b, i, d]
-                o[o_sarr + d] = 1.0 if got else 0.0
                 l = nbr[b, i, d]
+                o[o_sarr + d] = 1.0 if got else 0.0
                 o[o_sid + d] = np.float32((l + 1) / N) if l >= 0 else 0.0
-                base_om = o_som + d * M
-                base_age = o_sage + d * M
-                if got:
-                    for j in range(M):
-                        t = tau[b, l, j]
-                        o[base_om + j] = 1.0 if t < 0 else 0.0
-                        tt = t if t > 0 else 0
-                        if exact_f32:
-                            o[base_age + j] = np.float32(tt) / H32
-                        else:
-                            o[base_age + j] = np.float32(tt / H)
-                else:
-                    for j in range(M):
-                        o[base_om + j] = 1.0
-                        o[base_age + j] = 0.0
+                row = l if got else N  # row N: no message (omega 1, age 0)
+                _copy(om_tab[row], o[o_som + d * M:o_som + (d + 1) * M])
+                _copy(age_tab[row], o[o_sage + d * M:o_sage + (d + 1) * M])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _index_tables(tau_b, H, exact_f32, om_tab, age_tab):
+    N, M = tau_b.shape
+    H32 = np.float32(H)
+    for l in range(N):
+        for j in range(M):
+            t = tau_b[l, j]
+            om_tab[l, j] = np.float32(1.0) if t < 0 else np.float32(0.0)
+            tt = t if t > 0 else 0
+            if exact_f32:
+                age_tab[l, j] = np.float32(tt) / H32
+            else:
+                age_tab[l, j] = np.float32(tt / H)
+    for j in range(M):
+        om_tab[N, j] = 1.0
+        age_tab[N, j] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _copy(src, dst):
+    for j in range(src.shape[0]):
+        dst[j] = src[j]
+
+
+@njit(cache=True, inline="always")
 def _mask_row(m, msg_row, i, M, D):
     W = D + 2
-    for j in range(M):
-        base = j * W
-        mine = j == i
-        m[base] = 1
-        for d in range(D):
-            m[base + 1 + d] = 0 if mine else (1 if msg_row[d] else 0)
-        m[base + D + 1] = 0 if mine else 1
-    m[M * W] = 1
-    m[M * W + 1] = 1
+    for t in range(m.shape[0]):  # everything allowed, then clear what is not
+        m[t] = 1
+    for d in range(D):
+        if not msg_row[d]:
+            for j in range(M):
+                m[j * W + 1 + d] = 0
+    if i < M:  # the own substate allows only keep
+        for w in range(1, W):
+            m[i * W + w] = 0
+
+
+_messages = _Driver(_messages)
+_fill = _Driver(_fill)

@@ -11,8 +11,8 @@ contender alike; compare the *ratios*):
     observations and masks included); the policy's time is reported apart.
 ``kernel``
     The bare numpy update on the same arrays — the roofline of issue 8: gather of the
-    chosen agents' estimates (:func:`netsense.kernels.gather_substates`) and the batched
-    block-triangular multiply (:func:`netsense.kernels.propagate`), nothing else.
+    chosen agents' estimates (one flat ``np.take``) and the batched block-triangular
+    multiply (two BLAS products), nothing else; written in plain numpy in this module.
 ``vmas``
     VMAS ``simple_spread`` on CPU with ``B`` environments and ``N`` agents (zero
     continuous actions), when ``vmas`` is installed.
@@ -42,7 +42,6 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense import kernels
 from netsense.envcore import BatchedCore, CoreModel
 
 #: ``(B, N, n)`` of issue 8, item 4.
@@ -75,7 +74,7 @@ def bench_model(N: int, n: int, *, seed: int = 0, horizon: int = 200,
         plant={"kind": "random_structured", "n": int(n), "num_agents": int(N),
                "seed": int(seed), "spectral_radius": 1.1},
         graph={"kind": "markov", "num_nodes": int(N), "p_fail": 0.1, "p_recover": 0.5,
-               "base": {"kind": "circulant", "offsets": offs}})
+               "draws": "base", "base": {"kind": "circulant", "offsets": offs}})
     return build_model(sc)
 
 
@@ -110,21 +109,32 @@ class _CoreRunner:
 
 
 class _KernelRunner:
-    """The bare update: gather of chosen estimates + block-triangular multiply."""
+    """The bare numpy update: gather of chosen estimates + block-triangular multiply.
+
+    Written here in plain numpy (the roofline of issue 8), not with the package's compiled
+    kernels: one flat ``np.take`` for ``Z[b, src[b, i, block_of[c]], c]`` and the two
+    matrix products ``Z_sel A_diag^T + Z A_lower^T`` (BLAS, with its own threads).
+    """
 
     def __init__(self, core: BatchedCore, seed: int = 0) -> None:
         rng = np.random.default_rng(seed)
         B, N, n = core.B, core.N, core.n
         self.Z = rng.standard_normal((B, N, n))
         self.srcs = [rng.integers(0, N, size=(B, N, N)) for _ in range(4)]
-        self.block_of, self.A_diag, self.A_lower = core.block_of, core.A_diag, core.A_lower
+        self.block_of = core.block_of
+        self.A_diag_T = np.ascontiguousarray(core.A_diag.T)
+        self.A_lower_T = np.ascontiguousarray(core.A_lower.T)
+        self.offset = np.arange(B)[:, None, None] * (N * n) + np.arange(n)
 
     def block(self, steps: int) -> float:
-        Z = self.Z
+        Z, n = self.Z, self.Z.shape[2]
         t0 = time.perf_counter()
         for k in range(steps):
-            Z_sel = kernels.gather_substates(Z, self.srcs[k % 4], self.block_of)
-            Z = kernels.propagate(Z_sel, Z, self.A_diag, self.A_lower)
+            idx = np.take(self.srcs[k % 4], self.block_of, axis=2)  # (B, N, n)
+            idx *= n
+            idx += self.offset
+            Z_sel = np.take(Z.reshape(-1), idx)
+            Z = Z_sel @ self.A_diag_T + Z @ self.A_lower_T
             Z *= 0.5  # keep the values bounded (one cheap pass; part of no rule)
         return time.perf_counter() - t0
 
