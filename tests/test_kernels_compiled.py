@@ -1,0 +1,243 @@
+"""The compiled kernels (numba): the fused step, the drivers, and their reference forms.
+
+What must hold: ``apply_actions`` (the environment's one-pass step) gives bit for bit what
+the public kernels give one after the other; the serial and the threaded variant of every
+driver agree bit for bit; every batch member equals a ``B = 1`` call; validation reports
+the first bad entry in C order; the Markov slot tables equal the two-state recursion
+written out in numpy; observations equal the layout written out in numpy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from netsense import kernels, observation
+from netsense.envcore import BatchedCore
+from netsense.graphs import MarkovLinkFailures
+from netsense.scenarios import build_model, load
+
+OMEGA = kernels.OMEGA
+
+
+def _random_step(seed: int, B: int = 3, N: int = 6, D: int = 3, avg_p: float = 0.2):
+    """Inputs of one step with empty slots, omega indices, averages and own blocks."""
+    rng = np.random.default_rng(seed)
+    model = build_model(load("random_structured_n20_N10-v0"))
+    dec = model.design.decomposition
+    N, n = dec.num_agents, dec.n
+    Z = rng.standard_normal((B, N, n))
+    tau = rng.integers(-1, 6, size=(B, N, N))
+    tau[:, np.arange(N), np.arange(N)] = 0
+    nbr = np.full((B, N, D), -1, dtype=np.int64)
+    for b in range(B):
+        for i in range(N):
+            k = rng.integers(0, D + 1)
+            nbr[b, i, :k] = np.sort(rng.choice([x for x in range(N) if x != i], k, False))
+    msg = (nbr >= 0) & (rng.random((B, N, D)) < 0.8)
+    ok = np.concatenate([np.ones((B, N, 1), bool), msg, np.ones((B, N, 1), bool)], 2)
+    choice = np.zeros((B, N, N), dtype=np.int64)
+    for b in range(B):
+        for i in range(N):
+            allowed = np.flatnonzero(ok[b, i])
+            for j in range(N):
+                if j == i:
+                    continue
+                c = rng.choice(allowed)
+                choice[b, i, j] = c if c != D + 1 or rng.random() < avg_p else 0
+    y = rng.standard_normal((B, N, 2))
+    arrived = rng.random((B, N)) < 0.7
+    C = rng.standard_normal((N, 2, n))
+    L = np.zeros((N, n, 2))
+    for i in range(N):
+        rows = np.flatnonzero(dec.block_of == i)
+        L[i, rows] = rng.standard_normal((rows.size, 2))
+    return dict(Z=Z, tau=tau, choice=choice, nbr=nbr, msg=msg, dec=dec, y=y,
+                arrived=arrived, C=C, L=L, z_true=rng.standard_normal((B, n)))
+
+
+def _composed(s):
+    """The step from the public kernels, one after the other (the observers' path)."""
+    dec, Z, tau, choice, nbr, msg = s["dec"], s["Z"], s["tau"], s["choice"], s["nbr"], \
+        s["msg"]
+    B, N, _ = tau.shape
+    D = nbr.shape[2]
+    own = np.broadcast_to(np.arange(N)[None, :, None], choice.shape)
+    safe = np.where(nbr >= 0, nbr, np.arange(N)[None, :, None])
+    adopted = np.take_along_axis(safe, np.clip(choice - 1, 0, D - 1), axis=2)
+    src = np.where((choice >= 1) & (choice <= D), adopted, own)
+    avg = choice == D + 1
+    tau_next = np.where(avg, kernels.average_indices(tau, nbr, msg),
+                        kernels.advance_indices(tau, src))
+    Z_sel = kernels.gather_substates(Z, src, dec.block_of)
+    Z_sel = np.where(avg[:, :, dec.block_of], kernels.uniform_mix(Z, nbr, msg), Z_sel)
+    corr = kernels.innovation_correction(Z, s["y"], s["arrived"], s["C"], s["L"])
+    Z_next = kernels.propagate(Z_sel, Z, dec.A_diag, dec.A_lower) + corr
+    err = np.sqrt(((Z_next - s["z_true"][:, None, :]) ** 2).sum(-1))
+    return Z_next, tau_next, err, corr
+
+
+def _fused(s, **kw):
+    dec = s["dec"]
+    return kernels.apply_actions(
+        s["Z"], s["tau"], s["choice"], s["nbr"], s["msg"], dec.block_of.astype(np.int64),
+        np.ascontiguousarray(dec.A_lower.T), kernels.diag_band(dec.A_diag), s["z_true"],
+        **kw)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_fused_step_equals_public_kernels_bit_for_bit(seed):
+    s = _random_step(seed)
+    Z_ref, tau_ref, err_ref, corr = _composed(s)
+    assert (s["choice"] == len(s["nbr"][0, 0]) + 1).any()  # averages are exercised
+    for kw in ({"luenberger": (s["y"], s["arrived"], s["C"], s["L"])}, {"corr": corr}):
+        Z_next, tau_next, err = _fused(s, **kw)
+        np.testing.assert_array_equal(tau_next, tau_ref)
+        np.testing.assert_array_equal(Z_next, Z_ref)
+        np.testing.assert_allclose(err, err_ref, rtol=1e-12)
+
+
+def test_propagate_is_the_block_triangular_product():
+    s = _random_step(7)
+    dec, Z = s["dec"], s["Z"]
+    Z_sel = Z[:, ::-1]  # any other estimates
+    ref = Z_sel @ dec.A_diag.T + Z @ dec.A_lower.T
+    np.testing.assert_allclose(kernels.propagate(Z_sel, Z, dec.A_diag, dec.A_lower), ref,
+                               rtol=1e-12, atol=1e-12)
+
+
+def test_serial_and_threaded_drivers_agree(monkeypatch):
+    s = _random_step(3, B=9)
+    kw = {"luenberger": (s["y"], s["arrived"], s["C"], s["L"])}
+    monkeypatch.setattr(kernels, "PARALLEL_WORK", 1 << 62)
+    serial = _fused(s, **kw) + _composed(s)
+    monkeypatch.setattr(kernels, "PARALLEL_WORK", 0)
+    threaded = _fused(s, **kw) + _composed(s)
+    for a, b in zip(serial, threaded, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_every_member_equals_a_single_member_call():
+    s = _random_step(5, B=5)
+    kw = {"luenberger": (s["y"], s["arrived"], s["C"], s["L"])}
+    full = _fused(s, **kw)
+    for b in range(5):
+        one = {k: (v[b:b + 1] if isinstance(v, np.ndarray) and v.shape[:1] == (5,) else v)
+               for k, v in s.items()}
+        part = _fused(one, luenberger=(one["y"], one["arrived"], one["C"], one["L"]))
+        for a, p in zip(full, part, strict=True):
+            np.testing.assert_array_equal(a[b], p[0])
+    x = np.random.default_rng(0).standard_normal((7, 9))
+    M = np.random.default_rng(1).standard_normal((9, 4))
+    out = kernels.vecmat(x, M)
+    np.testing.assert_allclose(out, x @ M, rtol=1e-12, atol=1e-12)
+    for b in range(7):
+        np.testing.assert_array_equal(kernels.vecmat(x[b:b + 1], M)[0], out[b])
+
+
+def test_check_actions_reports_the_first_bad_entry_in_c_order():
+    B, N, D = 2, 4, 2
+    msg = np.ones((B, N, D), bool)
+    msg[1, 2, 1] = False
+    act = np.zeros((B, N, N + 1), dtype=np.int64)
+    act[1, 2, 0] = 2  # slot 1 of agent 2 in member 1: no message -> masked
+    act[1, 3, 3] = 1  # own substate, not keep -> masked (later in C order)
+    choice = np.empty((B, N, N), np.int64)
+    masked = np.empty((B, N, N), bool)
+    st = kernels.check_actions(act, msg, choice, masked)
+    assert list(st) == [-1, -1, -1, 1, 2, 0]
+    assert masked.sum() == 2 and masked[1, 3, 3] and choice[1, 2, 0] == 0
+    act[1, 0, N] = 2  # transmit bit out of range
+    act[0, 3, 1] = D + 2  # choice out of range, earlier in C order
+    st = kernels.check_actions(act, msg, choice, masked)
+    assert list(st[:3]) == [0, 3, 1]
+    assert kernels.diag_band(np.array([[2.0, 0], [0, 3]]))[2].tolist() == [2.0, 3.0]
+    assert kernels.gain_rows(np.array([[[0.0], [1.0], [0.0]], [[0.0], [0.0], [0.0]]])
+                             ).tolist() == [[1, 2], [0, 0]]
+
+
+def _markov_reference(proc, rngs, K, states, D):
+    """The two-state recursion and slot compaction in plain numpy (per run, per step)."""
+    ei, el = np.nonzero(proc.base)
+    out = np.full((len(rngs), K, proc.num_nodes, D), -1, dtype=np.int64)
+    final = []
+    for m, (rng, st) in enumerate(zip(rngs, states, strict=True)):
+        up = np.asarray(st, bool)[ei, el]
+        u = proc._edge_uniforms(rng, (K,))
+        for k in range(K):
+            for i in range(proc.num_nodes):
+                ls = el[(ei == i) & up]
+                out[m, k, i, :ls.size] = ls
+            up = np.where(up, u[k] >= proc.p_fail, u[k] < proc.p_recover)
+        end = np.zeros(proc.base.shape, bool)
+        end[ei, el] = up
+        final.append(end)
+    return out, final
+
+
+@pytest.mark.parametrize("draws", ["all", "base"])
+def test_markov_slot_tables_equal_the_recursion(draws):
+    base = np.zeros((9, 9), bool)
+    for off in (1, 2, 5):
+        base[np.arange(9), (np.arange(9) + off) % 9] = True
+    proc = MarkovLinkFailures(base, 0.3, 0.4, draws=draws)
+    seeds = [11, 12, 13]
+    st = [proc.initial_state(np.random.default_rng(s)) for s in seeds]
+    nbr, new = proc.sample_slots_many([np.random.default_rng(s) for s in seeds], 20, st, 3)
+    st2 = [proc.initial_state(np.random.default_rng(s)) for s in seeds]
+    ref, final = _markov_reference(proc, [np.random.default_rng(s) for s in seeds], 20, st2,
+                                   3)
+    assert (nbr >= 0).any() and (nbr < 0).any()
+    np.testing.assert_array_equal(nbr, ref)
+    for a, b in zip(new, final, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_observations_equal_the_layout_written_out():
+    model = build_model(load("link_failures-v0"))
+    core = BatchedCore(model, 3)
+    core.reset(4)
+    rng = np.random.default_rng(0)
+    for _ in range(5):  # a few steps so indices, slots and messages vary
+        core.step(np.zeros((3, core.N, core.N + 1), dtype=np.int64)
+                  + np.array([0] * core.N + [1]))
+    core.Z[0, 1] = [np.inf] + [0.0] * (core.n - 1)  # a blown-up estimate gets repaired
+    core.Z[1] = rng.standard_normal(core.Z[1].shape) * 1e3
+    core._obs = None
+    obs, mask = core.observe()
+    L, H, N, D = core.layout, float(core.horizon), core.N, core.D
+    tau = core.tau
+    for b in range(3):
+        for i in range(N):
+            o = obs[b, i]
+            assert o[L.time][0] == np.float32(core.k[b] / H)
+            yv = core.y[b, i] * core.y_arrived[b, i]
+            np.testing.assert_allclose(o[L.y], np.sign(yv) * np.log1p(np.abs(yv)), rtol=1e-6)
+            np.testing.assert_array_equal(o[L.own_omega], tau[b, i] < 0)
+            np.testing.assert_array_equal(
+                o[L.own_age], (np.maximum(tau[b, i], 0) / H).astype(np.float32))
+            z = core.Z[b, i]
+            nz = np.linalg.norm(z)
+            if np.isfinite(nz):
+                np.testing.assert_allclose(o[L.z_dir], z / (nz or 1.0), rtol=1e-6, atol=1e-7)
+            else:
+                assert o[L.z_lognorm][0] == 1e3 and np.isfinite(o).all()
+            for d in range(D):
+                l, got = core.nbr[b, i, d], core.msg[b, i, d]
+                assert o[L.slot_arrived][d] == got
+                assert o[L.slot_id][d] == np.float32((l + 1) / N if l >= 0 else 0.0)
+                om = o[L.slot_omega].reshape(D, N)[d]
+                age = o[L.slot_age].reshape(D, N)[d]
+                if got:
+                    np.testing.assert_array_equal(om, tau[b, l] < 0)
+                    np.testing.assert_array_equal(
+                        age, (np.maximum(tau[b, l], 0) / H).astype(np.float32))
+                else:
+                    assert (om == 1).all() and (age == 0).all()
+            W = D + 2
+            m = mask[b, i, :N * W].reshape(N, W)
+            for j in range(N):
+                want = [1] + [0 if j == i else int(g) for g in core.msg[b, i]] + [int(j != i)]
+                assert m[j].tolist() == want
+            assert mask[b, i, N * W:].tolist() == [1, 1]
+    assert observation.slot_messages(core.nbr, core.transmit).shape == core.nbr.shape
