@@ -22,7 +22,9 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
-from numba import njit
+from numba import prange
+
+from netsense.compiled import Driver
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -371,7 +373,10 @@ class MarkovLinkFailures(GraphProcess):
         # slots: the up base links of each node in ascending order (edges are row-major),
         # and the two-state recursion, in one compiled pass over (run, step, edge)
         nbr = np.empty((M, K, N, max_degree), dtype=np.int64)
-        if not _markov_slots(ue, up, ei, el, float(self.p_fail), float(self.p_recover), nbr):
+        ok = np.ones(M, dtype=bool)
+        _markov_slots.at(ue.size)(ue, up, ei, el, float(self.p_fail), float(self.p_recover),
+                                  nbr, ok)
+        if not ok.all():
             raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
         new = np.zeros((M, N, N), dtype=bool)
         new[:, ei, el] = up
@@ -549,20 +554,19 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     return Gossip.complete(N)
 
 
-@njit(cache=True)
-def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr):
+def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr, ok):
     """Two-state link chains and slot tables of :class:`MarkovLinkFailures`.
 
     ``u (M, K, E)`` uniforms, ``up (M, E)`` link states at the first step (advanced in
     place to the state after the last), edges ``(ei, el)`` in row-major order. Step ``k``
     uses the states before its transition (an up link stays up iff ``u >= p_fail``, a
     down link comes back iff ``u < p_recover``). Writes ``nbr (M, K, N, D)`` (``-1`` =
-    empty slot); returns False if a node has more than ``D`` up links.
+    empty slot); ``ok[m]`` turns False if a node of run ``m`` has more than ``D`` up links.
     """
     M, K, E = u.shape
     N, D = nbr.shape[2], nbr.shape[3]
-    pos = np.empty(N, dtype=np.int64)
-    for m in range(M):
+    for m in prange(M):
+        pos = np.empty(N, dtype=np.int64)
         for k in range(K):
             nbr[m, k] = -1
             pos[:] = 0
@@ -570,8 +574,11 @@ def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr):
                 if up[m, e]:
                     i = ei[e]
                     if pos[i] >= D:
-                        return False
-                    nbr[m, k, i, pos[i]] = el[e]
-                    pos[i] += 1
+                        ok[m] = False
+                    else:
+                        nbr[m, k, i, pos[i]] = el[e]
+                        pos[i] += 1
                 up[m, e] = u[m, k, e] >= p_fail if up[m, e] else u[m, k, e] < p_recover
-    return True
+
+
+_markov_slots = Driver(_markov_slots)

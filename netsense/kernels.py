@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from netsense.compiled import Driver
+
 #: Encoding of the freshness index's dummy value omega (eq. (8)ff.).
 OMEGA = -1
 _BIG = np.iinfo(np.int64).max // 4
@@ -216,7 +218,7 @@ def vecmat(x: np.ndarray, M: np.ndarray) -> np.ndarray:
     x = np.ascontiguousarray(x, dtype=float)
     M = np.ascontiguousarray(M, dtype=float)
     out = np.empty((x.shape[0], M.shape[1]))
-    _vecmat_all.at(x.shape[0] * M.size)(x, M, out)
+    _vecmat_all.at(x.shape[0] * M.size // 8)(x, M, out)  # light: rarely worth threads
     return out
 
 
@@ -544,37 +546,7 @@ def keep_own_blocks(Z_sel: np.ndarray, Z: np.ndarray, own_block: np.ndarray) -> 
 
 
 # ----------------------------------------------------------------------------- dispatch
-#: Work (array elements touched) from which the drivers run on numba's thread pool
-#: (``prange`` over members); smaller calls (a single environment) run serially, where
-#: starting threads would cost more than it saves. Results are the same either way: every
-#: member is computed by the same row functions, independently.
-PARALLEL_WORK = 1 << 16
-
-
-class _Driver:
-    """A driver compiled twice from one source: serial and ``parallel=True``."""
-
-    def __init__(self, fn) -> None:
-        self.serial = njit(cache=True)(_renamed(fn, "serial"))
-        self.parallel = njit(cache=True, parallel=True)(_renamed(fn, "parallel"))
-
-    def at(self, work: int):
-        """The variant for a call that touches ``work`` array elements."""
-        return self.parallel if work >= PARALLEL_WORK else self.serial
-
-
-def _renamed(fn, tag: str):
-    """A copy of ``fn`` under its own qualified name (numba caches per name)."""
-    import types
-
-    out = types.FunctionType(fn.__code__, fn.__globals__, f"{fn.__name__}_{tag}",
-                             fn.__defaults__, fn.__closure__)
-    out.__qualname__ = f"{fn.__qualname__}_{tag}"
-    out.__module__ = fn.__module__
-    return out
-
-
 for _name in ("_advance_all", "_average_all", "_gather_all", "_mix_all", "_propagate_all",
               "_innovation_all", "_vecmat_all", "_check_actions", "_apply_all"):
-    globals()[_name] = _Driver(globals()[_name])
+    globals()[_name] = Driver(globals()[_name])
 del _name

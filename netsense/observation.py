@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from netsense.kernels import _Driver
+from netsense.compiled import Driver
 
 __all__ = ["fill", "slot_messages"]
 
@@ -180,5 +180,5 @@ def _mask_row(m, msg_row, i, M, D):
             m[i * W + w] = 0
 
 
-_messages = _Driver(_messages)
-_fill = _Driver(_fill)
+_messages = Driver(_messages)
+_fill = Driver(_fill)

@@ -141,12 +141,16 @@ class _KernelRunner:
 
 class _VmasRunner:
     """VMAS ``simple_spread`` on CPU (torch) with zero continuous actions, ``threads``
-    torch threads (default 1)."""
+    torch threads (None: as many as the core uses)."""
 
-    def __init__(self, B: int, N: int, seed: int = 0, threads: int | None = 1) -> None:
+    def __init__(self, B: int, N: int, seed: int = 0, threads: int | None = None) -> None:
         import torch
         import vmas
 
+        if threads is None:
+            import numba
+
+            threads = numba.get_num_threads()
         if threads is not None:
             # like the numpy core (one thread); on a loaded machine torch's default
             # thread pool is much slower and erratic (oversubscription)
@@ -175,7 +179,8 @@ def vmas_available() -> bool:
 
 # ----------------------------------------------------------------------------- measure
 def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
-                  vmas: bool = True, vmas_budget: float = 20.0, vmas_threads: int | None = 1,
+                  vmas: bool = True, vmas_budget: float = 20.0,
+                  vmas_threads: int | None = None, threads: int | None = None,
                   seed: int = 0) -> dict:
     """Time core, kernel and (optionally) VMAS at one shape; returns one result row.
 
@@ -191,8 +196,10 @@ def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
         Seconds VMAS may use per repeat; it runs fewer steps (at least 1) when one step
         is slower than ``vmas_budget / steps`` (VMAS scales like ``B N^2``).
     vmas_threads : int or None
-        torch threads for VMAS (default 1, like the single-threaded numpy core; None
-        keeps torch's default).
+        torch threads for VMAS (default: as many as the core's numba threads).
+    threads : int or None
+        numba threads for the core (default numba's, one per core); the kernel's BLAS
+        products use BLAS's own threads (OpenBLAS: one per core).
     seed : int
 
     Returns
@@ -202,6 +209,21 @@ def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
         ``vmas_s`` (NaN if not run), agent-steps/s ``core_rate``, ``kernel_rate``,
         ``vmas_rate``, and ``core_vs_kernel``, ``core_vs_vmas`` (rate ratios).
     """
+    import numba
+
+    before = numba.get_num_threads()
+    if threads is not None:
+        numba.set_num_threads(int(threads))
+    try:
+        return _measure_shape(B, N, n, steps, repeats, vmas, vmas_budget, vmas_threads,
+                              seed)
+    finally:
+        numba.set_num_threads(before)
+
+
+def _measure_shape(B, N, n, steps, repeats, vmas, vmas_budget, vmas_threads, seed) -> dict:
+    import numba
+
     model = bench_model(N, n, seed=seed)
     core = _CoreRunner(model, B, seed)
     kern = _KernelRunner(core.core, seed)
@@ -226,7 +248,8 @@ def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
            "kernel_s": best["kernel"],
            "vmas_s": best["vmas"] if vm is not None else math.nan,
            "vmas_steps": vm_steps if vm is not None else 0,
-           "vmas_torch_threads": vm.threads if vm is not None else 0}
+           "vmas_torch_threads": vm.threads if vm is not None else 0,
+           "core_threads": numba.get_num_threads()}
     for k in ("core", "kernel", "vmas"):
         s = row[f"{k}_s"]
         row[f"{k}_rate"] = B * N / s if s == s and s > 0 else math.nan
@@ -519,8 +542,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-vmas", action="store_true", help="skip VMAS")
     p.add_argument("--vmas-budget", type=float, default=20.0,
                    help="seconds per VMAS block at most (default 20)")
-    p.add_argument("--vmas-threads", type=int, default=1,
-                   help="torch threads for VMAS (default 1, like the numpy core)")
+    p.add_argument("--vmas-threads", type=int, default=None,
+                   help="torch threads for VMAS (default: as many as the core)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="numba threads for the core (default: one per core)")
     p.add_argument("--profile", action="store_true", help="print where the core's time goes")
     p.add_argument("--memory", action="store_true",
                    help="measure the state size at B=1024, N=30, n=20")
@@ -540,7 +565,7 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("--steps and --repeats must be >= 1")
     rows = measure(shapes, steps=args.steps, repeats=args.repeats, vmas=not args.no_vmas,
                    progress=not args.no_progress, vmas_budget=args.vmas_budget,
-                   vmas_threads=args.vmas_threads)
+                   vmas_threads=args.vmas_threads, threads=args.threads)
     print(format_table(rows))
     for line in verdicts(rows):
         print(line)

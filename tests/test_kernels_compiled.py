@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from netsense import kernels, observation
+from netsense import compiled, kernels, observation
 from netsense.envcore import BatchedCore
 from netsense.graphs import MarkovLinkFailures
 from netsense.scenarios import build_model, load
@@ -109,9 +109,9 @@ def test_propagate_is_the_block_triangular_product():
 def test_serial_and_threaded_drivers_agree(monkeypatch):
     s = _random_step(3, B=9)
     kw = {"luenberger": (s["y"], s["arrived"], s["C"], s["L"])}
-    monkeypatch.setattr(kernels, "PARALLEL_WORK", 1 << 62)
+    monkeypatch.setattr(compiled, "PARALLEL_WORK", 1 << 62)
     serial = _fused(s, **kw) + _composed(s)
-    monkeypatch.setattr(kernels, "PARALLEL_WORK", 0)
+    monkeypatch.setattr(compiled, "PARALLEL_WORK", 0)
     threaded = _fused(s, **kw) + _composed(s)
     for a, b in zip(serial, threaded, strict=True):
         np.testing.assert_array_equal(a, b)
