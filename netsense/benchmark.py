@@ -358,7 +358,7 @@ def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> E
     core = env.core
     kf = CentralizedKF(env.model.plant, x0_std=env.model.x0_std)
     env.reset(seed=seed)
-    idle = {a: np.zeros(core.N + 1, dtype=np.int64) for a in env.possible_agents}
+    idle = {a: np.zeros(core.M + 1, dtype=np.int64) for a in env.possible_agents}
     errs, xn = [], []
     while True:
         x = core.x[0]

@@ -31,8 +31,12 @@ only relays). All agents act simultaneously.
 
 Action Space
 ------------
-``MultiDiscrete([D + 2] * N + [2])`` where ``D`` is the graph process's maximum in-degree
-(slots are padded to ``D``; slot ``d`` holds the ``d``-th smallest in-neighbour id).
+``MultiDiscrete([D + 2] * M + [2])`` where ``D`` is the graph process's maximum in-degree
+(slots are padded to ``D``; slot ``d`` holds the ``d``-th smallest in-neighbour id) and
+``M`` the number of substates: ``M = N`` (one per agent, the paper's setting, default) or,
+with the scenario key ``substates = "sources"``, the number of agents whose block of
+Lemma 1 is non-empty (``env.layout.sources[j]`` is the agent of substate ``j``; an empty
+substate has nothing to estimate, so estimates and rewards are unchanged).
 
 =========  ================================================================================
 entry      meaning
@@ -41,7 +45,7 @@ entry      meaning
            ``1..D`` adopt neighbour slot ``a[j] - 1`` (eqs. (9)/(10)), ``D + 1`` uniform
            average over self and every neighbour whose message arrived (eq. (6); its index
            is the stalest contributor's + 1, omega if any contributor has omega)
-``a[N]``   transmit at the **next** step (1) or stay silent (0); costs ``message_cost``
+``a[M]``   transmit at the **next** step (1) or stay silent (0); costs ``message_cost``
 =========  ================================================================================
 
 Timing: messages received at step ``k`` are those of neighbours whose transmit bit was set
@@ -49,7 +53,7 @@ by their action at ``k - 1`` (the scenario's ``initial_transmit`` at ``k = 0``),
 policy sees, before acting, exactly which slots hold a message. The source's entry for its
 own substate must be 0: update (7) is not an action.
 
-Action mask: a flat int8 vector of length ``M = N (D + 2) + 2`` (the concatenation of one
+Action mask: a flat int8 vector of length ``M (D + 2) + 2`` (the concatenation of one
 mask per ``MultiDiscrete`` entry, the layout sb3-contrib's ``MaskablePPO`` and TorchRL's
 ``MultiCategorical`` use), in ``obs["action_mask"]`` (default) or
 ``infos[agent]["action_mask"]`` (``action_mask_in="info"``, plain ``Box`` observations for
@@ -65,7 +69,7 @@ validated before any state changes. Missing agents' actions raise ``ValueError``
 
 Observation Space
 -----------------
-A flat float32 vector (``obs_dim = 3 + r + n + 2N + 2D + 2DN``), with ``H`` the horizon:
+A flat float32 vector (``obs_dim = 3 + r + n + 2M + 2D + 2DM``), with ``H`` the horizon:
 
 ==================  =========  ===========================================================
 field               size       content
@@ -73,14 +77,14 @@ field               size       content
 ``time``            1          ``k / H``
 ``y``               r          ``symlog(y_i[k])`` (0 when not arrived; padded to ``r_max``)
 ``y_arrived``       1          1 if the measurement arrived
-``own_omega``       N          1 where ``tau_i^{(j)} = omega``
-``own_age``         N          ``tau_i^{(j)} / H`` (0 for omega)
+``own_omega``       M          1 where ``tau_i^{(j)} = omega``
+``own_age``         M          ``tau_i^{(j)} / H`` (0 for omega)
 ``z_dir``           n          ``z_hat_i / ||z_hat_i||`` (Lemma 1 coordinates; 0 if 0)
 ``z_lognorm``       1          ``log(1 + ||z_hat_i||)``
 ``slot_arrived``    D          1 if slot ``d`` holds a message at ``k``
 ``slot_id``         D          ``(l + 1) / N`` for the neighbour ``l`` in slot ``d`` (0: empty)
-``slot_omega``      D x N      1 where the message's ``tau_l^{(j)} = omega`` (or no message)
-``slot_age``        D x N      ``tau_l^{(j)} / H`` from the message (0 otherwise)
+``slot_omega``      D x M      1 where the message's ``tau_l^{(j)} = omega`` (or no message)
+``slot_age``        D x M      ``tau_l^{(j)} / H`` from the message (0 otherwise)
 ==================  =========  ===========================================================
 
 ``symlog(v) = sign(v) log(1 + |v|)``; all entries are clipped to ``[-1000, 1000]``.
@@ -353,7 +357,7 @@ class NetSenseEnv(ParallelEnv):
         return o, infos
 
     def actions_to_array(self, actions: dict[str, Any]) -> np.ndarray:
-        """Stack an ``{agent: action}`` dict into the core's ``(1, N, N + 1)`` array."""
+        """Stack an ``{agent: action}`` dict into the core's ``(1, N, M + 1)`` array."""
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict {{agent: action}}, got "
                              f"{type(actions).__name__}")
@@ -366,10 +370,10 @@ class NetSenseEnv(ParallelEnv):
         try:
             arr = np.asarray([actions[a] for a in self.possible_agents])
         except ValueError as exc:
-            raise ValueError(f"every action must be a vector of {self.core.N + 1} "
+            raise ValueError(f"every action must be a vector of {self.core.M + 1} "
                              f"integers: {exc}") from exc
-        if arr.ndim != 2 or arr.shape[1] != self.core.N + 1:
-            raise ValueError(f"every action must be a vector of {self.core.N + 1} integers "
+        if arr.ndim != 2 or arr.shape[1] != self.core.M + 1:
+            raise ValueError(f"every action must be a vector of {self.core.M + 1} integers "
                              f"(MultiDiscrete {list(self.core.nvec)}), got shape "
                              f"{arr.shape[1:]}")
         return arr[None]

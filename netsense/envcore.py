@@ -11,7 +11,7 @@ Array API
 ---------
 >>> core = BatchedCore(model, batch_size=B)
 >>> obs, mask = core.reset(seed)            # obs (B, N, obs_dim) float32, mask (B, N, M) int8
->>> out = core.step(actions)                # actions (B, N, N + 1) int
+>>> out = core.step(actions)                # actions (B, N, M + 1) int (M = N by default)
 >>> out.obs, out.action_mask, out.reward, out.terminated, out.truncated
 
 ``reset(seed)`` seeds member ``b`` with ``seed + b`` (or with ``seed[b]`` for a sequence),
@@ -32,12 +32,14 @@ So the transmit bit of the action at ``k`` is the message neighbours receive at
 This lets a policy act on the masks of exactly the messages it can use, and the freshness
 policy with transmit always on reproduces :class:`netsense.FreshnessObserver`.
 
-Action encoding (per agent, ``N + 1`` integers)
+Action encoding (per agent, ``M + 1`` integers)
 -----------------------------------------------
-``a[j]`` for substate ``j < N``: ``0`` keep own estimate (open loop, eqs. (11)/(12),
+``M`` substates: ``N`` (one per agent, the paper's setting) or, with
+``substates = "sources"``, the agents whose block is non-empty (``layout.sources``).
+``a[j]`` for substate ``j < M``: ``0`` keep own estimate (open loop, eqs. (11)/(12),
 (14)); ``1..D`` adopt from in-neighbour slot ``d = a[j] - 1`` (eqs. (9)/(10)); ``D + 1``
 uniform average over self and every in-neighbour whose message arrived (eq. (6), index:
-stalest contributor + 1). ``a[N]``: transmit at the next step (0/1). The source's entry
+stalest contributor + 1). ``a[M]``: transmit at the next step (0/1). The source's entry
 for its own substate must be 0 (update (7) is not an action).
 
 Faults (``CoreModel.faults``, scenario ``[[faults]]``)
@@ -82,6 +84,7 @@ CHUNK_BUDGET = 48 * 2**20
 _STREAMS = ("init", "graph", "process_noise", "measurement_noise", "measurement_arrivals",
             "message_arrivals", "source")
 INVALID_ACTIONS = ("raise", "keep")
+SUBSTATES = ("all", "sources")
 
 
 @dataclass(frozen=True)
@@ -158,6 +161,13 @@ class CoreModel:
     faults : tuple of netsense.faults.Fault
         Crashed agents, stuck/stale sensors and at most one :class:`~netsense.faults.
         LyingAgent` (message loss is ``message_arrivals``); see :class:`BatchedCore`.
+    substates : {"all", "sources"}
+        Which substates the freshness indices, actions and observations cover: ``"all"``
+        (one per agent, as in the paper: ``tau`` is ``N x N``) or ``"sources"`` (only the
+        agents whose block of Lemma 1 is non-empty; ``tau`` is ``N x M``). The indices of
+        an empty substate carry nothing to estimate, so the estimates, errors and rewards
+        are the same in both (tested); with ``N`` agents and ``n < N`` states at most
+        ``n`` agents are sources, and the O(N^2) per-member bookkeeping becomes O(N M).
     """
 
     plant: Plant
@@ -172,6 +182,7 @@ class CoreModel:
     divergence_limit: float | None = None
     source_estimator: Callable[[], SourceEstimator] | None = None
     faults: tuple = ()
+    substates: str = "all"
 
     def __post_init__(self) -> None:
         from netsense.faults import CrashedAgents, LyingAgent, StuckSensor
@@ -183,6 +194,12 @@ class CoreModel:
                                  f"(message loss is message_arrivals), got "
                                  f"{type(f).__name__}")
             f.check(self.plant.num_agents)
+        if self.substates not in SUBSTATES:
+            raise ValueError(f"substates must be one of {SUBSTATES}, got {self.substates!r}")
+        if self.substates == "sources" and any(isinstance(f, LyingAgent)
+                                                for f in self.faults):
+            raise ValueError("a LyingAgent fault needs substates = 'all' (its claims are "
+                             "per agent and substate)")
         if sum(isinstance(f, LyingAgent) for f in self.faults) > 1:
             raise ValueError("faults may hold at most one LyingAgent (list all liars in it)")
         if self.horizon < 1:
@@ -201,13 +218,18 @@ class ObsLayout:
     """Offsets of the flat per-agent observation vector (see :mod:`netsense.env`).
 
     Every field is a ``slice`` into the last axis of ``obs``; block fields with two
-    dimensions are stored row-major (``slot_omega``: ``D x N``, slot first).
+    dimensions are stored row-major (``slot_omega``: ``D x M``, slot first). ``M`` is the
+    number of substates the indices and actions cover: ``N`` (one per agent, default) or
+    the number of sources (agents with a non-empty block, scenario key
+    ``substates = "sources"``); ``sources[m]`` is the agent that owns substate ``m``.
     """
 
     N: int
     n: int
     r: int
     D: int
+    M: int
+    sources: tuple[int, ...]
     time: slice
     y: slice
     y_arrived: slice
@@ -222,15 +244,25 @@ class ObsLayout:
     size: int
 
     @classmethod
-    def build(cls, N: int, n: int, r: int, D: int) -> ObsLayout:
-        sizes = [("time", 1), ("y", r), ("y_arrived", 1), ("own_omega", N), ("own_age", N),
+    def build(cls, N: int, n: int, r: int, D: int,
+              sources: Sequence[int] | None = None) -> ObsLayout:
+        src = tuple(range(N)) if sources is None else tuple(int(v) for v in sources)
+        M = len(src)
+        sizes = [("time", 1), ("y", r), ("y_arrived", 1), ("own_omega", M), ("own_age", M),
                  ("z_dir", n), ("z_lognorm", 1), ("slot_arrived", D), ("slot_id", D),
-                 ("slot_omega", D * N), ("slot_age", D * N)]
+                 ("slot_omega", D * M), ("slot_age", D * M)]
         out, o = {}, 0
         for name, s in sizes:
             out[name] = slice(o, o + s)
             o += s
-        return cls(N=N, n=n, r=r, D=D, size=o, **out)
+        return cls(N=N, n=n, r=r, D=D, M=M, sources=src, size=o, **out)
+
+    @property
+    def own(self) -> np.ndarray:
+        """``(N,)``: the substate (column) agent ``i`` owns, ``-1`` if none."""
+        out = np.full(self.N, -1, dtype=np.int64)
+        out[list(self.sources)] = np.arange(self.M)
+        return out
 
     def table(self) -> list[tuple[str, int, int]]:
         """``(field, start, stop)`` rows, for documentation and rendering."""
@@ -243,7 +275,7 @@ class StepResult(NamedTuple):
     """What :meth:`BatchedCore.step` returns (all arrays have a leading batch axis)."""
 
     obs: np.ndarray  #: (B, N, obs_dim) float32
-    action_mask: np.ndarray  #: (B, N, N * (D + 2) + 2) int8
+    action_mask: np.ndarray  #: (B, N, M * (D + 2) + 2) int8
     reward: np.ndarray  #: (B, N) float64
     terminated: np.ndarray  #: (B,) bool
     truncated: np.ndarray  #: (B,) bool
@@ -270,7 +302,7 @@ class BatchedCore:
     ------------------------------------------------------------------------
     x : (B, n)             true state ``x[k]``.
     Z : (B, N, n)          estimates in Lemma 1 coordinates (``x_hat = T z_hat``).
-    tau : (B, N, N) int    freshness indices (``OMEGA = -1``).
+    tau : (B, N, M) int    freshness indices (``OMEGA = -1``; column m: source sources[m]).
     k : (B,) int           time index per member.
     adjacency : (B, N, N)  ``G[k]``; ``nbr``/``valid`` its slots (B, N, D).
     y : (B, N, r_max)      measurements ``y[k]``; ``y_arrived`` (B, N).
@@ -317,7 +349,7 @@ class BatchedCore:
         self.A_diag, self.A_lower = dec.A_diag, dec.A_lower
         self._ALT = np.ascontiguousarray(self.A_lower.T)
         self._band = kernels.diag_band(self.A_diag)
-        self._block_of = np.ascontiguousarray(self.block_of, dtype=np.int64)
+        self._block_of = None  # coordinate -> substate column, set with the layout
         self._TT = np.ascontiguousarray(dec.T)
         self._A_T = np.ascontiguousarray(plant.A.T)
         self.own_block = SourceEstimator.own_block_mask(design)
@@ -326,9 +358,18 @@ class BatchedCore:
         self.output_mask = plant.output_mask
         self.W = plant.W_effective
         self._W_T = np.ascontiguousarray(self.W.T)
-        self.layout = ObsLayout.build(self.N, self.n, self.r, self.D)
-        self.nvec = np.array([self.D + 2] * self.N + [2], dtype=np.int64)
+        sizes = np.bincount(self.block_of, minlength=self.N)
+        self.sources = (np.flatnonzero(sizes > 0) if model.substates == "sources"
+                        else np.arange(self.N))
+        self.M = int(self.sources.size)
+        self.layout = ObsLayout.build(self.N, self.n, self.r, self.D, self.sources)
+        #: ``(N,)`` column of each agent's own substate (``-1``: owns none)
+        self.own = self.layout.own
+        self.nvec = np.array([self.D + 2] * self.M + [2], dtype=np.int64)
         self.mask_size = int(self.nvec.sum())
+        column = np.full(self.N, -1, dtype=np.int64)
+        column[self.sources] = np.arange(self.M)
+        self._block_of = np.ascontiguousarray(column[self.block_of])
         self.source = (model.source_estimator or LuenbergerSource)()
         from netsense.faults import CrashedAgents, LyingAgent, StuckSensor
 
@@ -413,7 +454,7 @@ class BatchedCore:
         self.msg_sampler: list = [None] * B
         self.x = np.zeros((B, n))
         self.Z = np.zeros((B, N, n))
-        self.tau = np.full((B, N, N), kernels.OMEGA, dtype=np.int64)
+        self.tau = np.full((B, N, self.M), kernels.OMEGA, dtype=np.int64)
         self.k = np.zeros(B, dtype=np.int64)
         self.transmit = np.ones((B, N), dtype=bool)
         self.errors = np.zeros((B, N))
@@ -441,7 +482,7 @@ class BatchedCore:
         self.x[b] = m.x0_std * rngs["init"].standard_normal(self.n)
         self.Z[b] = 0.0
         self.tau[b] = kernels.OMEGA
-        self.tau[b, self._arangeN, self._arangeN] = 0
+        self.tau[b, self.sources, np.arange(self.M)] = 0
         self.k[b] = 0
         self.transmit[b] = bool(m.initial_transmit)
         self.transmit[b] &= ~self._silenced(np.zeros(1, np.int64))[0]
@@ -533,7 +574,7 @@ class BatchedCore:
 
     # ------------------------------------------------------------------ masks
     def action_mask(self) -> np.ndarray:
-        """``(B, N, N * (D + 2) + 2)`` int8: allowed choices per substate, then transmit.
+        """``(B, N, M * (D + 2) + 2)`` int8: allowed choices per substate, then transmit.
 
         The block of substate ``j`` is ``[keep, slot 0 .. slot D-1, average]``; slots
         allow only a message that arrived, and an agent's own substate allows only keep.
@@ -545,10 +586,10 @@ class BatchedCore:
 
     # ------------------------------------------------------------------ step
     def _validate(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        B, N = self.B, self.N
+        B, N, M = self.B, self.N, self.M
         a = np.asarray(actions)
-        if a.shape != (B, N, N + 1):
-            raise ValueError(f"actions must have shape (B, N, N + 1) = {(B, N, N + 1)}, "
+        if a.shape != (B, N, M + 1):
+            raise ValueError(f"actions must have shape (B, N, M + 1) = {(B, N, M + 1)}, "
                              f"got {a.shape}")
         if a.dtype.kind not in "iu":
             if a.dtype.kind not in "fb" or np.any(a != np.round(a)):
@@ -556,25 +597,25 @@ class BatchedCore:
             a = a.astype(np.int64)
         elif a.dtype == np.uint64:  # uint64 + int64 offsets would promote to float
             a = a.astype(np.int64)
-        choice = np.empty((B, N, N), dtype=np.int64)
-        masked = np.empty((B, N, N), dtype=bool)
-        st = kernels.check_actions(a, self.msg, choice, masked)
+        choice = np.empty((B, N, M), dtype=np.int64)
+        masked = np.empty((B, N, M), dtype=bool)
+        st = kernels.check_actions(a, self.msg, choice, masked, self.own)
         if st[0] >= 0:  # out of range (always an error)
             b, i, j = (int(v) for v in st[:3])
-            what = f"substate {j}" if j < N else "transmit"
+            what = f"substate {j}" if j < M else "transmit"
             raise ValueError(f"action of agent {i} (batch member {b}) for {what} is "
                              f"{int(a[b, i, j])}, outside 0..{int(self.nvec[j]) - 1}")
         if st[3] >= 0 and self.invalid_actions == "raise":
             b, i, j = (int(v) for v in st[3:])
             c = int(a[b, i, j])
             why = ("the own substate of a source is updated by eq. (7), only 0 is allowed"
-                   if i == j else f"slot {c - 1} holds no message at this step")
+                   if j == self.own[i] else f"slot {c - 1} holds no message at this step")
             raise ValueError(f"masked action: agent {i} (batch member {b}), substate {j}, "
                              f"choice {c}: {why}")
-        return choice, a[..., N] != 0, masked
+        return choice, a[..., M] != 0, masked
 
     def step(self, actions, *, observe: bool = True) -> StepResult:
-        """Advance every member from ``k`` to ``k + 1`` under ``actions (B, N, N + 1)``.
+        """Advance every member from ``k`` to ``k + 1`` under ``actions (B, N, M + 1)``.
 
         Estimates: eqs. (7), (9)-(12) via the kernels; indices: eqs. (9), (11), (14), and
         the stalest-contributor rule for averages. Then the plant (eq. (1)), the next
@@ -609,7 +650,7 @@ class BatchedCore:
         # choice 0 = keep, so the source of substate i of agent i is i itself)
         Z_next, tau_next, err = kernels.apply_actions(
             Z, tau, choice, self.nbr, self.msg, self._block_of, self._ALT, self._band, z_true,
-            **src_kw)
+            own=self.own, **src_kw)
         self.last_invalid = masked
         self.x, self.Z, self.tau = x_next, Z_next, tau_next
         self.k += 1
@@ -684,7 +725,7 @@ class BatchedCore:
         observation.fill(dummy_o if obs is None else obs, dummy_m if mask is None else mask,
                          self._obs_starts, self.k, H, self.y, self.y_arrived,
                          self.reported_indices(), self.Z, self.nbr, self.msg, exact,
-                         observations=obs is not None, masks=mask is not None)
+                         observations=obs is not None, masks=mask is not None, own=self.own)
 
     # ------------------------------------------------------------------ views
     @property

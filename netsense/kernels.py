@@ -88,20 +88,23 @@ def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     return np.where(adopt, chosen, own), np.where(adopt, best_slot, -1)
 
 
-def advance_indices(tau: np.ndarray, src: np.ndarray) -> np.ndarray:
+def advance_indices(tau: np.ndarray, src: np.ndarray, own: np.ndarray | None = None
+                    ) -> np.ndarray:
     """Freshness indices at ``k+1`` given whom each agent used, eqs. (9), (11), (14).
 
     ``tau_i^{(j)}[k+1] = tau_{src}^{(j)}[k] + 1`` (omega stays omega), and every source
-    keeps ``tau_j^{(j)} = 0``.
+    keeps ``tau_j^{(j)} = 0``. ``own[i]`` is the substate (column) of agent ``i``, ``-1``
+    if it owns none; the default is ``own[i] = i`` (one column per agent).
     """
     tau = np.asarray(tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
-    _advance_all.at(tau.size)(tau, np.asarray(src), out)
+    _advance_all.at(tau.size)(tau, _own(own, tau), np.asarray(src), out)
     return out
 
 
 def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
-                    transmit: np.ndarray | None = None) -> np.ndarray:
+                    transmit: np.ndarray | None = None, own: np.ndarray | None = None
+                    ) -> np.ndarray:
     """Freshness indices at ``k+1`` after a uniform average (eq. (6)), ``(B, N, N)``.
 
     The age of an average is that of its stalest contributor plus one: over ``i`` itself
@@ -111,7 +114,8 @@ def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     """
     tau = np.asarray(tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
-    _average_all.at(tau.size)(tau, np.asarray(nbr), _usable(nbr, valid, transmit), out)
+    _average_all.at(tau.size)(tau, _own(own, tau), np.asarray(nbr),
+                              _usable(nbr, valid, transmit), out)
     return out
 
 
@@ -228,19 +232,20 @@ STATUS_FIELDS = ("range_b", "range_i", "range_j", "masked_b", "masked_i", "maske
 
 
 def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
-                  masked: np.ndarray) -> np.ndarray:
+                  masked: np.ndarray, own: np.ndarray | None = None) -> np.ndarray:
     """Validate the environment's actions ``(B, N, N + 1)`` against the slot table.
 
-    Entry ``act[b, i, j]`` (``j < N``) is ``0`` keep, ``1..D`` adopt slot ``d - 1``,
-    ``D + 1`` average; ``act[b, i, N]`` is the transmit bit. A choice is *masked* when its
-    slot holds no message (``msg[b, i, d]`` false) or when it is not 0 on the agent's own
-    substate (``j = i``: eq. (7) is not an action). Writes the sanitised choices (masked
-    ones replaced by 0, keep) into ``choice (B, N, N)`` and the masked flags into
+    Entry ``act[b, i, j]`` (``j < M`` substates) is ``0`` keep, ``1..D`` adopt slot
+    ``d - 1``, ``D + 1`` average; ``act[b, i, M]`` is the transmit bit. A choice is
+    *masked* when its slot holds no message (``msg[b, i, d]`` false) or when it is not 0
+    on the agent's own substate (``j = own[i]``, default ``own[i] = i``: eq. (7) is not
+    an action). Writes the sanitised choices (masked ones replaced by 0, keep) into
+    ``choice (B, N, M)`` and the masked flags into
     ``masked``, and returns the ``status`` vector of :data:`STATUS_FIELDS`: the first
     (in C order) out-of-range entry and the first masked one, ``-1`` where there is none.
     """
     first = np.full((act.shape[0], 4), -1, dtype=np.int64)
-    _check_actions.at(act.size)(act, msg, choice, masked, first)
+    _check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first)
     status = np.full(6, -1, dtype=np.int64)
     for k, col in ((0, 0), (3, 2)):
         hit = np.flatnonzero(first[:, col] >= 0)
@@ -253,7 +258,8 @@ def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
 def apply_actions(Z: np.ndarray, tau: np.ndarray, choice: np.ndarray, nbr: np.ndarray,
                   msg: np.ndarray, block_of: np.ndarray, A_lower_T: np.ndarray,
                   band: tuple[np.ndarray, np.ndarray, np.ndarray], z_true: np.ndarray, *,
-                  corr: np.ndarray | None = None, luenberger: tuple | None = None
+                  corr: np.ndarray | None = None, luenberger: tuple | None = None,
+                  own: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One step of every agent under validated choices, in one pass over ``(b, i)``.
 
@@ -267,7 +273,9 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, choice: np.ndarray, nbr: np.nd
 
     The correction is either given, ``corr (B, N, n)`` (any source estimator), or computed
     on the row from ``luenberger = (y, arrived, C_bar_pad, L_pad)`` exactly as
-    :func:`innovation_correction` does (the fixed-gain source of eq. (7)).
+    :func:`innovation_correction` does (the fixed-gain source of eq. (7)). With
+    substates restricted to the sources (``tau (B, N, M)``), ``block_of`` maps every
+    coordinate to its column ``0..M-1`` and ``own`` gives each agent's column.
 
     Returns
     -------
@@ -290,9 +298,17 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, choice: np.ndarray, nbr: np.nd
         y, arrived = np.zeros((1, 1, 1)), np.zeros((1, 1), bool)
         C, L, rows = np.zeros((1, 1, 1)), np.zeros((1, 1, 1, 1)), np.zeros((1, 2), np.int64)
     _apply_all.at(Z.size * n + tau.size)(
-        Z, tau, choice, nbr, msg, block_of, band[0], band[1], band[2], A_lower_T, corr,
+        Z, tau, _own(own, tau), choice, nbr, msg, block_of, band[0], band[1], band[2],
+        A_lower_T, corr,
         luenberger is not None, y, arrived, C, L, rows, z_true, Z_next, tau_next, err)
     return Z_next, tau_next, err
+
+
+def _own(own: np.ndarray | None, tau: np.ndarray) -> np.ndarray:
+    """Column of each agent's own substate (``-1``: none); default ``own[i] = i``."""
+    if own is None:
+        return np.arange(tau.shape[1], dtype=np.int64)
+    return np.asarray(own, dtype=np.int64)
 
 
 def _t(A: np.ndarray) -> np.ndarray:
@@ -316,15 +332,16 @@ def _usable(nbr: np.ndarray, valid: np.ndarray, transmit: np.ndarray | None) -> 
 # Rows are addressed as (array, b, i) rather than passed as slices: a slice is a new
 # array object with a reference count, which at N = 30 cost as much as the rule itself.
 @njit(cache=True, inline="always")
-def _advance_row(tau, b, i, src, sb, si, out, ob, oi):  # eqs. (9), (11), (14)
+def _advance_row(tau, b, i, own, src, sb, si, out, ob, oi):  # eqs. (9), (11), (14)
     for j in range(out.shape[2]):
         t = tau[b, src[sb, si, j], j]
         out[ob, oi, j] = OMEGA if t < 0 else t + 1
-    out[ob, oi, i] = 0
+    if own[i] >= 0:  # a source keeps tau_i^{(i)} = 0
+        out[ob, oi, own[i]] = 0
 
 
 @njit(cache=True, inline="always")
-def _average_row(tau, b, i, nbr, use, out, ob, oi):  # age of an average, eq. (6)
+def _average_row(tau, b, i, own, nbr, use, out, ob, oi):  # age of an average, eq. (6)
     for j in range(out.shape[2]):
         t = tau[b, i, j]
         omega = t < 0
@@ -337,7 +354,8 @@ def _average_row(tau, b, i, nbr, use, out, ob, oi):  # age of an average, eq. (6
                 elif v > worst:
                     worst = v
         out[ob, oi, j] = OMEGA if omega else worst + 1
-    out[ob, oi, i] = 0
+    if own[i] >= 0:
+        out[ob, oi, own[i]] = 0
 
 
 @njit(cache=True, inline="always")
@@ -405,16 +423,16 @@ def _innovation_row(Z, b, i, y, arrived, C, L, lo, hi, innov, out, ob, oi):  # e
 
 
 # ----------------------------------------------------------------------------- drivers
-def _advance_all(tau, src, out):
+def _advance_all(tau, own, src, out):
     for b in prange(tau.shape[0]):
         for i in range(tau.shape[1]):
-            _advance_row(tau, b, i, src, b, i, out, b, i)
+            _advance_row(tau, b, i, own, src, b, i, out, b, i)
 
 
-def _average_all(tau, nbr, use, out):
+def _average_all(tau, own, nbr, use, out):
     for b in prange(tau.shape[0]):
         for i in range(tau.shape[1]):
-            _average_row(tau, b, i, nbr, use, out, b, i)
+            _average_row(tau, b, i, own, nbr, use, out, b, i)
 
 
 def _gather_all(Z, src, block_of, out):
@@ -454,8 +472,9 @@ def _vecmat_all(x, M, out):
                 out[b, c] += v * M[q, c]
 
 
-def _check_actions(act, msg, choice, masked, first):
+def _check_actions(act, msg, own, choice, masked, first):
     B, N, D = msg.shape
+    M = choice.shape[2]
     for b in prange(B):
         okt = np.empty(D + 2, dtype=np.bool_)  # allowed choices on another's substate
         okt[0] = True
@@ -464,35 +483,36 @@ def _check_actions(act, msg, choice, masked, first):
             for d in range(D):
                 okt[d + 1] = msg[b, i, d]
             bad = False
-            for j in range(N):
+            for j in range(M):
                 a = act[b, i, j]
                 inside = (a >= 0) & (a <= D + 1)
                 bad |= not inside
-                ok = inside and okt[a] and (j != i or a == 0)
+                ok = inside and okt[a] and (j != own[i] or a == 0)
                 masked[b, i, j] = not ok
                 choice[b, i, j] = a if ok else 0
-            t = act[b, i, N]
+            t = act[b, i, M]
             bad |= (t < 0) | (t > 1)
             if bad and first[b, 0] < 0:
-                for j in range(N + 1):
+                for j in range(M + 1):
                     a = act[b, i, j]
-                    if a < 0 or a > (D + 1 if j < N else 1):
+                    if a < 0 or a > (D + 1 if j < M else 1):
                         first[b, 0], first[b, 1] = i, j
                         break
             if first[b, 2] < 0:
-                for j in range(N):
+                for j in range(M):
                     if masked[b, i, j]:
                         first[b, 2], first[b, 3] = i, j
                         break
 
 
-def _apply_all(Z, tau, choice, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
+def _apply_all(Z, tau, own, choice, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
                arrived, C, L, rows, z_true, Z_next, tau_next, err):
     B, N, n = Z.shape
     D = nbr.shape[2]
+    M = tau.shape[2]
     for b in prange(B):
         # scratch rows private to each member, shaped (1, 1, .) for the row functions
-        src = np.empty((1, 1, N), dtype=np.int64)
+        src = np.empty((1, 1, M), dtype=np.int64)
         zsel = np.empty((1, 1, n))
         mix = np.empty((1, 1, n))
         avg_tau = np.empty((1, 1, tau.shape[2]), dtype=tau.dtype)
@@ -506,16 +526,16 @@ def _apply_all(Z, tau, choice, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused,
             for d in range(D):
                 ext[d + 1] = nbr[b, i, d] if nbr[b, i, d] >= 0 else i
             averaged = False
-            for j in range(N):
+            for j in range(M):
                 a = choice[b, i, j]
                 src[0, 0, j] = ext[a]
                 averaged |= a == D + 1
-            _advance_row(tau, b, i, src, 0, 0, tau_next, b, i)
+            _advance_row(tau, b, i, own, src, 0, 0, tau_next, b, i)
             _gather_row(Z, b, src, 0, 0, block_of, zsel, 0, 0)
             if averaged:
-                _average_row(tau, b, i, nbr, msg, avg_tau, 0, 0)
+                _average_row(tau, b, i, own, nbr, msg, avg_tau, 0, 0)
                 _mix_row(Z, b, i, nbr, msg, mix, 0, 0)
-                for j in range(N):
+                for j in range(M):
                     if choice[b, i, j] == D + 1:
                         tau_next[b, i, j] = avg_tau[0, 0, j]
                 for c in range(n):

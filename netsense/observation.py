@@ -51,7 +51,8 @@ def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
 def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
          horizon: float, y: np.ndarray, y_arrived: np.ndarray, tau: np.ndarray,
          Z: np.ndarray, nbr: np.ndarray, msg: np.ndarray, exact_f32: bool, *,
-         observations: bool = True, masks: bool = True) -> None:
+         observations: bool = True, masks: bool = True,
+         own: np.ndarray | None = None) -> None:
     """Write observations ``obs (B, N, size)`` float32 and masks ``mask (B, N, M)`` int8.
 
     ``starts`` holds the offsets of the layout's fields in the order of
@@ -64,11 +65,15 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     always allowed, a slot only when its message arrived, average always, and an agent's
     own substate allows only keep; the last two entries (transmit 0/1) are 1.
     ``observations=False`` or ``masks=False`` skips that output (its array is not
-    touched).
+    touched). ``own[i]``: column of agent ``i``'s own substate (``-1``: none; default
+    ``i``), when the substates are the sources only (``tau (B, N, M)``).
     """
+    if own is None:
+        own = np.arange(Z.shape[1], dtype=np.int64)
     work = (obs.size if observations else 0) + (mask.size if masks else 0)
     _fill.at(work)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
-                   bool(exact_f32), bool(observations), bool(masks))
+                   bool(exact_f32), bool(observations), bool(masks),
+                   np.asarray(own, dtype=np.int64))
 
 
 def _messages(nbr, transmit, link, has_link, out):
@@ -94,7 +99,8 @@ def _finite_or_repair(v):
     return v
 
 
-def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do_obs, do_mask):
+def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do_obs, do_mask,
+          own):
     B, N, n = Z.shape
     r = y.shape[2]
     D = nbr.shape[2]
@@ -105,7 +111,7 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
     for b in prange(B):
         if do_mask:
             for i in range(N):
-                _mask_row(mask[b, i], msg[b, i], i, M, D)
+                _mask_row(mask[b, i], msg[b, i], own[i], M, D)
         if not do_obs:
             continue
         # every agent's (omega, age) row once per member; own and slot fields copy rows
@@ -167,7 +173,7 @@ def _copy(src, dst):
 
 
 @njit(cache=True, inline="always")
-def _mask_row(m, msg_row, i, M, D):
+def _mask_row(m, msg_row, o, M, D):
     W = D + 2
     for t in range(m.shape[0]):  # everything allowed, then clear what is not
         m[t] = 1
@@ -175,9 +181,9 @@ def _mask_row(m, msg_row, i, M, D):
         if not msg_row[d]:
             for j in range(M):
                 m[j * W + 1 + d] = 0
-    if i < M:  # the own substate allows only keep
+    if o >= 0:  # the own substate allows only keep
         for w in range(1, W):
-            m[i * W + w] = 0
+            m[o * W + w] = 0
 
 
 _messages = Driver(_messages)

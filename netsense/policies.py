@@ -1,7 +1,7 @@
 """Scripted policies that act only through observations and action masks.
 
 Each policy maps batched arrays ``obs (B, N, obs_dim)`` and ``mask (B, N, M)`` (as
-:class:`netsense.envcore.BatchedCore` returns them) to actions ``(B, N, N + 1)``; for the
+:class:`netsense.envcore.BatchedCore` returns them) to actions ``(B, N, M + 1)``; for the
 PettingZoo environment, :meth:`Policy.act_dict` takes and returns ``{agent: ...}`` dicts.
 Decoding uses the documented observation layout (:class:`netsense.envcore.ObsLayout`).
 
@@ -35,10 +35,11 @@ class Policy:
 
     def __init__(self, layout: ObsLayout) -> None:
         self.layout = layout
-        self.N, self.D = layout.N, layout.D
+        self.N, self.D, self.M = layout.N, layout.D, layout.M
+        self.own = layout.own  # column of each agent's own substate (-1: none)
 
     def act(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """Actions ``(B, N, N + 1)`` for observations ``(B, N, obs_dim)``."""
+        """Actions ``(B, N, M + 1)`` for observations ``(B, N, obs_dim)``."""
         raise NotImplementedError  # pragma: no cover
 
     def act_dict(self, env, observations: dict, infos: dict | None = None) -> dict:
@@ -55,8 +56,14 @@ class Policy:
 
     def _base(self, obs: np.ndarray, transmit: int) -> np.ndarray:
         B, N = obs.shape[:2]
-        out = np.zeros((B, N, N + 1), dtype=np.int64)
-        out[..., N] = transmit
+        out = np.zeros((B, N, self.M + 1), dtype=np.int64)
+        out[..., self.M] = transmit
+        return out
+
+    def _keep_own(self, out: np.ndarray) -> np.ndarray:
+        """Set every source's entry for its own substate to 0 (keep)."""
+        src = np.flatnonzero(self.own >= 0)
+        out[:, src, self.own[src]] = 0
         return out
 
 
@@ -66,20 +73,20 @@ class FreshnessPolicy(Policy):
     name = "freshness"
 
     def act(self, obs, mask):
-        L, N, D = self.layout, self.N, self.D
+        L, N, D, M = self.layout, self.N, self.D, self.M
         out = self._base(obs, 1)
         if D == 0:
             return out
         B = obs.shape[0]
         own_key = np.where(obs[..., L.own_omega] > 0.5, np.inf, obs[..., L.own_age])
-        s_om = obs[..., L.slot_omega].reshape(B, N, D, N) > 0.5
-        s_age = obs[..., L.slot_age].reshape(B, N, D, N)
+        s_om = obs[..., L.slot_omega].reshape(B, N, D, M) > 0.5
+        s_age = obs[..., L.slot_age].reshape(B, N, D, M)
         arrived = obs[..., L.slot_arrived] > 0.5  # (B, N, D)
         key = np.where(s_om | ~arrived[..., None], np.inf, s_age)
         best = np.argmin(key, axis=2)  # first = smallest slot = smallest node id
         best_key = np.take_along_axis(key, best[:, :, None, :], axis=2)[:, :, 0, :]
         adopt = best_key < own_key  # finite < inf: Case 1; strict <: eq. (13)
-        out[..., :N] = np.where(adopt, best + 1, 0)
+        out[..., :M] = np.where(adopt, best + 1, 0)
         return out
 
 
@@ -89,12 +96,9 @@ class UniformConsensusPolicy(Policy):
     name = "uniform"
 
     def act(self, obs, mask):
-        N = self.N
         out = self._base(obs, 1)
-        out[..., :N] = self.D + 1
-        idx = np.arange(N)
-        out[:, idx, idx] = 0
-        return out
+        out[..., :self.M] = self.D + 1
+        return self._keep_own(out)
 
 
 class TreeConsensusPolicy(Policy):
@@ -120,22 +124,21 @@ class TreeConsensusPolicy(Policy):
         parent = tree_parents(adj, nbr, valid)  # (P, i, j)
         # slot of the parent in i's slot list (-1: keep own)
         hit = nbr[:, :, None, :] == parent[..., None]  # (P, i, j, D)
-        self.choice = np.where(hit.any(-1), np.argmax(hit, -1) + 1, 0)  # (P, N, N)
+        choice = np.where(hit.any(-1), np.argmax(hit, -1) + 1, 0)  # (P, N, N)
+        self.choice = choice[:, :, list(layout.sources)]  # (P, N, M)
         self.horizon = int(horizon)
         self.period = adj.shape[0]
 
     def act(self, obs, mask):
-        L, N, D = self.layout, self.N, self.D
+        L, D, M = self.layout, self.D, self.M
         out = self._base(obs, 1)
         k = np.rint(obs[:, 0, L.time.start] * self.horizon).astype(np.int64)
-        choice = self.choice[k % self.period]  # (B, N, N)
+        choice = self.choice[k % self.period]  # (B, N, M)
         arrived = obs[..., L.slot_arrived] > 0.5
         ok = np.concatenate([np.ones(arrived.shape[:2] + (1,), bool), arrived], axis=2)
         usable = np.take_along_axis(ok, np.minimum(choice, D), axis=2)
-        out[..., :N] = np.where(usable, choice, 0)
-        idx = np.arange(N)
-        out[:, idx, idx] = 0
-        return out
+        out[..., :M] = np.where(usable, choice, 0)
+        return self._keep_own(out)
 
 
 class OpenLoopPolicy(Policy):
@@ -159,13 +162,13 @@ class RandomPolicy(Policy):
         self.p_transmit = p_transmit
 
     def act(self, obs, mask):
-        N, D = self.N, self.D
+        N, D, M = self.N, self.D, self.M
         B = obs.shape[0]
-        m = mask[..., : N * (D + 2)].reshape(B, N, N, D + 2).astype(float)
+        m = mask[..., : M * (D + 2)].reshape(B, N, M, D + 2).astype(float)
         u = self.rng.random(m.shape) * m  # masked choices score 0, allowed ones > 0
         out = self._base(obs, 0)
-        out[..., :N] = np.argmax(u, axis=-1)
-        out[..., N] = self.rng.random((B, N)) < self.p_transmit
+        out[..., :M] = np.argmax(u, axis=-1)
+        out[..., M] = self.rng.random((B, N)) < self.p_transmit
         return out
 
 

@@ -38,11 +38,11 @@ def ansi_table(env) -> str:
     for i in rows:
         nb = [int(v) for v, ok in zip(c.nbr[0, i], c.msg[0, i], strict=True) if ok]
         name = f"sensor_{i}" + ("" if alive[i] else "*")
-        lines.append(f"{name:>9} {err[i]:10.3g} {int(finite[i]):>6}/{N:<3} "
+        lines.append(f"{name:>9} {err[i]:10.3g} {int(finite[i]):>6}/{c.M:<3} "
                      f"{int(age[i]):>7} {'y' if c.transmit[0, i] else 'n':>3}  {nb}")
     if N > _MAX_ROWS:
         lines.append(f"{'...':>9} ({N - len(rows)} more agents; median error "
-                     f"{np.median(err):.3g}, all-finite agents {(finite == N).sum()})")
+                     f"{np.median(err):.3g}, all-finite agents {(finite == c.M).sum()})")
     return "\n".join(lines)
 
 

@@ -14,6 +14,8 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     x0_std = 1.0                       # x[0] ~ N(0, x0_std^2 I)
     initial_transmit = true            # transmit flags of step 0
     divergence_limit = 1e6             # terminate when a normalised error exceeds it
+    substates = "all"                  # or "sources": indices/actions over the agents
+                                       # with a non-empty block only (N x M, M <= n)
 
     [plant]                            # required
     kind = "fig1_scalar"               # a = 2.0
@@ -90,7 +92,7 @@ from netsense.envcore import CoreModel, RewardConfig
 
 _TOP = {"description", "horizon", "x0_std", "initial_transmit", "divergence_limit",
         "plant", "graph", "design", "noise", "arrivals", "reward", "source_estimator",
-        "faults"}
+        "faults", "substates"}
 _ENV_KWARGS = {"render_mode", "invalid_actions", "action_mask_in", "aoi_info"}
 _PLANT_FIELDS = {
     "fig1_scalar": ({"kind"}, {"a"}),
@@ -138,6 +140,9 @@ class Scenario:
         ``[source_estimator]`` spec (empty: the fixed gain of eq. (7)).
     faults : tuple of dict
         ``[[faults]]`` specs (:func:`netsense.faults.fault_from_dict` form).
+    substates : {"all", "sources"}
+        Substates the indices, actions and observations cover (see
+        :class:`netsense.envcore.CoreModel`).
     source : str
         Where the scenario came from (file path), for error messages.
     """
@@ -156,6 +161,7 @@ class Scenario:
     reward: RewardConfig = field(default_factory=RewardConfig)
     source_estimator: dict = field(default_factory=dict)
     faults: tuple = ()
+    substates: str = "all"
     source: str = "<memory>"
 
     @classmethod
@@ -217,11 +223,14 @@ class Scenario:
             raise _err(source, "description", "must be a string")
         est = _check_source_estimator(dict(raw.get("source_estimator", {})), source)
         faults = _check_faults(raw.get("faults", []), source)
+        substates = raw.get("substates", "all")
+        if substates not in ("all", "sources"):
+            raise _err(source, "substates", f"must be 'all' or 'sources', got {substates!r}")
         sc = cls(id=id, horizon=horizon, plant=plant, graph=dict(raw["graph"]),
                  description=desc, x0_std=float(x0), initial_transmit=it,
                  divergence_limit=None if lim is None else float(lim), design=design,
                  noise=noise, arrivals=arrivals, reward=reward, source_estimator=est,
-                 faults=faults, source=source)
+                 faults=faults, substates=substates, source=source)
         return sc
 
     def to_dict(self) -> dict:
@@ -238,6 +247,8 @@ class Scenario:
             out["source_estimator"] = copy.deepcopy(self.source_estimator)
         if self.faults:
             out["faults"] = copy.deepcopy(list(self.faults))
+        if self.substates != "all":
+            out["substates"] = self.substates
         return out
 
     @property
@@ -552,7 +563,8 @@ def build_model(sc: Scenario) -> CoreModel:
                          reward=sc.reward, x0_std=sc.x0_std,
                          initial_transmit=sc.initial_transmit,
                          divergence_limit=sc.divergence_limit,
-                         source_estimator=source_estimator, faults=faults)
+                         source_estimator=source_estimator, faults=faults,
+                         substates=sc.substates)
     except ValueError as exc:
         raise _err(sc.source, "<scenario>", str(exc)) from exc
 

@@ -6,7 +6,7 @@ Three forms of the same ``B`` environments of one scenario (``N`` agents each):
 class                   what it is
 ======================  ======================================================================
 :class:`BatchedEnv`     plain array API in the style of VMAS: ``reset(seed) -> obs (B, N,
-                        obs_dim)``, ``step(actions (B, N, N + 1))``; auto-reset of finished
+                        obs_dim)``, ``step(actions (B, N, M + 1))``; auto-reset of finished
                         members (optional)
 :class:`AgentVectorEnv` a Gymnasium (>= 1.0) ``VectorEnv`` with ``B x N`` agent slots, for
                         parameter-shared training (one policy, every agent a slot)
@@ -222,7 +222,7 @@ class BatchedEnv:
     # ------------------------------------------------------------------ step
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                      dict[str, Any]]:
-        """Advance every member one step under ``actions (B, N, N + 1)``.
+        """Advance every member one step under ``actions (B, N, M + 1)``.
 
         Returns
         -------
@@ -264,7 +264,7 @@ class AgentVectorEnv(VectorEnv):
     """Gymnasium ``VectorEnv`` whose sub-environments are the ``B x N`` agent slots.
 
     One parameter-shared policy sees every agent of every member as a separate slot:
-    ``num_envs = B N``, observations ``(B N, obs_dim)``, actions ``(B N, N + 1)``. Rewards,
+    ``num_envs = B N``, observations ``(B N, obs_dim)``, actions ``(B N, M + 1)``. Rewards,
     terminations and truncations are per slot (the flags of a member repeated over its
     agents). Auto-reset: ``AutoresetMode.SAME_STEP`` (declared in ``metadata``), with
     ``infos["final_obs"]`` ``(B N, obs_dim)`` and ``infos["_final_obs"]`` ``(B N,)``.
@@ -335,11 +335,12 @@ class AgentVectorEnv(VectorEnv):
 
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                      dict[str, Any]]:
-        """One step of every slot; ``actions`` ``(B N, N + 1)``."""
+        """One step of every slot; ``actions`` ``(B N, M + 1)``."""
         a = np.asarray(actions)
-        if a.shape != (self.num_envs, self.num_agents + 1):
-            raise ValueError(f"actions must have shape (num_envs, N + 1) = "
-                             f"{(self.num_envs, self.num_agents + 1)}, got {a.shape}")
+        width = self.batched.core.M + 1
+        if a.shape != (self.num_envs, width):
+            raise ValueError(f"actions must have shape (num_envs, M + 1) = "
+                             f"{(self.num_envs, width)}, got {a.shape}")
         obs, rew, term, trunc, info = self.batched.step(
             a.reshape(self.batch_size, self.num_agents, -1))
         infos: dict[str, Any] = {"action_mask": self._flat(info["action_mask"]),

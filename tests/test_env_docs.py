@@ -14,14 +14,14 @@ from netsense.scenarios import make
 def test_observation_table_matches_layout_order_and_sizes():
     doc = env_module.__doc__
     table = doc[doc.index("Observation Space"):doc.index("Rewards\n")]
-    rows = re.findall(r"^``(\w+)``\s+(D x N|\w+)\s", table, flags=re.M)
+    rows = re.findall(r"^``(\w+)``\s+(D x M|\w+)\s", table, flags=re.M)
     env = make("random_structured_n20_N10-v0")
     L: ObsLayout = env.layout
     assert [name for name, _ in rows] == [name for name, _, _ in L.table()]
-    sizes = {"1": 1, "r": L.r, "N": L.N, "n": L.n, "D": L.D, "D x N": L.D * L.N}
+    sizes = {"1": 1, "r": L.r, "M": L.M, "n": L.n, "D": L.D, "D x M": L.D * L.M}
     for (name, size), (_, start, stop) in zip(rows, L.table(), strict=True):
         assert stop - start == sizes[size], name
-    assert L.size == 3 + L.r + L.n + 2 * L.N + 2 * L.D + 2 * L.D * L.N
+    assert L.size == 3 + L.r + L.n + 2 * L.M + 2 * L.D + 2 * L.D * L.M
 
 
 def test_readme_env_example_runs():
