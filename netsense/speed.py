@@ -57,12 +57,16 @@ __all__ = ["HELP", "SHAPES", "add_arguments", "allocation_growth", "bench_model"
 
 # ----------------------------------------------------------------------------- model
 def bench_model(N: int, n: int, *, seed: int = 0, horizon: int = 200,
-                offsets: Sequence[int] = (1, 3, 7)) -> CoreModel:
+                offsets: Sequence[int] = (1, 3, 7), substates: str = "sources"
+                ) -> CoreModel:
     """The benchmark scenario at size ``(N, n)``.
 
-    ``large_n20_N100-v1`` resized: ``random_structured(n, N)`` plant (spectral radius
-    1.1), Markov link failures (fail 0.1, recover 0.5) on the circulant graph with the
-    given offsets (in-degree ``D = len(offsets)``), Gaussian measurement noise 0.01.
+    ``large_n20_N100-v2`` resized: ``random_structured(n, N)`` plant (spectral radius
+    1.1; ``min(n, N, max(2, N // 2))`` sources), Markov link failures (fail 0.1, recover
+    0.5, one uniform per base link) on the circulant graph with the given offsets
+    (in-degree ``D = len(offsets)``), Gaussian measurement noise 0.01; indices, actions
+    and observations over the sources (``substates="all"``: over every agent, as
+    ``large_n20_N100-v1``).
     """
     from netsense.scenarios import build_model, load, with_overrides
 
@@ -70,7 +74,7 @@ def bench_model(N: int, n: int, *, seed: int = 0, horizon: int = 200,
     if not offs:
         raise ValueError(f"offsets {list(offsets)} give no edge for N = {N}")
     sc = with_overrides(
-        load("large_n20_N100-v1"), horizon=int(horizon),
+        load("large_n20_N100-v2"), horizon=int(horizon), substates=substates,
         plant={"kind": "random_structured", "n": int(n), "num_agents": int(N),
                "seed": int(seed), "spectral_radius": 1.1},
         graph={"kind": "markov", "num_nodes": int(N), "p_fail": 0.1, "p_recover": 0.5,
@@ -181,7 +185,7 @@ def vmas_available() -> bool:
 def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
                   vmas: bool = True, vmas_budget: float = 20.0,
                   vmas_threads: int | None = None, threads: int | None = None,
-                  seed: int = 0) -> dict:
+                  substates: str = "sources", seed: int = 0) -> dict:
     """Time core, kernel and (optionally) VMAS at one shape; returns one result row.
 
     Parameters
@@ -200,6 +204,8 @@ def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
     threads : int or None
         numba threads for the core (default numba's, one per core); the kernel's BLAS
         products use BLAS's own threads (OpenBLAS: one per core).
+    substates : {"sources", "all"}
+        Substates of the benchmark model (:func:`bench_model`).
     seed : int
 
     Returns
@@ -216,15 +222,16 @@ def measure_shape(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 3,
         numba.set_num_threads(int(threads))
     try:
         return _measure_shape(B, N, n, steps, repeats, vmas, vmas_budget, vmas_threads,
-                              seed)
+                              substates, seed)
     finally:
         numba.set_num_threads(before)
 
 
-def _measure_shape(B, N, n, steps, repeats, vmas, vmas_budget, vmas_threads, seed) -> dict:
+def _measure_shape(B, N, n, steps, repeats, vmas, vmas_budget, vmas_threads, substates,
+                   seed) -> dict:
     import numba
 
-    model = bench_model(N, n, seed=seed)
+    model = bench_model(N, n, seed=seed, substates=substates)
     core = _CoreRunner(model, B, seed)
     kern = _KernelRunner(core.core, seed)
     vm = None
@@ -243,7 +250,8 @@ def _measure_shape(B, N, n, steps, repeats, vmas, vmas_budget, vmas_threads, see
         if vm is not None:
             best["vmas"] = min(best["vmas"], vm.block(vm_steps) / vm_steps)
     c = core.core
-    row = {"B": B, "N": N, "n": n, "D": c.D, "obs_dim": c.layout.size,
+    row = {"B": B, "N": N, "n": n, "D": c.D, "M": c.M, "substates": substates,
+           "obs_dim": c.layout.size,
            "core_s": best["core"], "policy_s": core.policy_time / max(core.policy_steps, 1),
            "kernel_s": best["kernel"],
            "vmas_s": best["vmas"] if vm is not None else math.nan,
@@ -498,13 +506,14 @@ def observation_cost(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 
 
 def format_table(rows: Sequence[dict]) -> str:
     """The speed table (Markdown) with the ratios and whether each target is met."""
-    head = ("| B | N | n | core agent-steps/s | kernel agent-steps/s | VMAS agent-steps/s | "
-            "core/kernel | core/VMAS |\n|---|---|---|---|---|---|---|---|")
+    head = ("| B | N | n | M | core agent-steps/s | kernel agent-steps/s | VMAS agent-steps/s "
+            "| core/kernel | core/VMAS |\n|---|---|---|---|---|---|---|---|---|")
     lines = [head]
     for r in rows:
         vm = "n/a" if r["vmas_rate"] != r["vmas_rate"] else f"{r['vmas_rate']:.3g}"
         cv = "n/a" if r["core_vs_vmas"] != r["core_vs_vmas"] else f"{r['core_vs_vmas']:.2f}x"
-        lines.append(f"| {r['B']} | {r['N']} | {r['n']} | {r['core_rate']:.3g} | "
+        lines.append(f"| {r['B']} | {r['N']} | {r['n']} | {r.get('M', r['N'])} | "
+                     f"{r['core_rate']:.3g} | "
                      f"{r['kernel_rate']:.3g} | {vm} | {r['core_vs_kernel']:.2f}x | {cv} |")
     return "\n".join(lines)
 
@@ -546,6 +555,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="torch threads for VMAS (default: as many as the core)")
     p.add_argument("--threads", type=int, default=None,
                    help="numba threads for the core (default: one per core)")
+    p.add_argument("--substates", choices=("sources", "all"), default="sources",
+                   help="substates of the benchmark model (default: sources, as "
+                        "large_n20_N100-v2; 'all' as v1)")
     p.add_argument("--profile", action="store_true", help="print where the core's time goes")
     p.add_argument("--memory", action="store_true",
                    help="measure the state size at B=1024, N=30, n=20")
@@ -565,7 +577,8 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("--steps and --repeats must be >= 1")
     rows = measure(shapes, steps=args.steps, repeats=args.repeats, vmas=not args.no_vmas,
                    progress=not args.no_progress, vmas_budget=args.vmas_budget,
-                   vmas_threads=args.vmas_threads, threads=args.threads)
+                   vmas_threads=args.vmas_threads, threads=args.threads,
+                   substates=args.substates)
     print(format_table(rows))
     for line in verdicts(rows):
         print(line)

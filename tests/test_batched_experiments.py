@@ -101,9 +101,9 @@ def test_speed_helpers():
     o = speed.observation_cost(3, 11, 5, steps=3, repeats=1)
     assert o["full_s"] > 0 and o["no_obs_s"] > 0 and o["kernel_s"] > 0
     assert speed.loglog_slope([1, 2, 4], [3, 12, 48]) == pytest.approx(2.0)
-    rows = [{"B": 1024, "N": 10, "n": 10, "core_rate": 2.0, "kernel_rate": 3.0,
+    rows = [{"B": 1024, "N": 10, "n": 10, "M": 5, "core_rate": 2.0, "kernel_rate": 3.0,
              "vmas_rate": 0.1, "core_vs_kernel": 2 / 3, "core_vs_vmas": 20.0}]
-    assert "| 1024 | 10 | 10 |" in speed.format_table(rows)
+    assert "| 1024 | 10 | 10 | 5 |" in speed.format_table(rows)
     assert [v.endswith("met") for v in speed.verdicts(rows)] == [True, True]
     grow, diff = speed.allocation_growth(20, B=2, every=10, progress=False)
     assert [g["step"] for g in grow] == [10, 20] and len(diff) <= 5
