@@ -585,7 +585,8 @@ class BatchedCore:
         return self._mask
 
     # ------------------------------------------------------------------ step
-    def _validate(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _as_actions(self, actions) -> np.ndarray:
+        """``actions`` as an integer ``(B, N, M + 1)`` array (shape and dtype checked)."""
         B, N, M = self.B, self.N, self.M
         a = np.asarray(actions)
         if a.shape != (B, N, M + 1):
@@ -597,22 +598,24 @@ class BatchedCore:
             a = a.astype(np.int64)
         elif a.dtype == np.uint64:  # uint64 + int64 offsets would promote to float
             a = a.astype(np.int64)
-        choice = np.empty((B, N, M), dtype=np.int64)
-        masked = np.empty((B, N, M), dtype=bool)
-        st = kernels.check_actions(a, self.msg, choice, masked, self.own)
-        if st[0] >= 0:  # out of range (always an error)
-            b, i, j = (int(v) for v in st[:3])
+        return a
+
+    def _refuse(self, status: np.ndarray, a: np.ndarray) -> None:
+        """Raise for an out-of-range entry, or a masked one under ``"raise"``
+        (``status`` of :func:`netsense.kernels.check_actions`)."""
+        M = self.M
+        if status[0] >= 0:  # out of range (always an error)
+            b, i, j = (int(v) for v in status[:3])
             what = f"substate {j}" if j < M else "transmit"
             raise ValueError(f"action of agent {i} (batch member {b}) for {what} is "
                              f"{int(a[b, i, j])}, outside 0..{int(self.nvec[j]) - 1}")
-        if st[3] >= 0 and self.invalid_actions == "raise":
-            b, i, j = (int(v) for v in st[3:])
+        if status[3] >= 0 and self.invalid_actions == "raise":
+            b, i, j = (int(v) for v in status[3:])
             c = int(a[b, i, j])
             why = ("the own substate of a source is updated by eq. (7), only 0 is allowed"
                    if j == self.own[i] else f"slot {c - 1} holds no message at this step")
             raise ValueError(f"masked action: agent {i} (batch member {b}), substate {j}, "
                              f"choice {c}: {why}")
-        return choice, a[..., M] != 0, masked
 
     def step(self, actions, *, observe: bool = True) -> StepResult:
         """Advance every member from ``k`` to ``k + 1`` under ``actions (B, N, M + 1)``.
@@ -627,32 +630,35 @@ class BatchedCore:
         step on demand, equal to what ``observe=True`` would have returned. Validation of
         the next actions never needs them.
         """
-        choice, tx_next, masked = self._validate(actions)
+        a = self._as_actions(actions)
         B = self.B
         Z, tau = self.Z, self.reported_indices()  # a liar's claims are what others adopt
         # the default fixed-gain source (eq. (7)) runs inside the fused update; any other
-        # estimator (KFIO, RSEIO, equalized, ...) returns its correction here
+        # estimator (KFIO, RSEIO, equalized, ...) returns its correction here, after the
+        # actions were validated (a stateful source's correction is a state change)
         if type(self.source) is LuenbergerSource:
             src_kw = {"luenberger": (self.y, self.y_arrived, self.source.C_bar_pad,
                                      self.source.L_pad)}
         else:
+            choice = np.empty((B, self.N, self.M), dtype=np.int64)
+            self._refuse(kernels.check_actions(a, self.msg, choice,
+                                               np.empty(choice.shape, bool), self.own), a)
             corr = self.source.correction(self.k, Z, self.y, self.y_arrived)
             src_kw = {"corr": np.ascontiguousarray(corr, dtype=float)}
-        # --- plant, eq. (1) ----------------------------------------------------------------
-        # per member (kernels.vecmat): every member is computed exactly as in a B = 1 run
-        x_next = kernels.vecmat(self.x, self._A_T)
+        w = None
         if self._has_pnoise:
-            w = np.take_along_axis(self.buf_w, self.ptr[:, None, None], 1)  # (B, 1, p)
-            x_next += kernels.vecmat(w[:, 0], self._W_T)
-        z_true = kernels.vecmat(x_next, self._TT)  # T orthogonal: errors in z coords
-        # --- update rule, per agent and substate: keep / adopt / average, eqs. (6)-(14) ----
-        # (kernels.keep_own_blocks is not needed: validation leaves every own substate at
-        # choice 0 = keep, so the source of substate i of agent i is i itself)
-        Z_next, tau_next, err = kernels.apply_actions(
-            Z, tau, choice, self.nbr, self.msg, self._block_of, self._ALT, self._band, z_true,
-            own=self.own, **src_kw)
-        self.last_invalid = masked
-        self.x, self.Z, self.tau = x_next, Z_next, tau_next
+            w = np.take_along_axis(self.buf_w, self.ptr[:, None, None], 1)[:, 0]  # (B, p)
+        # --- one pass: plant (eq. (1)), validation, keep / adopt / average per agent and
+        # substate, eqs. (6)-(14), source correction (eq. (7)), errors; every member is
+        # computed alone, exactly as in a B = 1 run. (kernels.keep_own_blocks is not
+        # needed: validation leaves every own substate at 0 = keep.)
+        out = kernels.apply_actions(
+            Z, tau, a, self.nbr, self.msg, self._block_of, self._ALT, self._band, x=self.x,
+            A_T=self._A_T, T=self._TT, w=w, W_T=self._W_T, own=self.own, **src_kw)
+        self._refuse(out.status, a)  # nothing committed yet
+        x_next, err, tx_next = out.x_next, out.err, a[..., self.M] != 0
+        self.last_invalid = out.masked
+        self.x, self.Z, self.tau = x_next, out.Z_next, out.tau_next
         self.k += 1
         if self._crashes:  # crashed agents send nothing from their crash step on
             tx_next = tx_next & ~self._silenced(self.k)  # (k already advanced)

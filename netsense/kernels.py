@@ -21,6 +21,8 @@ Array conventions
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
@@ -246,48 +248,55 @@ def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
     """
     first = np.full((act.shape[0], 4), -1, dtype=np.int64)
     _check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first)
-    status = np.full(6, -1, dtype=np.int64)
-    for k, col in ((0, 0), (3, 2)):
-        hit = np.flatnonzero(first[:, col] >= 0)
-        if hit.size:
-            b = int(hit[0])
-            status[k:k + 3] = (b, first[b, col], first[b, col + 1])
-    return status
+    return _status(first)
 
 
-def apply_actions(Z: np.ndarray, tau: np.ndarray, choice: np.ndarray, nbr: np.ndarray,
+class StepOut(NamedTuple):
+    """What :func:`apply_actions` returns."""
+
+    Z_next: np.ndarray  #: (B, N, n) estimates at k + 1
+    tau_next: np.ndarray  #: (B, N, M) freshness indices at k + 1
+    err: np.ndarray  #: (B, N) ||Z_next - T^T x_next|| (estimation errors)
+    x_next: np.ndarray  #: (B, n) plant state at k + 1
+    masked: np.ndarray  #: (B, N, M) bool, choices that were masked
+    status: np.ndarray  #: (6,) first out-of-range and first masked entry (check_actions)
+
+
+def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarray,
                   msg: np.ndarray, block_of: np.ndarray, A_lower_T: np.ndarray,
-                  band: tuple[np.ndarray, np.ndarray, np.ndarray], z_true: np.ndarray, *,
-                  corr: np.ndarray | None = None, luenberger: tuple | None = None,
-                  own: np.ndarray | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One step of every agent under validated choices, in one pass over ``(b, i)``.
+                  band: tuple[np.ndarray, np.ndarray, np.ndarray], *, x: np.ndarray,
+                  A_T: np.ndarray, T: np.ndarray, w: np.ndarray | None = None,
+                  W_T: np.ndarray | None = None, corr: np.ndarray | None = None,
+                  luenberger: tuple | None = None, own: np.ndarray | None = None
+                  ) -> StepOut:
+    """One step of every member and agent, in one pass over ``(b, i)``.
 
-    Per agent and substate ``j``: the source ``src`` of the choice (itself for keep and
+    Per member: the plant ``x_next = A x (+ W w)`` (eq. (1)) and ``z = T^T x_next``. Per
+    agent: validation of its actions ``act[b, i]`` (``M`` choices and the transmit bit;
+    the rule of :func:`check_actions`, masked choices become 0 = keep and are flagged in
+    ``masked``); then per substate ``j`` the source of the choice (itself for keep and
     average, the slot's neighbour for adopt), the index update (:func:`advance_indices`,
     or :func:`average_indices` for an average), the estimate to propagate
     (:func:`gather_substates`, or :func:`uniform_mix` for an average), then
     :func:`propagate` plus the source correction (eq. (7)). The very same row functions
     as those public kernels do the work, so results are bit-identical to calling them
-    one after the other.
+    one after the other. Nothing is written to the inputs: the caller commits the outputs
+    only when ``status`` reports no error it refuses.
 
     The correction is either given, ``corr (B, N, n)`` (any source estimator), or computed
     on the row from ``luenberger = (y, arrived, C_bar_pad, L_pad)`` exactly as
     :func:`innovation_correction` does (the fixed-gain source of eq. (7)). With
     substates restricted to the sources (``tau (B, N, M)``), ``block_of`` maps every
     coordinate to its column ``0..M-1`` and ``own`` gives each agent's column.
-
-    Returns
-    -------
-    Z_next : (B, N, n)
-    tau_next : (B, N, N)
-    err : (B, N)
-        ``||Z_next[b, i] - z_true[b]||`` (the estimation error in Lemma 1 coordinates).
     """
     B, N, n = Z.shape
+    M = tau.shape[2]
     Z_next = np.empty(Z.shape)
     tau_next = np.empty(tau.shape, dtype=tau.dtype)
-    err = np.empty(Z.shape[:2])
+    err = np.empty((B, N))
+    x_next = np.empty((B, x.shape[1]))
+    masked = np.empty((B, N, M), dtype=bool)
+    first = np.full((B, 4), -1, dtype=np.int64)
     if luenberger is not None:
         y, arrived, C, L = luenberger
         rows, corr = gain_rows(L), np.zeros((1, 1, 1))
@@ -297,11 +306,25 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, choice: np.ndarray, nbr: np.nd
             raise ValueError("apply_actions needs corr or luenberger")
         y, arrived = np.zeros((1, 1, 1)), np.zeros((1, 1), bool)
         C, L, rows = np.zeros((1, 1, 1)), np.zeros((1, 1, 1, 1)), np.zeros((1, 2), np.int64)
+    has_w = w is not None
+    if not has_w:
+        w, W_T = np.zeros((1, 1)), np.zeros((1, x.shape[1]))
     _apply_all.at(Z.size * n + tau.size)(
-        Z, tau, _own(own, tau), choice, nbr, msg, block_of, band[0], band[1], band[2],
-        A_lower_T, corr,
-        luenberger is not None, y, arrived, C, L, rows, z_true, Z_next, tau_next, err)
-    return Z_next, tau_next, err
+        Z, tau, _own(own, tau), act, nbr, msg, block_of, band[0], band[1], band[2],
+        A_lower_T, corr, luenberger is not None, y, arrived, C, L, rows, x, A_T, w, W_T,
+        has_w, T, Z_next, tau_next, err, x_next, masked, first)
+    return StepOut(Z_next, tau_next, err, x_next, masked, _status(first))
+
+
+def _status(first: np.ndarray) -> np.ndarray:
+    """The first (in C order) out-of-range and masked entries from per-member records."""
+    status = np.full(6, -1, dtype=np.int64)
+    for k, col in ((0, 0), (3, 2)):
+        hit = np.flatnonzero(first[:, col] >= 0)
+        if hit.size:
+            b = int(hit[0])
+            status[k:k + 3] = (b, first[b, col], first[b, col + 1])
+    return status
 
 
 def _own(own: np.ndarray | None, tau: np.ndarray) -> np.ndarray:
@@ -422,6 +445,48 @@ def _innovation_row(Z, b, i, y, arrived, C, L, lo, hi, innov, out, ob, oi):  # e
         out[ob, oi, c] = s
 
 
+@njit(cache=True, inline="always")
+def _vecmat_row(x, b, M, out, ob):  # out[ob] = x[b] @ M, q-major (eqs. (1), (2))
+    p, m = M.shape
+    for c in range(m):
+        out[ob, c] = 0.0
+    for q in range(p):
+        v = x[b, q]
+        for c in range(m):
+            out[ob, c] += v * M[q, c]
+
+
+@njit(cache=True, inline="always")
+def _check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
+    """Validate agent ``i``'s actions (see :func:`check_actions`); ``okt`` is a scratch
+    of ``D + 2`` with ``okt[0] = okt[D + 1] = True``."""
+    D = msg.shape[2]
+    M = masked.shape[2]
+    for d in range(D):
+        okt[d + 1] = msg[b, i, d]
+    bad = False
+    for j in range(M):
+        a = act[b, i, j]
+        inside = (a >= 0) & (a <= D + 1)
+        bad |= not inside
+        ok = inside and okt[a] and (j != own[i] or a == 0)
+        masked[b, i, j] = not ok
+        ch[sb, si, j] = a if ok else 0
+    t = act[b, i, M]
+    bad |= (t < 0) | (t > 1)
+    if bad and first[b, 0] < 0:
+        for j in range(M + 1):
+            a = act[b, i, j]
+            if a < 0 or a > (D + 1 if j < M else 1):
+                first[b, 0], first[b, 1] = i, j
+                break
+    if first[b, 2] < 0:
+        for j in range(M):
+            if masked[b, i, j]:
+                first[b, 2], first[b, 3] = i, j
+                break
+
+
 # ----------------------------------------------------------------------------- drivers
 def _advance_all(tau, own, src, out):
     for b in prange(tau.shape[0]):
@@ -462,64 +527,46 @@ def _innovation_all(Z, y, arrived, C, L, rows, out):
 
 
 def _vecmat_all(x, M, out):
-    p, m = M.shape
     for b in prange(x.shape[0]):
-        for c in range(m):
-            out[b, c] = 0.0
-        for q in range(p):
-            v = x[b, q]
-            for c in range(m):
-                out[b, c] += v * M[q, c]
+        _vecmat_row(x, b, M, out, b)
 
 
 def _check_actions(act, msg, own, choice, masked, first):
     B, N, D = msg.shape
-    M = choice.shape[2]
     for b in prange(B):
-        okt = np.empty(D + 2, dtype=np.bool_)  # allowed choices on another's substate
-        okt[0] = True
-        okt[D + 1] = True
+        okt = np.ones(D + 2, dtype=np.bool_)  # allowed choices on another's substate
         for i in range(N):
-            for d in range(D):
-                okt[d + 1] = msg[b, i, d]
-            bad = False
-            for j in range(M):
-                a = act[b, i, j]
-                inside = (a >= 0) & (a <= D + 1)
-                bad |= not inside
-                ok = inside and okt[a] and (j != own[i] or a == 0)
-                masked[b, i, j] = not ok
-                choice[b, i, j] = a if ok else 0
-            t = act[b, i, M]
-            bad |= (t < 0) | (t > 1)
-            if bad and first[b, 0] < 0:
-                for j in range(M + 1):
-                    a = act[b, i, j]
-                    if a < 0 or a > (D + 1 if j < M else 1):
-                        first[b, 0], first[b, 1] = i, j
-                        break
-            if first[b, 2] < 0:
-                for j in range(M):
-                    if masked[b, i, j]:
-                        first[b, 2], first[b, 3] = i, j
-                        break
+            _check_row(act, b, i, msg, own, okt, choice, b, i, masked, first)
 
 
-def _apply_all(Z, tau, own, choice, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
-               arrived, C, L, rows, z_true, Z_next, tau_next, err):
+def _apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
+               arrived, C, L, rows, x, A_T, w, W_T, has_w, TT, Z_next, tau_next, err,
+               x_next, masked, first):
     B, N, n = Z.shape
     D = nbr.shape[2]
     M = tau.shape[2]
     for b in prange(B):
         # scratch rows private to each member, shaped (1, 1, .) for the row functions
+        ch = np.empty((1, 1, M), dtype=np.int64)
         src = np.empty((1, 1, M), dtype=np.int64)
         zsel = np.empty((1, 1, n))
         mix = np.empty((1, 1, n))
-        avg_tau = np.empty((1, 1, tau.shape[2]), dtype=tau.dtype)
+        avg_tau = np.empty((1, 1, M), dtype=tau.dtype)
         ext = np.empty(D + 2, dtype=np.int64)
+        okt = np.ones(D + 2, dtype=np.bool_)
         cor = np.empty((1, 1, n))
         innov = np.empty(C.shape[1])
+        zt = np.empty((1, n))
+        wt = np.empty((1, x.shape[1]))
+        # the plant, eq. (1), and the true state in Lemma 1 coordinates
+        _vecmat_row(x, b, A_T, x_next, b)
+        if has_w:
+            _vecmat_row(w, b, W_T, wt, 0)
+            for c in range(x.shape[1]):
+                x_next[b, c] += wt[0, c]
+        _vecmat_row(x_next, b, TT, zt, 0)
         for i in range(N):
+            _check_row(act, b, i, msg, own, okt, ch, 0, 0, masked, first)
             # choice -> agent: keep and average use the agent itself, slot d its neighbour
             ext[0] = i
             ext[D + 1] = i
@@ -527,7 +574,7 @@ def _apply_all(Z, tau, own, choice, nbr, msg, block_of, dq, dc, dv, ALT, corr, f
                 ext[d + 1] = nbr[b, i, d] if nbr[b, i, d] >= 0 else i
             averaged = False
             for j in range(M):
-                a = choice[b, i, j]
+                a = ch[0, 0, j]
                 src[0, 0, j] = ext[a]
                 averaged |= a == D + 1
             _advance_row(tau, b, i, own, src, 0, 0, tau_next, b, i)
@@ -536,10 +583,10 @@ def _apply_all(Z, tau, own, choice, nbr, msg, block_of, dq, dc, dv, ALT, corr, f
                 _average_row(tau, b, i, own, nbr, msg, avg_tau, 0, 0)
                 _mix_row(Z, b, i, nbr, msg, mix, 0, 0)
                 for j in range(M):
-                    if choice[b, i, j] == D + 1:
+                    if ch[0, 0, j] == D + 1:
                         tau_next[b, i, j] = avg_tau[0, 0, j]
                 for c in range(n):
-                    if choice[b, i, block_of[c]] == D + 1:
+                    if ch[0, 0, block_of[c]] == D + 1:
                         zsel[0, 0, c] = mix[0, 0, c]
             _propagate_row(zsel, 0, 0, Z, b, i, dq, dc, dv, ALT, Z_next, b, i)
             if fused:  # the fixed-gain source update, eq. (7), on the same row
@@ -552,7 +599,7 @@ def _apply_all(Z, tau, own, choice, nbr, msg, block_of, dq, dc, dv, ALT, corr, f
             for c in range(n):
                 v = Z_next[b, i, c] + cor[0, 0, c]
                 Z_next[b, i, c] = v
-                e = v - z_true[b, c]
+                e = v - zt[0, c]
                 s += e * e
             err[b, i] = np.sqrt(s)
 

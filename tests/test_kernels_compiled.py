@@ -78,11 +78,18 @@ def _composed(s):
 
 
 def _fused(s, **kw):
+    """The fused step on valid actions; the plant is the identity (x_next = x = z_true)."""
     dec = s["dec"]
-    return kernels.apply_actions(
-        s["Z"], s["tau"], s["choice"], s["nbr"], s["msg"], dec.block_of.astype(np.int64),
-        np.ascontiguousarray(dec.A_lower.T), kernels.diag_band(dec.A_diag), s["z_true"],
-        **kw)
+    B, N, _ = s["choice"].shape
+    act = np.concatenate([s["choice"], np.ones((B, N, 1), np.int64)], axis=2)
+    n = s["Z"].shape[2]
+    out = kernels.apply_actions(
+        s["Z"], s["tau"], act, s["nbr"], s["msg"], dec.block_of.astype(np.int64),
+        np.ascontiguousarray(dec.A_lower.T), kernels.diag_band(dec.A_diag), x=s["z_true"],
+        A_T=np.eye(n), T=np.eye(n), **kw)
+    assert list(out.status) == [-1] * 6 and not out.masked.any()
+    np.testing.assert_array_equal(out.x_next, s["z_true"])
+    return out.Z_next, out.tau_next, out.err
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -241,3 +248,29 @@ def test_observations_equal_the_layout_written_out():
                 assert m[j].tolist() == want
             assert mask[b, i, N * W:].tolist() == [1, 1]
     assert observation.slot_messages(core.nbr, core.transmit).shape == core.nbr.shape
+
+
+def test_fused_validation_agrees_with_check_actions():
+    s = _random_step(9, B=4)
+    dec, choice = s["dec"], s["choice"]
+    B, N, M = choice.shape
+    D = s["nbr"].shape[2]
+    rng = np.random.default_rng(2)
+    act = np.concatenate([choice, np.ones((B, N, 1), np.int64)], axis=2)
+    act[..., :M] = np.where(rng.random((B, N, M)) < 0.3, rng.integers(0, D + 2, (B, N, M)),
+                            act[..., :M])  # some of these are masked
+    n = s["Z"].shape[2]
+    for bad in (None, (2, 3, M)):
+        if bad is not None:
+            act[bad] = 5  # an out-of-range transmit bit, later in C order
+        ref_choice = np.empty((B, N, M), np.int64)
+        ref_masked = np.empty((B, N, M), bool)
+        st = kernels.check_actions(act, s["msg"], ref_choice, ref_masked)
+        out = kernels.apply_actions(
+            s["Z"], s["tau"], act, s["nbr"], s["msg"], dec.block_of.astype(np.int64),
+            np.ascontiguousarray(dec.A_lower.T), kernels.diag_band(dec.A_diag),
+            x=s["z_true"], A_T=np.eye(n), T=np.eye(n), corr=np.zeros(s["Z"].shape))
+        assert ref_masked.any() and (st[3:] >= 0).all()
+        np.testing.assert_array_equal(out.masked, ref_masked)
+        np.testing.assert_array_equal(out.status, st)
+        assert (st[0] >= 0) == (bad is not None)
