@@ -192,8 +192,9 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
     B, N, n = Z.shape
     y = np.asarray(y, dtype=float)
     L = np.asarray(L_pad, dtype=float)
-    if L.ndim == 3:
-        L = np.broadcast_to(L, (B,) + L.shape)
+    if L.ndim == 3:  # one gain for every member: indexed as member 0
+        L = L[None]
+    L = np.ascontiguousarray(L)
     arr = np.ones((B, N), bool) if arrived is None else np.asarray(arrived, dtype=bool)
     out = np.empty(Z.shape)
     _innovation_all.at(Z.size)(Z, y, arr, np.asarray(C_bar_pad, dtype=float), L,
@@ -300,7 +301,7 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     if luenberger is not None:
         y, arrived, C, L = luenberger
         rows, corr = gain_rows(L), np.zeros((1, 1, 1))
-        L = np.broadcast_to(L, (B,) + L.shape[-3:]) if L.ndim == 3 else L
+        L = np.ascontiguousarray(L[None] if L.ndim == 3 else L, dtype=float)
     else:
         if corr is None:
             raise ValueError("apply_actions needs corr or luenberger")
@@ -427,7 +428,7 @@ def _propagate_row(Z_sel, sb, si, Z, b, i, dq, dc, dv, ALT, out, ob, oi):
 
 
 @njit(cache=True, inline="always")
-def _innovation_row(Z, b, i, y, arrived, C, L, lo, hi, innov, out, ob, oi):  # eq. (7)
+def _innovation_row(Z, b, i, y, arrived, C, L, lb, lo, hi, innov, out, ob, oi):  # eq. (7)
     r, n = C.shape[1], C.shape[2]
     for c in range(n):
         out[ob, oi, c] = 0.0
@@ -441,7 +442,7 @@ def _innovation_row(Z, b, i, y, arrived, C, L, lo, hi, innov, out, ob, oi):  # e
     for c in range(lo, hi):
         s = 0.0
         for k in range(r):
-            s += L[b, i, c, k] * innov[k]
+            s += L[lb, i, c, k] * innov[k]
         out[ob, oi, c] = s
 
 
@@ -465,11 +466,14 @@ def _check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
     for d in range(D):
         okt[d + 1] = msg[b, i, d]
     bad = False
+    anymask = False
+    o = own[i]
     for j in range(M):
         a = act[b, i, j]
         inside = (a >= 0) & (a <= D + 1)
+        ok = inside & okt[min(max(a, 0), D + 1)] & ((j != o) | (a == 0))
         bad |= not inside
-        ok = inside and okt[a] and (j != own[i] or a == 0)
+        anymask |= not ok
         masked[b, i, j] = not ok
         ch[sb, si, j] = a if ok else 0
     t = act[b, i, M]
@@ -480,7 +484,7 @@ def _check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
             if a < 0 or a > (D + 1 if j < M else 1):
                 first[b, 0], first[b, 1] = i, j
                 break
-    if first[b, 2] < 0:
+    if anymask and first[b, 2] < 0:
         for j in range(M):
             if masked[b, i, j]:
                 first[b, 2], first[b, 3] = i, j
@@ -519,11 +523,13 @@ def _propagate_all(Z_sel, Z, dq, dc, dv, ALT, out):
 
 
 def _innovation_all(Z, y, arrived, C, L, rows, out):
+    per_member = L.shape[0] > 1
     for b in prange(Z.shape[0]):
         innov = np.empty(C.shape[1])
+        lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
         for i in range(Z.shape[1]):
-            _innovation_row(Z, b, i, y, arrived, C, L, rows[i, 0], rows[i, 1], innov, out,
-                            b, i)
+            _innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], innov,
+                            out, b, i)
 
 
 def _vecmat_all(x, M, out):
@@ -533,10 +539,11 @@ def _vecmat_all(x, M, out):
 
 def _check_actions(act, msg, own, choice, masked, first):
     B, N, D = msg.shape
+    okt = np.ones((B, D + 2), dtype=np.bool_)  # allowed choices on another's substate
     for b in prange(B):
-        okt = np.ones(D + 2, dtype=np.bool_)  # allowed choices on another's substate
+        okb = okt[b]
         for i in range(N):
-            _check_row(act, b, i, msg, own, okt, choice, b, i, masked, first)
+            _check_row(act, b, i, msg, own, okb, choice, b, i, masked, first)
 
 
 def _apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
@@ -545,61 +552,65 @@ def _apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fuse
     B, N, n = Z.shape
     D = nbr.shape[2]
     M = tau.shape[2]
+    per_member = L.shape[0] > 1
+    # scratch rows, one per member (row b belongs to the thread that runs member b),
+    # allocated once per call and addressed as [b, 0, :] by the row functions
+    ch = np.empty((B, 1, M), dtype=np.int64)
+    src = np.empty((B, 1, M), dtype=np.int64)
+    zsel = np.empty((B, 1, n))
+    mix = np.empty((B, 1, n))
+    avg_tau = np.empty((B, 1, M), dtype=tau.dtype)
+    ext = np.empty((B, D + 2), dtype=np.int64)
+    okt = np.ones((B, D + 2), dtype=np.bool_)
+    cor = np.empty((B, 1, n))
+    innov = np.empty((B, C.shape[1]))
+    zt = np.empty((B, n))
+    wt = np.empty((B, x.shape[1]))
     for b in prange(B):
-        # scratch rows private to each member, shaped (1, 1, .) for the row functions
-        ch = np.empty((1, 1, M), dtype=np.int64)
-        src = np.empty((1, 1, M), dtype=np.int64)
-        zsel = np.empty((1, 1, n))
-        mix = np.empty((1, 1, n))
-        avg_tau = np.empty((1, 1, M), dtype=tau.dtype)
-        ext = np.empty(D + 2, dtype=np.int64)
-        okt = np.ones(D + 2, dtype=np.bool_)
-        cor = np.empty((1, 1, n))
-        innov = np.empty(C.shape[1])
-        zt = np.empty((1, n))
-        wt = np.empty((1, x.shape[1]))
+        okb, inb = okt[b], innov[b]  # one view per member, not per row
+        lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
         # the plant, eq. (1), and the true state in Lemma 1 coordinates
         _vecmat_row(x, b, A_T, x_next, b)
         if has_w:
-            _vecmat_row(w, b, W_T, wt, 0)
+            _vecmat_row(w, b, W_T, wt, b)
             for c in range(x.shape[1]):
-                x_next[b, c] += wt[0, c]
-        _vecmat_row(x_next, b, TT, zt, 0)
+                x_next[b, c] += wt[b, c]
+        _vecmat_row(x_next, b, TT, zt, b)
         for i in range(N):
-            _check_row(act, b, i, msg, own, okt, ch, 0, 0, masked, first)
+            _check_row(act, b, i, msg, own, okb, ch, b, 0, masked, first)
             # choice -> agent: keep and average use the agent itself, slot d its neighbour
-            ext[0] = i
-            ext[D + 1] = i
+            ext[b, 0] = i
+            ext[b, D + 1] = i
             for d in range(D):
-                ext[d + 1] = nbr[b, i, d] if nbr[b, i, d] >= 0 else i
+                ext[b, d + 1] = nbr[b, i, d] if nbr[b, i, d] >= 0 else i
             averaged = False
             for j in range(M):
-                a = ch[0, 0, j]
-                src[0, 0, j] = ext[a]
+                a = ch[b, 0, j]
+                src[b, 0, j] = ext[b, a]
                 averaged |= a == D + 1
-            _advance_row(tau, b, i, own, src, 0, 0, tau_next, b, i)
-            _gather_row(Z, b, src, 0, 0, block_of, zsel, 0, 0)
+            _advance_row(tau, b, i, own, src, b, 0, tau_next, b, i)
+            _gather_row(Z, b, src, b, 0, block_of, zsel, b, 0)
             if averaged:
-                _average_row(tau, b, i, own, nbr, msg, avg_tau, 0, 0)
-                _mix_row(Z, b, i, nbr, msg, mix, 0, 0)
+                _average_row(tau, b, i, own, nbr, msg, avg_tau, b, 0)
+                _mix_row(Z, b, i, nbr, msg, mix, b, 0)
                 for j in range(M):
-                    if ch[0, 0, j] == D + 1:
-                        tau_next[b, i, j] = avg_tau[0, 0, j]
+                    if ch[b, 0, j] == D + 1:
+                        tau_next[b, i, j] = avg_tau[b, 0, j]
                 for c in range(n):
-                    if ch[0, 0, block_of[c]] == D + 1:
-                        zsel[0, 0, c] = mix[0, 0, c]
-            _propagate_row(zsel, 0, 0, Z, b, i, dq, dc, dv, ALT, Z_next, b, i)
+                    if ch[b, 0, block_of[c]] == D + 1:
+                        zsel[b, 0, c] = mix[b, 0, c]
+            _propagate_row(zsel, b, 0, Z, b, i, dq, dc, dv, ALT, Z_next, b, i)
             if fused:  # the fixed-gain source update, eq. (7), on the same row
-                _innovation_row(Z, b, i, y, arrived, C, L, rows[i, 0], rows[i, 1], innov,
-                                cor, 0, 0)
+                _innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], inb,
+                                cor, b, 0)
             else:
                 for c in range(n):
-                    cor[0, 0, c] = corr[b, i, c]
+                    cor[b, 0, c] = corr[b, i, c]
             s = 0.0
             for c in range(n):
-                v = Z_next[b, i, c] + cor[0, 0, c]
+                v = Z_next[b, i, c] + cor[b, 0, c]
                 Z_next[b, i, c] = v
-                e = v - zt[0, c]
+                e = v - zt[b, c]
                 s += e * e
             err[b, i] = np.sqrt(s)
 
