@@ -8,6 +8,13 @@ serially, where starting threads costs more than it saves; large batches use num
 thread pool (``NUMBA_NUM_THREADS``, default one thread per core). Every member is computed
 by the same row functions, independently, so both builds give bit-identical results
 (``tests/test_kernels_compiled.py``).
+
+Drivers are compiled without numba's reference counting (``_nrt=False``): they allocate
+nothing (outputs and scratch rows come from the Python wrapper), so no array needs a
+reference count, and the row functions they inline run without the atomic
+increments and decrements numba otherwise wraps around every array argument — at
+``N = 10`` those cost more than the arithmetic of the rules (measured 10x on the source
+correction).
 """
 
 from __future__ import annotations
@@ -26,8 +33,8 @@ class Driver:
     """A driver compiled twice from one source: ``serial`` and ``parallel``."""
 
     def __init__(self, fn) -> None:
-        self.serial = njit(cache=True)(_renamed(fn, "serial"))
-        self.parallel = njit(cache=True, parallel=True)(_renamed(fn, "parallel"))
+        self.serial = njit(cache=True, _nrt=False)(_renamed(fn, "serial"))
+        self.parallel = njit(cache=True, parallel=True, _nrt=False)(_renamed(fn, "parallel"))
 
     def at(self, work: int):
         """The build for a call that touches ``work`` array elements."""

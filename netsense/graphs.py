@@ -375,7 +375,7 @@ class MarkovLinkFailures(GraphProcess):
         nbr = np.empty((M, K, N, max_degree), dtype=np.int64)
         ok = np.ones(M, dtype=bool)
         _markov_slots.at(ue.size)(ue, up, ei, el, float(self.p_fail), float(self.p_recover),
-                                  nbr, ok)
+                                  nbr, ok, np.empty((M, N), dtype=np.int64))
         if not ok.all():
             raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
         new = np.zeros((M, N, N), dtype=bool)
@@ -554,7 +554,7 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     return Gossip.complete(N)
 
 
-def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr, ok):
+def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr, ok, pos_all):
     """Two-state link chains and slot tables of :class:`MarkovLinkFailures`.
 
     ``u (M, K, E)`` uniforms, ``up (M, E)`` link states at the first step (advanced in
@@ -564,9 +564,9 @@ def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr, ok):
     empty slot); ``ok[m]`` turns False if a node of run ``m`` has more than ``D`` up links.
     """
     M, K, E = u.shape
-    N, D = nbr.shape[2], nbr.shape[3]
+    D = nbr.shape[3]
     for m in prange(M):
-        pos = np.empty(N, dtype=np.int64)
+        pos = pos_all[m]
         for k in range(K):
             nbr[m, k] = -1
             pos[:] = 0

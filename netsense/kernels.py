@@ -197,8 +197,8 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
     L = np.ascontiguousarray(L)
     arr = np.ones((B, N), bool) if arrived is None else np.asarray(arrived, dtype=bool)
     out = np.empty(Z.shape)
-    _innovation_all.at(Z.size)(Z, y, arr, np.asarray(C_bar_pad, dtype=float), L,
-                               gain_rows(L), out)
+    C = np.asarray(C_bar_pad, dtype=float)
+    _innovation_all.at(Z.size)(Z, y, arr, C, L, gain_rows(L), out, np.empty((B, C.shape[1])))
     return out
 
 
@@ -248,7 +248,8 @@ def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
     (in C order) out-of-range entry and the first masked one, ``-1`` where there is none.
     """
     first = np.full((act.shape[0], 4), -1, dtype=np.int64)
-    _check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first)
+    okt = np.ones((act.shape[0], msg.shape[2] + 2), dtype=np.bool_)  # allowed on others'
+    _check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first, okt)
     return _status(first)
 
 
@@ -310,10 +311,16 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     has_w = w is not None
     if not has_w:
         w, W_T = np.zeros((1, 1)), np.zeros((1, x.shape[1]))
+    D, p = nbr.shape[2], x.shape[1]
+    scratch = (np.empty((B, 1, M), np.int64), np.empty((B, 1, M), np.int64),
+               np.empty((B, 1, n)), np.empty((B, 1, n)), np.empty((B, 1, M), tau.dtype),
+               np.empty((B, D + 2), np.int64), np.ones((B, D + 2), np.bool_),
+               np.empty((B, 1, n)), np.empty((B, C.shape[1])), np.empty((B, n)),
+               np.empty((B, p)))
     _apply_all.at(Z.size * n + tau.size)(
         Z, tau, _own(own, tau), act, nbr, msg, block_of, band[0], band[1], band[2],
         A_lower_T, corr, luenberger is not None, y, arrived, C, L, rows, x, A_T, w, W_T,
-        has_w, T, Z_next, tau_next, err, x_next, masked, first)
+        has_w, T, Z_next, tau_next, err, x_next, masked, first, *scratch)
     return StepOut(Z_next, tau_next, err, x_next, masked, _status(first))
 
 
@@ -522,10 +529,10 @@ def _propagate_all(Z_sel, Z, dq, dc, dv, ALT, out):
             _propagate_row(Z_sel, b, i, Z, b, i, dq, dc, dv, ALT, out, b, i)
 
 
-def _innovation_all(Z, y, arrived, C, L, rows, out):
+def _innovation_all(Z, y, arrived, C, L, rows, out, scratch):
     per_member = L.shape[0] > 1
     for b in prange(Z.shape[0]):
-        innov = np.empty(C.shape[1])
+        innov = scratch[b]
         lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
         for i in range(Z.shape[1]):
             _innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], innov,
@@ -537,9 +544,8 @@ def _vecmat_all(x, M, out):
         _vecmat_row(x, b, M, out, b)
 
 
-def _check_actions(act, msg, own, choice, masked, first):
+def _check_actions(act, msg, own, choice, masked, first, okt):
     B, N, D = msg.shape
-    okt = np.ones((B, D + 2), dtype=np.bool_)  # allowed choices on another's substate
     for b in prange(B):
         okb = okt[b]
         for i in range(N):
@@ -548,24 +554,14 @@ def _check_actions(act, msg, own, choice, masked, first):
 
 def _apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
                arrived, C, L, rows, x, A_T, w, W_T, has_w, TT, Z_next, tau_next, err,
-               x_next, masked, first):
+               x_next, masked, first, ch, src, zsel, mix, avg_tau, ext, okt, cor, innov, zt,
+               wt):
     B, N, n = Z.shape
     D = nbr.shape[2]
     M = tau.shape[2]
     per_member = L.shape[0] > 1
-    # scratch rows, one per member (row b belongs to the thread that runs member b),
-    # allocated once per call and addressed as [b, 0, :] by the row functions
-    ch = np.empty((B, 1, M), dtype=np.int64)
-    src = np.empty((B, 1, M), dtype=np.int64)
-    zsel = np.empty((B, 1, n))
-    mix = np.empty((B, 1, n))
-    avg_tau = np.empty((B, 1, M), dtype=tau.dtype)
-    ext = np.empty((B, D + 2), dtype=np.int64)
-    okt = np.ones((B, D + 2), dtype=np.bool_)
-    cor = np.empty((B, 1, n))
-    innov = np.empty((B, C.shape[1]))
-    zt = np.empty((B, n))
-    wt = np.empty((B, x.shape[1]))
+    # scratch rows (from the wrapper): row b belongs to the thread that runs member b,
+    # addressed as [b, 0, :] by the row functions
     for b in prange(B):
         okb, inb = okt[b], innov[b]  # one view per member, not per row
         lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)

@@ -71,9 +71,12 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     if own is None:
         own = np.arange(Z.shape[1], dtype=np.int64)
     work = (obs.size if observations else 0) + (mask.size if masks else 0)
+    B, N, M = tau.shape
+    shape = (B, N + 1, M) if observations else (1, 1, 1)
     _fill.at(work)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
                    bool(exact_f32), bool(observations), bool(masks),
-                   np.asarray(own, dtype=np.int64))
+                   np.asarray(own, dtype=np.int64), np.empty(shape, np.float32),
+                   np.empty(shape, np.float32))
 
 
 def _messages(nbr, transmit, link, has_link, out):
@@ -100,7 +103,7 @@ def _finite_or_repair(v):
 
 
 def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do_obs, do_mask,
-          own):
+          own, om_all, age_all):
     B, N, n = Z.shape
     r = y.shape[2]
     D = nbr.shape[2]
@@ -115,8 +118,7 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
         if not do_obs:
             continue
         # every agent's (omega, age) row once per member; own and slot fields copy rows
-        om_tab = np.empty((N + 1, M), dtype=np.float32)
-        age_tab = np.empty((N + 1, M), dtype=np.float32)
+        om_tab, age_tab = om_all[b], age_all[b]  # (N + 1, M) scratch of this member
         _index_tables(tau[b], H, exact_f32, om_tab, age_tab)
         t_b = np.float32(k[b] / H)
         for i in range(N):
@@ -135,9 +137,14 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
                 zz += z[c] * z[c]
             norm = np.sqrt(zz)
             den = norm if norm > 0 else 1.0
-            for c in range(n):
-                o[o_zdir + c] = _finite_or_repair(z[c] / den)
-            o[o_zlog] = _finite_or_repair(np.log1p(norm))
+            if np.isfinite(norm):  # then every entry is finite: no repair needed
+                for c in range(n):
+                    o[o_zdir + c] = z[c] / den
+                o[o_zlog] = np.log1p(norm)
+            else:
+                for c in range(n):
+                    o[o_zdir + c] = _finite_or_repair(z[c] / den)
+                o[o_zlog] = _finite_or_repair(np.log1p(norm))
             for d in range(D):
                 got = msg[b, i, d]
                 l = nbr[b, i, d]
