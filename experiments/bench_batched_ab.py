@@ -1,0 +1,93 @@
+"""A/B of two checkouts of netsense: ``BatchedCore.step`` at the three shapes of issue 8.
+
+Model: ``large_n20_N100-v1`` resized (Markov links drawn per base link, one index column
+per agent -- the form every version supports), freshness policy computed between the
+steps (only ``step`` timed), best of 5 blocks of 32 steps; the bare numpy kernel (flat
+gather + two BLAS products) is timed in the same process as a yardstick. Prints one JSON
+line. Run it once per checkout, alternating, e.g.::
+
+    git worktree add /tmp/old <commit>
+    PYTHONPATH=/tmp/old python experiments/bench_batched_ab.py
+    PYTHONPATH=. python experiments/bench_batched_ab.py
+
+Results of this session: ``results/bench_batched_ab.txt``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+
+from netsense.envcore import BatchedCore
+from netsense.policies import FreshnessPolicy
+from netsense.scenarios import build_model, load, with_overrides
+
+SHAPES = ((1024, 10, 10), (1024, 30, 20), (64, 100, 20))
+
+
+def model(N: int, n: int):
+    offs = sorted({o % N for o in (1, 3, 7)} - {0})
+    sc = with_overrides(
+        load("large_n20_N100-v1"), horizon=200,
+        plant={"kind": "random_structured", "n": n, "num_agents": N, "seed": 0,
+               "spectral_radius": 1.1},
+        graph={"kind": "markov", "num_nodes": N, "p_fail": 0.1, "p_recover": 0.5,
+               "draws": "base", "base": {"kind": "circulant", "offsets": offs}})
+    return build_model(sc)
+
+
+def core_ms(core: BatchedCore, pol: FreshnessPolicy, state: list, steps: int) -> float:
+    """Seconds per ``step`` (policy between the steps, not timed) over ``steps`` steps."""
+    obs, mask = state
+    total = 0.0
+    for _ in range(steps):
+        act = pol.act(obs, mask)
+        t0 = time.perf_counter()
+        out = core.step(act)
+        total += time.perf_counter() - t0
+        obs, mask = out.obs, out.action_mask
+        if out.truncated.any():
+            obs, mask = core.reset(int(core.k.sum()))
+    state[:] = [obs, mask]
+    return total / steps * 1e3
+
+
+def kernel_ms(Z, srcs, block_of, ADT, ALT, steps: int) -> float:
+    B, N, n = Z.shape
+    off = np.arange(B)[:, None, None] * (N * n) + np.arange(n)
+    t0 = time.perf_counter()
+    for k in range(steps):
+        idx = np.take(srcs[k % 4], block_of, axis=2)
+        idx *= n
+        idx += off
+        Z = np.take(Z.reshape(-1), idx) @ ADT + Z @ ALT
+        Z *= 0.5
+    return (time.perf_counter() - t0) / steps * 1e3
+
+
+def main() -> None:
+    out = {}
+    for B, N, n in SHAPES:
+        m = model(N, n)
+        core = BatchedCore(m, B)
+        pol = FreshnessPolicy(core.layout)
+        state = list(core.reset(0))
+        dec = m.design.decomposition
+        rng = np.random.default_rng(0)
+        Z = rng.standard_normal((B, N, n))
+        srcs = [rng.integers(0, N, (B, N, N)) for _ in range(4)]
+        ADT, ALT = np.ascontiguousarray(dec.A_diag.T), np.ascontiguousarray(dec.A_lower.T)
+        core_ms(core, pol, state, 4)
+        kernel_ms(Z, srcs, dec.block_of, ADT, ALT, 2)
+        best_c = best_k = float("inf")
+        for _ in range(5):
+            best_c = min(best_c, core_ms(core, pol, state, 32))
+            best_k = min(best_k, kernel_ms(Z, srcs, dec.block_of, ADT, ALT, 32))
+        out[f"{B},{N},{n}"] = {"core_ms": round(best_c, 3), "kernel_ms": round(best_k, 3)}
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
