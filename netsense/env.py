@@ -146,6 +146,12 @@ Version History
 * v0: initial release. Later additions keep every existing scenario's dynamics:
   ``[source_estimator]``, ``[[faults]]`` and multirate arrivals in scenario files, the
   ``faulty`` info with faults, the opt-in ``aoi`` info.
+* The scenario key ``substates = "sources"`` (first used by ``large_n20_N100-v2``): actions,
+  masks and observations over the M sources instead of all N agents; existing scenarios
+  keep ``"all"`` and their spaces.
+* The update rules run compiled (numba) since issue 8: every scenario keeps its graphs,
+  noise, drops and decisions; estimates differ from earlier versions in the last bits
+  (the products' summation order changed).
 """
 
 from __future__ import annotations
