@@ -1,8 +1,12 @@
-"""Vectorised update rules of the distributed observers — the one implementation.
+"""Batched update rules of the distributed observers — the public API of the one
+implementation.
 
 Every function works on a leading batch axis ``B`` and an agent axis ``N`` and contains
 no Python loop over agents or substates, so the scripted observers, the environment and
-the batched simulator all call exactly this code.
+the batched simulator all call exactly this code. The rules themselves are the compiled
+row functions of :mod:`netsense.rules`; the compiled loops over members and agents are in
+:mod:`netsense.drivers`; the functions here check and allocate, then call a driver.
+:func:`apply_actions` is the environment's whole step in one pass over the same rows.
 
 Array conventions
 -----------------
@@ -24,12 +28,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
 
-from netsense.compiled import Driver
+from netsense import drivers
+from netsense.rules import OMEGA
 
-#: Encoding of the freshness index's dummy value omega (eq. (8)ff.).
-OMEGA = -1
 _BIG = np.iinfo(np.int64).max // 4
 
 
@@ -100,7 +102,7 @@ def advance_indices(tau: np.ndarray, src: np.ndarray, own: np.ndarray | None = N
     """
     tau = np.asarray(tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
-    _advance_all.at(tau.size)(tau, _own(own, tau), np.asarray(src), out)
+    drivers.advance_all.at(tau.size)(tau, _own(own, tau), np.asarray(src), out)
     return out
 
 
@@ -116,7 +118,7 @@ def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     """
     tau = np.asarray(tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
-    _average_all.at(tau.size)(tau, _own(own, tau), np.asarray(nbr),
+    drivers.average_all.at(tau.size)(tau, _own(own, tau), np.asarray(nbr),
                               _usable(nbr, valid, transmit), out)
     return out
 
@@ -125,7 +127,7 @@ def gather_substates(Z: np.ndarray, src: np.ndarray, block_of: np.ndarray) -> np
     """``Zg[b, i, c] = Z[b, src[b, i, block_of[c]], c]``: each substate from its chosen agent."""
     Z = np.asarray(Z, dtype=float)
     out = np.empty(Z.shape)
-    _gather_all.at(Z.size)(Z, np.asarray(src), np.asarray(block_of), out)
+    drivers.gather_all.at(Z.size)(Z, np.asarray(src), np.asarray(block_of), out)
     return out
 
 
@@ -137,7 +139,7 @@ def uniform_mix(Z: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     """
     Z = np.asarray(Z, dtype=float)
     out = np.empty(Z.shape)
-    _mix_all.at(Z.size)(Z, np.asarray(nbr), _usable(nbr, valid, transmit), out)
+    drivers.mix_all.at(Z.size)(Z, np.asarray(nbr), _usable(nbr, valid, transmit), out)
     return out
 
 
@@ -156,7 +158,7 @@ def propagate(Z_sel: np.ndarray, Z: np.ndarray, A_diag: np.ndarray,
     Z_sel = np.asarray(Z_sel, dtype=float)
     dq, dc, dv = diag_band(A_diag) if band is None else band
     out = np.empty(Z_sel.shape)
-    _propagate_all.at(Z_sel.size * Z_sel.shape[-1])(
+    drivers.propagate_all.at(Z_sel.size * Z_sel.shape[-1])(
         Z_sel, np.asarray(Z, dtype=float), dq, dc, dv, _t(A_lower), out)
     return out
 
@@ -198,7 +200,7 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
     arr = np.ones((B, N), bool) if arrived is None else np.asarray(arrived, dtype=bool)
     out = np.empty(Z.shape)
     C = np.asarray(C_bar_pad, dtype=float)
-    _innovation_all.at(Z.size)(Z, y, arr, C, L, gain_rows(L), out, np.empty((B, C.shape[1])))
+    drivers.innovation_all.at(Z.size)(Z, y, arr, C, L, gain_rows(L), out, np.empty((B, C.shape[1])))
     return out
 
 
@@ -225,7 +227,7 @@ def vecmat(x: np.ndarray, M: np.ndarray) -> np.ndarray:
     x = np.ascontiguousarray(x, dtype=float)
     M = np.ascontiguousarray(M, dtype=float)
     out = np.empty((x.shape[0], M.shape[1]))
-    _vecmat_all.at(x.shape[0] * M.size // 8)(x, M, out)  # light: rarely worth threads
+    drivers.vecmat_all.at(x.shape[0] * M.size // 8)(x, M, out)  # light: rarely worth threads
     return out
 
 
@@ -249,7 +251,7 @@ def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
     """
     first = np.full((act.shape[0], 4), -1, dtype=np.int64)
     okt = np.ones((act.shape[0], msg.shape[2] + 2), dtype=np.bool_)  # allowed on others'
-    _check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first, okt)
+    drivers.check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first, okt)
     return _status(first)
 
 
@@ -317,7 +319,7 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
                np.empty((B, D + 2), np.int64), np.ones((B, D + 2), np.bool_),
                np.empty((B, 1, n)), np.empty((B, C.shape[1])), np.empty((B, n)),
                np.empty((B, p)))
-    _apply_all.at(Z.size * n + tau.size)(
+    drivers.apply_all.at(Z.size * n + tau.size)(
         Z, tau, _own(own, tau), act, nbr, msg, block_of, band[0], band[1], band[2],
         A_lower_T, corr, luenberger is not None, y, arrived, C, L, rows, x, A_T, w, W_T,
         has_w, T, Z_next, tau_next, err, x_next, masked, first, *scratch)
@@ -356,271 +358,9 @@ def _usable(nbr: np.ndarray, valid: np.ndarray, transmit: np.ndarray | None) -> 
                                               np.where(valid, nbr, 0)]
 
 
-# ----------------------------------------------------------------------------- row rules
-# One agent's row of each rule. The public kernels above and apply_actions loop over
-# (b, i) and call these, so there is one implementation of every rule. No fastmath: the
-# arithmetic is IEEE in program order, hence identical wherever a row function runs.
-# Rows are addressed as (array, b, i) rather than passed as slices: a slice is a new
-# array object with a reference count, which at N = 30 cost as much as the rule itself.
-@njit(cache=True, inline="always")
-def _advance_row(tau, b, i, own, src, sb, si, out, ob, oi):  # eqs. (9), (11), (14)
-    for j in range(out.shape[2]):
-        t = tau[b, src[sb, si, j], j]
-        out[ob, oi, j] = OMEGA if t < 0 else t + 1
-    if own[i] >= 0:  # a source keeps tau_i^{(i)} = 0
-        out[ob, oi, own[i]] = 0
-
-
-@njit(cache=True, inline="always")
-def _average_row(tau, b, i, own, nbr, use, out, ob, oi):  # age of an average, eq. (6)
-    for j in range(out.shape[2]):
-        t = tau[b, i, j]
-        omega = t < 0
-        worst = t
-        for d in range(nbr.shape[2]):
-            if use[b, i, d]:
-                v = tau[b, nbr[b, i, d], j]
-                if v < 0:
-                    omega = True
-                elif v > worst:
-                    worst = v
-        out[ob, oi, j] = OMEGA if omega else worst + 1
-    if own[i] >= 0:
-        out[ob, oi, own[i]] = 0
-
-
-@njit(cache=True, inline="always")
-def _mix_row(Z, b, i, nbr, use, out, ob, oi):  # eq. (6)
-    count = 1.0
-    for d in range(nbr.shape[2]):
-        if use[b, i, d]:
-            count += 1.0
-    for c in range(Z.shape[2]):
-        s = 0.0
-        for d in range(nbr.shape[2]):
-            if use[b, i, d]:
-                s += Z[b, nbr[b, i, d], c]
-        out[ob, oi, c] = (Z[b, i, c] + s) / count
-
-
-@njit(cache=True, inline="always")
-def _gather_row(Z, b, src, sb, si, block_of, out, ob, oi):
-    for c in range(Z.shape[2]):
-        out[ob, oi, c] = Z[b, src[sb, si, block_of[c]], c]
-
-
-@njit(cache=True, inline="always")
-def _propagate_row(Z_sel, sb, si, Z, b, i, dq, dc, dv, ALT, out, ob, oi):
-    """Row of eqs. (7), (10), (12) (see :func:`propagate`)."""
-    n = Z.shape[2]
-    o, z, zs = out[ob, oi], Z[b, i], Z_sel[sb, si]  # n^2 work: three views pay off
-    for c in range(n):
-        o[c] = 0.0
-    for k in range(dv.shape[0]):  # block-diagonal part on the propagated estimate
-        o[dc[k]] += dv[k] * zs[dq[k]]
-    # couplings on the agent's own estimates, four columns of A_lower^T at a time (a
-    # fixed association order, so the result is the same wherever this row runs)
-    q = 0
-    while q + 4 <= n:
-        v0, v1, v2, v3 = z[q], z[q + 1], z[q + 2], z[q + 3]
-        a0, a1, a2, a3 = ALT[q], ALT[q + 1], ALT[q + 2], ALT[q + 3]
-        for c in range(n):
-            o[c] = o[c] + a0[c] * v0 + a1[c] * v1 + a2[c] * v2 + a3[c] * v3
-        q += 4
-    while q < n:
-        v0, a0 = z[q], ALT[q]
-        for c in range(n):
-            o[c] += a0[c] * v0
-        q += 1
-
-
-@njit(cache=True, inline="always")
-def _innovation_row(Z, b, i, y, arrived, C, L, lb, lo, hi, innov, out, ob, oi):  # eq. (7)
-    r, n = C.shape[1], C.shape[2]
-    for c in range(n):
-        out[ob, oi, c] = 0.0
-    if lo >= hi:  # no gain rows: not a source (or nothing to correct)
-        return
-    for k in range(r):
-        s = 0.0
-        for c in range(n):
-            s += C[i, k, c] * Z[b, i, c]
-        innov[k] = (y[b, i, k] - s) if arrived[b, i] else 0.0
-    for c in range(lo, hi):
-        s = 0.0
-        for k in range(r):
-            s += L[lb, i, c, k] * innov[k]
-        out[ob, oi, c] = s
-
-
-@njit(cache=True, inline="always")
-def _vecmat_row(x, b, M, out, ob):  # out[ob] = x[b] @ M, q-major (eqs. (1), (2))
-    p, m = M.shape
-    for c in range(m):
-        out[ob, c] = 0.0
-    for q in range(p):
-        v = x[b, q]
-        for c in range(m):
-            out[ob, c] += v * M[q, c]
-
-
-@njit(cache=True, inline="always")
-def _check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
-    """Validate agent ``i``'s actions (see :func:`check_actions`); ``okt`` is a scratch
-    of ``D + 2`` with ``okt[0] = okt[D + 1] = True``."""
-    D = msg.shape[2]
-    M = masked.shape[2]
-    for d in range(D):
-        okt[d + 1] = msg[b, i, d]
-    bad = False
-    anymask = False
-    o = own[i]
-    for j in range(M):
-        a = act[b, i, j]
-        inside = (a >= 0) & (a <= D + 1)
-        ok = inside & okt[min(max(a, 0), D + 1)] & ((j != o) | (a == 0))
-        bad |= not inside
-        anymask |= not ok
-        masked[b, i, j] = not ok
-        ch[sb, si, j] = a if ok else 0
-    t = act[b, i, M]
-    bad |= (t < 0) | (t > 1)
-    if bad and first[b, 0] < 0:
-        for j in range(M + 1):
-            a = act[b, i, j]
-            if a < 0 or a > (D + 1 if j < M else 1):
-                first[b, 0], first[b, 1] = i, j
-                break
-    if anymask and first[b, 2] < 0:
-        for j in range(M):
-            if masked[b, i, j]:
-                first[b, 2], first[b, 3] = i, j
-                break
-
-
-# ----------------------------------------------------------------------------- drivers
-def _advance_all(tau, own, src, out):
-    for b in prange(tau.shape[0]):
-        for i in range(tau.shape[1]):
-            _advance_row(tau, b, i, own, src, b, i, out, b, i)
-
-
-def _average_all(tau, own, nbr, use, out):
-    for b in prange(tau.shape[0]):
-        for i in range(tau.shape[1]):
-            _average_row(tau, b, i, own, nbr, use, out, b, i)
-
-
-def _gather_all(Z, src, block_of, out):
-    for b in prange(Z.shape[0]):
-        for i in range(Z.shape[1]):
-            _gather_row(Z, b, src, b, i, block_of, out, b, i)
-
-
-def _mix_all(Z, nbr, use, out):
-    for b in prange(Z.shape[0]):
-        for i in range(Z.shape[1]):
-            _mix_row(Z, b, i, nbr, use, out, b, i)
-
-
-def _propagate_all(Z_sel, Z, dq, dc, dv, ALT, out):
-    for b in prange(Z.shape[0]):
-        for i in range(Z.shape[1]):
-            _propagate_row(Z_sel, b, i, Z, b, i, dq, dc, dv, ALT, out, b, i)
-
-
-def _innovation_all(Z, y, arrived, C, L, rows, out, scratch):
-    per_member = L.shape[0] > 1
-    for b in prange(Z.shape[0]):
-        innov = scratch[b]
-        lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
-        for i in range(Z.shape[1]):
-            _innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], innov,
-                            out, b, i)
-
-
-def _vecmat_all(x, M, out):
-    for b in prange(x.shape[0]):
-        _vecmat_row(x, b, M, out, b)
-
-
-def _check_actions(act, msg, own, choice, masked, first, okt):
-    B, N, D = msg.shape
-    for b in prange(B):
-        okb = okt[b]
-        for i in range(N):
-            _check_row(act, b, i, msg, own, okb, choice, b, i, masked, first)
-
-
-def _apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
-               arrived, C, L, rows, x, A_T, w, W_T, has_w, TT, Z_next, tau_next, err,
-               x_next, masked, first, ch, src, zsel, mix, avg_tau, ext, okt, cor, innov, zt,
-               wt):
-    B, N, n = Z.shape
-    D = nbr.shape[2]
-    M = tau.shape[2]
-    per_member = L.shape[0] > 1
-    # scratch rows (from the wrapper): row b belongs to the thread that runs member b,
-    # addressed as [b, 0, :] by the row functions
-    for b in prange(B):
-        okb, inb = okt[b], innov[b]  # one view per member, not per row
-        lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
-        # the plant, eq. (1), and the true state in Lemma 1 coordinates
-        _vecmat_row(x, b, A_T, x_next, b)
-        if has_w:
-            _vecmat_row(w, b, W_T, wt, b)
-            for c in range(x.shape[1]):
-                x_next[b, c] += wt[b, c]
-        _vecmat_row(x_next, b, TT, zt, b)
-        for i in range(N):
-            _check_row(act, b, i, msg, own, okb, ch, b, 0, masked, first)
-            # choice -> agent: keep and average use the agent itself, slot d its neighbour
-            ext[b, 0] = i
-            ext[b, D + 1] = i
-            for d in range(D):
-                ext[b, d + 1] = nbr[b, i, d] if nbr[b, i, d] >= 0 else i
-            averaged = False
-            for j in range(M):
-                a = ch[b, 0, j]
-                src[b, 0, j] = ext[b, a]
-                averaged |= a == D + 1
-            _advance_row(tau, b, i, own, src, b, 0, tau_next, b, i)
-            _gather_row(Z, b, src, b, 0, block_of, zsel, b, 0)
-            if averaged:
-                _average_row(tau, b, i, own, nbr, msg, avg_tau, b, 0)
-                _mix_row(Z, b, i, nbr, msg, mix, b, 0)
-                for j in range(M):
-                    if ch[b, 0, j] == D + 1:
-                        tau_next[b, i, j] = avg_tau[b, 0, j]
-                for c in range(n):
-                    if ch[b, 0, block_of[c]] == D + 1:
-                        zsel[b, 0, c] = mix[b, 0, c]
-            _propagate_row(zsel, b, 0, Z, b, i, dq, dc, dv, ALT, Z_next, b, i)
-            if fused:  # the fixed-gain source update, eq. (7), on the same row
-                _innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], inb,
-                                cor, b, 0)
-            else:
-                for c in range(n):
-                    cor[b, 0, c] = corr[b, i, c]
-            s = 0.0
-            for c in range(n):
-                v = Z_next[b, i, c] + cor[b, 0, c]
-                Z_next[b, i, c] = v
-                e = v - zt[b, c]
-                s += e * e
-            err[b, i] = np.sqrt(s)
-
-
 def keep_own_blocks(Z_sel: np.ndarray, Z: np.ndarray, own_block: np.ndarray) -> np.ndarray:
     """Restore every source's own substate in ``Z_sel`` (sources never mix their substate).
 
     ``own_block`` is the ``(N, n)`` mask ``block_of[c] == i``.
     """
     return np.where(own_block[None], Z, Z_sel)
-
-
-# ----------------------------------------------------------------------------- dispatch
-for _name in ("_advance_all", "_average_all", "_gather_all", "_mix_all", "_propagate_all",
-              "_innovation_all", "_vecmat_all", "_check_actions", "_apply_all"):
-    globals()[_name] = Driver(globals()[_name])
-del _name

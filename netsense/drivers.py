@@ -1,0 +1,142 @@
+"""Batched drivers: compiled loops over members and agents that call :mod:`netsense.rules`.
+
+Every driver is a :class:`netsense.compiled.Driver` (a serial and a threaded build of one
+source, without reference counting); the wrappers in :mod:`netsense.kernels` allocate the
+outputs and scratch rows and pick the build with ``Driver.at(work)``. ``apply_all`` is the
+environment's whole step in one pass (see :func:`netsense.kernels.apply_actions`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from netsense.compiled import Driver
+from netsense.rules import (
+    advance_row,
+    average_row,
+    check_row,
+    gather_row,
+    innovation_row,
+    mix_row,
+    propagate_row,
+    vecmat_row,
+)
+
+
+def advance_all(tau, own, src, out):
+    for b in prange(tau.shape[0]):
+        for i in range(tau.shape[1]):
+            advance_row(tau, b, i, own, src, b, i, out, b, i)
+
+
+def average_all(tau, own, nbr, use, out):
+    for b in prange(tau.shape[0]):
+        for i in range(tau.shape[1]):
+            average_row(tau, b, i, own, nbr, use, out, b, i)
+
+
+def gather_all(Z, src, block_of, out):
+    for b in prange(Z.shape[0]):
+        for i in range(Z.shape[1]):
+            gather_row(Z, b, src, b, i, block_of, out, b, i)
+
+
+def mix_all(Z, nbr, use, out):
+    for b in prange(Z.shape[0]):
+        for i in range(Z.shape[1]):
+            mix_row(Z, b, i, nbr, use, out, b, i)
+
+
+def propagate_all(Z_sel, Z, dq, dc, dv, ALT, out):
+    for b in prange(Z.shape[0]):
+        for i in range(Z.shape[1]):
+            propagate_row(Z_sel, b, i, Z, b, i, dq, dc, dv, ALT, out, b, i)
+
+
+def innovation_all(Z, y, arrived, C, L, rows, out, scratch):
+    per_member = L.shape[0] > 1
+    for b in prange(Z.shape[0]):
+        innov = scratch[b]
+        lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
+        for i in range(Z.shape[1]):
+            innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], innov,
+                            out, b, i)
+
+
+def vecmat_all(x, M, out):
+    for b in prange(x.shape[0]):
+        vecmat_row(x, b, M, out, b)
+
+
+def check_actions(act, msg, own, choice, masked, first, okt):
+    B, N, D = msg.shape
+    for b in prange(B):
+        okb = okt[b]
+        for i in range(N):
+            check_row(act, b, i, msg, own, okb, choice, b, i, masked, first)
+
+
+def apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
+               arrived, C, L, rows, x, A_T, w, W_T, has_w, TT, Z_next, tau_next, err,
+               x_next, masked, first, ch, src, zsel, mix, avg_tau, ext, okt, cor, innov, zt,
+               wt):
+    B, N, n = Z.shape
+    D = nbr.shape[2]
+    M = tau.shape[2]
+    per_member = L.shape[0] > 1
+    # scratch rows (from the wrapper): row b belongs to the thread that runs member b,
+    # addressed as [b, 0, :] by the row functions
+    for b in prange(B):
+        okb, inb = okt[b], innov[b]  # one view per member, not per row
+        lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
+        # the plant, eq. (1), and the true state in Lemma 1 coordinates
+        vecmat_row(x, b, A_T, x_next, b)
+        if has_w:
+            vecmat_row(w, b, W_T, wt, b)
+            for c in range(x.shape[1]):
+                x_next[b, c] += wt[b, c]
+        vecmat_row(x_next, b, TT, zt, b)
+        for i in range(N):
+            check_row(act, b, i, msg, own, okb, ch, b, 0, masked, first)
+            # choice -> agent: keep and average use the agent itself, slot d its neighbour
+            ext[b, 0] = i
+            ext[b, D + 1] = i
+            for d in range(D):
+                ext[b, d + 1] = nbr[b, i, d] if nbr[b, i, d] >= 0 else i
+            averaged = False
+            for j in range(M):
+                a = ch[b, 0, j]
+                src[b, 0, j] = ext[b, a]
+                averaged |= a == D + 1
+            advance_row(tau, b, i, own, src, b, 0, tau_next, b, i)
+            gather_row(Z, b, src, b, 0, block_of, zsel, b, 0)
+            if averaged:
+                average_row(tau, b, i, own, nbr, msg, avg_tau, b, 0)
+                mix_row(Z, b, i, nbr, msg, mix, b, 0)
+                for j in range(M):
+                    if ch[b, 0, j] == D + 1:
+                        tau_next[b, i, j] = avg_tau[b, 0, j]
+                for c in range(n):
+                    if ch[b, 0, block_of[c]] == D + 1:
+                        zsel[b, 0, c] = mix[b, 0, c]
+            propagate_row(zsel, b, 0, Z, b, i, dq, dc, dv, ALT, Z_next, b, i)
+            if fused:  # the fixed-gain source update, eq. (7), on the same row
+                innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], inb,
+                                cor, b, 0)
+            else:
+                for c in range(n):
+                    cor[b, 0, c] = corr[b, i, c]
+            s = 0.0
+            for c in range(n):
+                v = Z_next[b, i, c] + cor[b, 0, c]
+                Z_next[b, i, c] = v
+                e = v - zt[b, c]
+                s += e * e
+            err[b, i] = np.sqrt(s)
+
+
+for _name in ("advance_all", "average_all", "gather_all", "mix_all", "propagate_all",
+              "innovation_all", "vecmat_all", "check_actions", "apply_all"):
+    globals()[_name] = Driver(globals()[_name])
+del _name

@@ -1,0 +1,172 @@
+"""The update rules of the distributed observers, one compiled row function each.
+
+A row function computes one agent's row of one rule, addressed as ``(array, b, i)``
+rather than as a slice, and is inlined (``inline="always"``) into the batched drivers of
+:mod:`netsense.drivers`: the public kernels (:mod:`netsense.kernels`), the observers, the
+environment's fused step and the benchmarks all run this code, so there is one
+implementation of every rule. No fastmath: the arithmetic is IEEE in program order, hence
+bit-identical wherever a row runs.
+
+=================  ==============================================================
+row function       rule
+=================  ==============================================================
+``advance_row``    freshness index after keep/adopt, eqs. (9), (11), (14)
+``average_row``    index of a uniform average: stalest contributor + 1 (eq. (6))
+``mix_row``        uniform average of the own and the received estimates, eq. (6)
+``gather_row``     each substate's estimate from the agent chosen for it
+``propagate_row``  ``A_jj z_sel^{(j)} + sum_{q<j} A_jq z^{(q)}``, eqs. (7), (10), (12)
+``innovation_row`` fixed-gain source correction ``L_j (y_j - C_bar_j z_j)``, eq. (7)
+``vecmat_row``     ``x[b] @ M`` in a fixed order (plant eq. (1), outputs eq. (2))
+``check_row``      the action rule: range, message present, own substate only keep
+=================  ==============================================================
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+#: Encoding of the freshness index's dummy value omega (eq. (8)ff.).
+OMEGA = -1
+
+
+# One agent's row of each rule. The public kernels above and apply_actions loop over
+# (b, i) and call these, so there is one implementation of every rule. No fastmath: the
+# arithmetic is IEEE in program order, hence identical wherever a row function runs.
+# Rows are addressed as (array, b, i) rather than passed as slices: a slice is a new
+# array object with a reference count, which at N = 30 cost as much as the rule itself.
+@njit(cache=True, inline="always")
+def advance_row(tau, b, i, own, src, sb, si, out, ob, oi):  # eqs. (9), (11), (14)
+    for j in range(out.shape[2]):
+        t = tau[b, src[sb, si, j], j]
+        out[ob, oi, j] = OMEGA if t < 0 else t + 1
+    if own[i] >= 0:  # a source keeps tau_i^{(i)} = 0
+        out[ob, oi, own[i]] = 0
+
+
+@njit(cache=True, inline="always")
+def average_row(tau, b, i, own, nbr, use, out, ob, oi):  # age of an average, eq. (6)
+    for j in range(out.shape[2]):
+        t = tau[b, i, j]
+        omega = t < 0
+        worst = t
+        for d in range(nbr.shape[2]):
+            if use[b, i, d]:
+                v = tau[b, nbr[b, i, d], j]
+                if v < 0:
+                    omega = True
+                elif v > worst:
+                    worst = v
+        out[ob, oi, j] = OMEGA if omega else worst + 1
+    if own[i] >= 0:
+        out[ob, oi, own[i]] = 0
+
+
+@njit(cache=True, inline="always")
+def mix_row(Z, b, i, nbr, use, out, ob, oi):  # eq. (6)
+    count = 1.0
+    for d in range(nbr.shape[2]):
+        if use[b, i, d]:
+            count += 1.0
+    for c in range(Z.shape[2]):
+        s = 0.0
+        for d in range(nbr.shape[2]):
+            if use[b, i, d]:
+                s += Z[b, nbr[b, i, d], c]
+        out[ob, oi, c] = (Z[b, i, c] + s) / count
+
+
+@njit(cache=True, inline="always")
+def gather_row(Z, b, src, sb, si, block_of, out, ob, oi):
+    for c in range(Z.shape[2]):
+        out[ob, oi, c] = Z[b, src[sb, si, block_of[c]], c]
+
+
+@njit(cache=True, inline="always")
+def propagate_row(Z_sel, sb, si, Z, b, i, dq, dc, dv, ALT, out, ob, oi):
+    """Row of eqs. (7), (10), (12) (see :func:`propagate`)."""
+    n = Z.shape[2]
+    o, z, zs = out[ob, oi], Z[b, i], Z_sel[sb, si]  # n^2 work: three views pay off
+    for c in range(n):
+        o[c] = 0.0
+    for k in range(dv.shape[0]):  # block-diagonal part on the propagated estimate
+        o[dc[k]] += dv[k] * zs[dq[k]]
+    # couplings on the agent's own estimates, four columns of A_lower^T at a time (a
+    # fixed association order, so the result is the same wherever this row runs)
+    q = 0
+    while q + 4 <= n:
+        v0, v1, v2, v3 = z[q], z[q + 1], z[q + 2], z[q + 3]
+        a0, a1, a2, a3 = ALT[q], ALT[q + 1], ALT[q + 2], ALT[q + 3]
+        for c in range(n):
+            o[c] = o[c] + a0[c] * v0 + a1[c] * v1 + a2[c] * v2 + a3[c] * v3
+        q += 4
+    while q < n:
+        v0, a0 = z[q], ALT[q]
+        for c in range(n):
+            o[c] += a0[c] * v0
+        q += 1
+
+
+@njit(cache=True, inline="always")
+def innovation_row(Z, b, i, y, arrived, C, L, lb, lo, hi, innov, out, ob, oi):  # eq. (7)
+    r, n = C.shape[1], C.shape[2]
+    for c in range(n):
+        out[ob, oi, c] = 0.0
+    if lo >= hi:  # no gain rows: not a source (or nothing to correct)
+        return
+    for k in range(r):
+        s = 0.0
+        for c in range(n):
+            s += C[i, k, c] * Z[b, i, c]
+        innov[k] = (y[b, i, k] - s) if arrived[b, i] else 0.0
+    for c in range(lo, hi):
+        s = 0.0
+        for k in range(r):
+            s += L[lb, i, c, k] * innov[k]
+        out[ob, oi, c] = s
+
+
+@njit(cache=True, inline="always")
+def vecmat_row(x, b, M, out, ob):  # out[ob] = x[b] @ M, q-major (eqs. (1), (2))
+    p, m = M.shape
+    for c in range(m):
+        out[ob, c] = 0.0
+    for q in range(p):
+        v = x[b, q]
+        for c in range(m):
+            out[ob, c] += v * M[q, c]
+
+
+@njit(cache=True, inline="always")
+def check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
+    """Validate agent ``i``'s actions (see :func:`check_actions`); ``okt`` is a scratch
+    of ``D + 2`` with ``okt[0] = okt[D + 1] = True``."""
+    D = msg.shape[2]
+    M = masked.shape[2]
+    for d in range(D):
+        okt[d + 1] = msg[b, i, d]
+    bad = False
+    anymask = False
+    o = own[i]
+    for j in range(M):
+        a = act[b, i, j]
+        inside = (a >= 0) & (a <= D + 1)
+        ok = inside & okt[min(max(a, 0), D + 1)] & ((j != o) | (a == 0))
+        bad |= not inside
+        anymask |= not ok
+        masked[b, i, j] = not ok
+        ch[sb, si, j] = a if ok else 0
+    t = act[b, i, M]
+    bad |= (t < 0) | (t > 1)
+    if bad and first[b, 0] < 0:
+        for j in range(M + 1):
+            a = act[b, i, j]
+            if a < 0 or a > (D + 1 if j < M else 1):
+                first[b, 0], first[b, 1] = i, j
+                break
+    if anymask and first[b, 2] < 0:
+        for j in range(M):
+            if masked[b, i, j]:
+                first[b, 2], first[b, 3] = i, j
+                break
+
+
