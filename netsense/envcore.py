@@ -356,6 +356,7 @@ class BatchedCore:
         self.C_padded = plant.C_padded
         self._C_flat_T = self.C_padded.reshape(-1, self.n).T.copy()  # y = C x, eq. (2)
         self.output_mask = plant.output_mask
+        self._outputs_all_real = bool(np.all(self.output_mask))
         self.W = plant.W_effective
         self._W_T = np.ascontiguousarray(self.W.T)
         sizes = np.bincount(self.block_of, minlength=self.N)
@@ -515,11 +516,13 @@ class BatchedCore:
         for b in members:
             rngs = self.rngs[b]
             if self._has_pnoise:
-                self.buf_w[b] = m.plant.process_noise.sample(
-                    rngs["process_noise"], (K, self.W.shape[1]))
+                m.plant.process_noise.sample(rngs["process_noise"], (K, self.W.shape[1]),
+                                             out=self.buf_w[b])
             if self._has_mnoise:
-                self.buf_v[b] = m.plant.measurement_noise.sample(
-                    rngs["measurement_noise"], (K, self.N, self.r)) * self.output_mask
+                v = m.plant.measurement_noise.sample(rngs["measurement_noise"],
+                                                     (K, self.N, self.r), out=self.buf_v[b])
+                if not self._outputs_all_real:
+                    v *= self.output_mask  # padded outputs carry no noise
             if not self._meas_always:
                 s = self.meas_sampler[b]
                 self.buf_meas[b] = np.stack([s.next() for _ in range(K)])

@@ -356,7 +356,10 @@ class MarkovLinkFailures(GraphProcess):
         M, K, N, E = len(rngs), num_steps, self.num_nodes, ei.size
         ue = np.empty((M, K, E))
         for m, rng in enumerate(rngs):
-            ue[m] = self._edge_uniforms(rng, (K,))
+            if self.draws == "base":
+                rng.random(out=ue[m])  # the stream of _edge_uniforms, written in place
+            else:
+                ue[m] = self._edge_uniforms(rng, (K,))
         up = np.array([np.asarray(st, dtype=bool)[ei, el] for st in states]).reshape(M, E)
         if _adjacency:
             stay_up, come_back = ue >= self.p_fail, ue < self.p_recover

@@ -15,7 +15,10 @@ import numpy as np
 class NoiseModel:
     """Base class: zero-mean additive noise with a documented bound or covariance."""
 
-    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...],
+               out: np.ndarray | None = None) -> np.ndarray:
+        """Draw noise of ``shape``; with ``out`` (float64, C-contiguous, that shape) write
+        it there and return ``out`` (the same numbers as without)."""
         raise NotImplementedError
 
     @property
@@ -31,8 +34,12 @@ class NoiseModel:
 class NoNoise(NoiseModel):
     """No noise: every draw is exactly zero."""
 
-    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-        return np.zeros(shape)
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...],
+               out: np.ndarray | None = None) -> np.ndarray:
+        if out is None:
+            return np.zeros(shape)
+        out[...] = 0.0
+        return out
 
     @property
     def bound(self) -> float:
@@ -52,8 +59,13 @@ class GaussianNoise(NoiseModel):
         if not np.isfinite(self.std) or self.std < 0:
             raise ValueError(f"GaussianNoise.std must be a finite number >= 0, got {self.std!r}")
 
-    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-        return self.std * rng.standard_normal(shape)
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...],
+               out: np.ndarray | None = None) -> np.ndarray:
+        if out is None:
+            return self.std * rng.standard_normal(shape)
+        rng.standard_normal(out=out)  # the same stream, written in place
+        out *= self.std
+        return out
 
     @property
     def bound(self) -> float:
@@ -75,8 +87,13 @@ class UniformNoise(NoiseModel):
                 f"UniformNoise.half_width must be a finite number >= 0, got {self.half_width!r}"
             )
 
-    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
-        return rng.uniform(-self.half_width, self.half_width, size=shape)
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...],
+               out: np.ndarray | None = None) -> np.ndarray:
+        draw = rng.uniform(-self.half_width, self.half_width, size=shape)
+        if out is None:
+            return draw
+        out[...] = draw
+        return out
 
     @property
     def bound(self) -> float:
