@@ -395,8 +395,6 @@ class BatchedCore:
                     + N * (not self._meas_always) + N * N * (not self._msg_always))
         self.chunk = int(chunk) if chunk is not None else int(
             np.clip(CHUNK_BUDGET // max(B * per_step, 1), 1, CHUNK))
-        self._bI = np.arange(B)[:, None, None]
-        self._iI = self._arangeN[None, :, None]
         self._bidx = np.arange(B)
         self._obs_starts = np.array([start for _, start, _ in self.layout.table()],
                                     dtype=np.int64)
