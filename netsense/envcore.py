@@ -349,7 +349,6 @@ class BatchedCore:
         self.A_diag, self.A_lower = dec.A_diag, dec.A_lower
         self._ALT = np.ascontiguousarray(self.A_lower.T)
         self._band = kernels.diag_band(self.A_diag)
-        self._block_of = None  # coordinate -> substate column, set with the layout
         self._TT = np.ascontiguousarray(dec.T)
         self._A_T = np.ascontiguousarray(plant.A.T)
         self.own_block = SourceEstimator.own_block_mask(design)
@@ -471,6 +470,7 @@ class BatchedCore:
         self._stuck_memory = [f.new_state(B, r) for f in self._stuck]
         # largest index a liar injects (indices are <= k + claim: exact in float32 below)
         self._claim = 0 if self._liar is None else int(self._liar.claim)
+        self._gain_rows = None  # kernels.gain_rows of a LuenbergerSource, once
 
     def _reset_member(self, b: int, seed: int) -> None:
         m = self.model
@@ -554,25 +554,6 @@ class BatchedCore:
         """``(B, N, D)`` bool: slot ``d`` of agent ``i`` holds an in-neighbour in ``G[k]``."""
         return self.nbr >= 0
 
-    @property
-    def nbr_ext(self) -> np.ndarray:
-        """``(B, N, D + 2)``: the agent each choice ``0 .. D + 1`` takes its estimate from
-        (keep and average: the agent itself; an empty slot also maps to itself)."""
-        own = np.broadcast_to(self._arangeN[:, None], self.nbr.shape[:-1] + (1,))
-        return np.concatenate([own, np.where(self.valid, self.nbr, own), own], -1)
-
-    @property
-    def slot_id(self) -> np.ndarray:
-        """``(B, N, D)``: ``(l + 1) / N`` for the neighbour ``l`` of each slot (0: empty)."""
-        return (self.nbr + 1) / self.N
-
-    @property
-    def ok_row(self) -> np.ndarray:
-        """``(B, N, D + 2)`` bool: choices allowed on a substate other than the agent's
-        own: keep, the slots whose message arrived, average."""
-        t = np.ones(self.msg.shape[:2] + (1,), bool)
-        return np.concatenate([t, self.msg, t], 2)
-
     # ------------------------------------------------------------------ masks
     def action_mask(self) -> np.ndarray:
         """``(B, N, M * (D + 2) + 2)`` int8: allowed choices per substate, then transmit.
@@ -638,8 +619,10 @@ class BatchedCore:
         # estimator (KFIO, RSEIO, equalized, ...) returns its correction here, after the
         # actions were validated (a stateful source's correction is a state change)
         if type(self.source) is LuenbergerSource:
+            if self._gain_rows is None:  # the source's gains are fixed after reset
+                self._gain_rows = kernels.gain_rows(self.source.L_pad)
             src_kw = {"luenberger": (self.y, self.y_arrived, self.source.C_bar_pad,
-                                     self.source.L_pad)}
+                                     self.source.L_pad, self._gain_rows)}
         else:
             choice = np.empty((B, self.N, self.M), dtype=np.int64)
             self._refuse(kernels.check_actions(a, self.msg, choice,

@@ -288,7 +288,8 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     only when ``status`` reports no error it refuses.
 
     The correction is either given, ``corr (B, N, n)`` (any source estimator), or computed
-    on the row from ``luenberger = (y, arrived, C_bar_pad, L_pad)`` exactly as
+    on the row from ``luenberger = (y, arrived, C_bar_pad, L_pad[, gain_rows(L_pad)])``
+    exactly as
     :func:`innovation_correction` does (the fixed-gain source of eq. (7)). With
     substates restricted to the sources (``tau (B, N, M)``), ``block_of`` maps every
     coordinate to its column ``0..M-1`` and ``own`` gives each agent's column.
@@ -302,8 +303,9 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     masked = np.empty((B, N, M), dtype=bool)
     first = np.full((B, 4), -1, dtype=np.int64)
     if luenberger is not None:
-        y, arrived, C, L = luenberger
-        rows, corr = gain_rows(L), np.zeros((1, 1, 1))
+        y, arrived, C, L = luenberger[:4]
+        rows = luenberger[4] if len(luenberger) > 4 else gain_rows(L)
+        corr = np.zeros((1, 1, 1))
         L = np.ascontiguousarray(L[None] if L.ndim == 3 else L, dtype=float)
     else:
         if corr is None:
