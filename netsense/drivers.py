@@ -18,6 +18,7 @@ from netsense.rules import (
     check_row,
     gather_row,
     innovation_row,
+    message_row,
     mix_row,
     propagate_row,
     vecmat_row,
@@ -67,6 +68,26 @@ def innovation_all(Z, y, arrived, C, L, rows, out, scratch):
 def vecmat_all(x, M, out):
     for b in prange(x.shape[0]):
         vecmat_row(x, b, M, out, b)
+
+
+def messages_all(nbr, transmit, link, has_link, out):
+    for b in prange(nbr.shape[0]):
+        for i in range(nbr.shape[1]):
+            message_row(nbr, b, i, transmit, link, has_link, out, b, i)
+
+
+def sense_all(x, C_T, v, has_v, slots, transmit, link, has_link, y, nbr, msg):
+    # a step's inputs in one pass per member: outputs y = C x (+ v), eq. (2), the slot
+    # table as int64 and the messages of its slots
+    for b in prange(x.shape[0]):
+        vecmat_row(x, b, C_T, y, b)
+        if has_v:
+            for c in range(y.shape[1]):
+                y[b, c] += v[b, c]
+        for i in range(nbr.shape[1]):
+            for d in range(nbr.shape[2]):
+                nbr[b, i, d] = slots[b, i, d]
+            message_row(nbr, b, i, transmit, link, has_link, msg, b, i)
 
 
 def check_actions(act, msg, own, choice, masked, first, okt):
@@ -137,6 +158,7 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused
 
 
 for _name in ("advance_all", "average_all", "gather_all", "mix_all", "propagate_all",
-              "innovation_all", "vecmat_all", "check_actions", "apply_all"):
+              "innovation_all", "vecmat_all", "messages_all", "sense_all", "check_actions",
+              "apply_all"):
     globals()[_name] = Driver(globals()[_name])
 del _name

@@ -71,6 +71,7 @@ from netsense import kernels, observation
 from netsense.design import ObserverDesign
 from netsense.graphs import GraphProcess
 from netsense.observers.source import LuenbergerSource, SourceEstimator
+from netsense.pool import each_part
 from netsense.sensing.arrivals import AlwaysArrive, ArrivalModel
 from netsense.sensing.noise import NoNoise
 from netsense.systems import Plant
@@ -497,20 +498,34 @@ class BatchedCore:
                 rngs["message_arrivals"], (self.N, self.N))
 
     def _refill(self, members: np.ndarray) -> None:
-        """Draw the next ``chunk`` steps of graphs, noise and arrivals for ``members``."""
+        """Draw the next ``chunk`` steps of graphs, noise and arrivals for ``members``.
+
+        Every member draws from its own generators; members are split over threads
+        (:mod:`netsense.pool`: one thread per member, so the streams do not change)."""
         m, K, N = self.model, self.chunk, self.N
+        members = np.asarray(members, dtype=np.int64)
         # graphs for groups of members at once (each from its own "graph" generator, so
-        # equal to per-member sampling), in groups that keep the (M, K, N, N) temporaries
-        # near 16 MB; slot tables from one in_neighbor_slots call per group
-        group = max(1, (16 * 2**20) // (K * N * N * 11))
+        # equal to per-member sampling), in groups that keep the process's temporaries
+        # near 16 MB; slot tables written straight into the chunk buffer
+        group = max(1, (16 * 2**20) // max(m.graphs.slot_sample_bytes(K), 1))
         for g in range(0, len(members), group):
             mem = members[g:g + group]
-            nbr, states = m.graphs.sample_slots_many([self.rngs[b]["graph"] for b in mem],
-                                                     K, [self.graph_state[b] for b in mem],
-                                                     self.D)
+            run = mem.size and mem[-1] - mem[0] + 1 == mem.size  # contiguous: a view
+            out = self.buf_nbr[mem[0]:mem[-1] + 1] if run else np.empty(
+                (mem.size, K, N, self.D), self.buf_nbr.dtype)
+            _, states = m.graphs.sample_slots_many([self.rngs[b]["graph"] for b in mem],
+                                                   K, [self.graph_state[b] for b in mem],
+                                                   self.D, out=out)
             for b, st in zip(mem, states, strict=True):
                 self.graph_state[b] = st
-            self.buf_nbr[mem] = nbr
+            if not run:
+                self.buf_nbr[mem] = out
+        each_part(lambda lo, hi: self._draw_members(members[lo:hi]), members.size)
+        self.ptr[members] = 0
+
+    def _draw_members(self, members: np.ndarray) -> None:
+        """Noise and arrivals of the next chunk for ``members`` (one thread's share)."""
+        m, K = self.model, self.chunk
         for b in members:
             rngs = self.rngs[b]
             if self._has_pnoise:
@@ -527,24 +542,25 @@ class BatchedCore:
             if not self._msg_always:
                 s = self.msg_sampler[b]
                 self.buf_msg[b] = np.stack([s.next() for _ in range(K)])
-        self.ptr[members] = 0
 
     def _load_step(self) -> None:
         """Expose the current step's graph, measurements and messages (from the chunk)."""
         # all members at the same chunk position (the usual case): basic slicing, no copies
         same = self.ptr.min() == self.ptr.max()
         b, p = (slice(None), int(self.ptr[0])) if same else (self._bidx, self.ptr)
-        self.nbr = self.buf_nbr[b, p].astype(np.int64)
+        B, N, r = self.B, self.N, self.r
+        # outputs (eq. (2)) plus noise, the slot table and its messages in one pass
+        # (link l -> i is buf_msg[..., i, l])
+        y, self.nbr, self.msg = kernels.sense(
+            self.x, self._C_flat_T, self.buf_nbr[b, p], self.transmit,
+            v=self.buf_v[b, p].reshape(B, N * r) if self._has_mnoise else None,
+            link=None if self._msg_always else self.buf_msg[b, p])
         self._adjacency = None
-        y = kernels.vecmat(self.x, self._C_flat_T).reshape(self.B, self.N, self.r)  # eq. (2)
-        if self._has_mnoise:
-            y += self.buf_v[b, p]
+        y = y.reshape(B, N, r)
         for f, memory in zip(self._stuck, self._stuck_memory, strict=True):
             y = f.apply(self.k, y, memory)  # stuck/stale readings replace y_i[k]
         self.y = y
         self.y_arrived = self._ones_BN if self._meas_always else self.buf_meas[b, p]
-        self.msg = observation.slot_messages(  # link l -> i is buf_msg[..., i, l]
-            self.nbr, self.transmit, None if self._msg_always else self.buf_msg[b, p])
         self._mask = None
         self._obs = None
 

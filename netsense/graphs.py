@@ -25,6 +25,7 @@ import numpy as np
 from numba import prange
 
 from netsense.compiled import Driver
+from netsense.pool import each_part
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -111,6 +112,14 @@ def in_neighbor_slots(adj: np.ndarray, max_degree: int | None = None
     return nbr, valid
 
 
+def _check_slot_out(out: np.ndarray, shape: tuple[int, ...]) -> None:
+    if not isinstance(out, np.ndarray) or out.shape != tuple(shape) \
+            or out.dtype.kind != "i":
+        got = (out.shape, out.dtype) if isinstance(out, np.ndarray) else type(out)
+        raise ValueError(f"out must be a signed integer array of shape {tuple(shape)}, "
+                         f"got {got}")
+
+
 # ----------------------------------------------------------------------------- processes
 #: How :class:`MarkovLinkFailures` draws its uniforms: ``"all"`` one per node pair and
 #: step (the original stream, every ``-v0`` scenario), ``"base"`` one per base edge and
@@ -145,16 +154,30 @@ class GraphProcess:
         return (np.stack(outs) if outs else np.zeros((0, num_steps, N, N), bool)), new
 
     def sample_slots_many(self, rngs: Sequence[np.random.Generator], num_steps: int,
-                          states: Sequence[Any], max_degree: int) -> tuple[np.ndarray, list]:
+                          states: Sequence[Any], max_degree: int,
+                          out: np.ndarray | None = None) -> tuple[np.ndarray, list]:
         """:meth:`sample_many` as slot tables: ``nbr (M, K, N, max_degree)`` (the
-        :func:`in_neighbor_slots` of the graphs, ``-1`` = empty slot) and the states."""
+        :func:`in_neighbor_slots` of the graphs, ``-1`` = empty slot) and the states.
+
+        ``out``: an integer array of that shape to write the slots into (returned)."""
         adj, new = self.sample_many(rngs, num_steps, states)
-        return in_neighbor_slots(adj, max_degree)[0], new
+        nbr = in_neighbor_slots(adj, max_degree)[0]
+        if out is None:
+            return nbr, new
+        _check_slot_out(out, nbr.shape)
+        out[...] = nbr
+        return out, new
 
     @property
     def max_in_degree(self) -> int:
         """Upper bound on any node's in-degree (fixes the env's slot count)."""
         return self.num_nodes - 1
+
+    def slot_sample_bytes(self, num_steps: int) -> int:
+        """Bytes of temporaries per run of :meth:`sample_slots_many` (batches are drawn
+        in groups that keep them near a budget); here ``(K, N, N)`` graphs and their slot
+        bookkeeping."""
+        return int(num_steps) * self.num_nodes ** 2 * 11
 
     def sequence(self, num_steps: int, rng: np.random.Generator | int | None = None
                  ) -> np.ndarray:
@@ -312,6 +335,12 @@ class MarkovLinkFailures(GraphProcess):
     def max_in_degree(self) -> int:
         return int(self.base.sum(-1).max())
 
+    def slot_sample_bytes(self, num_steps):
+        # the (K, E) uniforms of a run (and the (K, N, N) draw of draws = "all")
+        per_step = self._edges[0].size * 8 + (self.num_nodes ** 2 * 8
+                                               if self.draws == "all" else 0)
+        return int(num_steps) * per_step
+
     def _edge_uniforms(self, rng, shape) -> np.ndarray:
         """Uniforms of the base edges, ``shape + (E,)``: ``draws = "all"`` draws one per
         node pair (the original stream) and keeps the edges', ``"base"`` only the E."""
@@ -348,19 +377,26 @@ class MarkovLinkFailures(GraphProcess):
         return self.sample_slots_many(rngs, num_steps, states, self.max_in_degree,
                                       _adjacency=True)
 
-    def sample_slots_many(self, rngs, num_steps, states, max_degree, _adjacency=False):
+    def sample_slots_many(self, rngs, num_steps, states, max_degree, out=None,
+                          _adjacency=False):
         # Works on the E base edges only: each run draws its own chunk from its own
-        # generator (the stream of sample()), keeps the edges' uniforms, and the two-state
-        # recursion and the slot tables run once over all runs on (M, K, E) arrays.
+        # generator (the stream of sample(); runs split over threads, netsense.pool), keeps
+        # the edges' uniforms, and the two-state recursion and the slot tables run once
+        # over all runs on (M, K, E) arrays.
         ei, el, eq, slot_nbr = self._edges
         M, K, N, E = len(rngs), num_steps, self.num_nodes, ei.size
         ue = np.empty((M, K, E))
-        for m, rng in enumerate(rngs):
-            if self.draws == "base":
-                rng.random(out=ue[m])  # the stream of _edge_uniforms, written in place
-            else:
-                ue[m] = self._edge_uniforms(rng, (K,))
-        up = np.array([np.asarray(st, dtype=bool)[ei, el] for st in states]).reshape(M, E)
+
+        def draw(lo: int, hi: int) -> None:
+            for m in range(lo, hi):
+                if self.draws == "base":
+                    rngs[m].random(out=ue[m])  # the stream of _edge_uniforms, in place
+                else:
+                    ue[m] = self._edge_uniforms(rngs[m], (K,))
+
+        each_part(draw, M)
+        up = (np.stack([np.asarray(st, dtype=bool) for st in states])[:, ei, el] if M
+              else np.zeros((0, E), bool))
         if _adjacency:
             stay_up, come_back = ue >= self.p_fail, ue < self.p_recover
             del ue
@@ -375,7 +411,11 @@ class MarkovLinkFailures(GraphProcess):
             return out, list(new)
         # slots: the up base links of each node in ascending order (edges are row-major),
         # and the two-state recursion, in one compiled pass over (run, step, edge)
-        nbr = np.empty((M, K, N, max_degree), dtype=np.int64)
+        if out is None:
+            nbr = np.empty((M, K, N, max_degree), dtype=np.int64)
+        else:
+            _check_slot_out(out, (M, K, N, max_degree))
+            nbr = out
         ok = np.ones(M, dtype=bool)
         _markov_slots.at(ue.size)(ue, up, ei, el, float(self.p_fail), float(self.p_recover),
                                   nbr, ok, np.empty((M, N), dtype=np.int64))

@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from netsense import drivers
 from netsense.compiled import Driver
 
 __all__ = ["fill", "slot_messages"]
@@ -42,9 +43,9 @@ def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
     """
     out = np.empty(nbr.shape, dtype=bool)
     if link is None:
-        _messages.at(out.size)(nbr, transmit, np.ones((1, 1, 1), bool), False, out)
+        drivers.messages_all.at(out.size)(nbr, transmit, np.ones((1, 1, 1), bool), False, out)
     else:
-        _messages.at(out.size)(nbr, transmit, link, True, out)
+        drivers.messages_all.at(out.size)(nbr, transmit, link, True, out)
     return out
 
 
@@ -77,20 +78,6 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
                    bool(exact_f32), bool(observations), bool(masks),
                    np.asarray(own, dtype=np.int64), np.empty(shape, np.float32),
                    np.empty(shape, np.float32))
-
-
-def _messages(nbr, transmit, link, has_link, out):
-    B, N, D = nbr.shape
-    for b in prange(B):
-        for i in range(N):
-            for d in range(D):
-                v = nbr[b, i, d]
-                ok = v >= 0
-                if ok:
-                    ok = transmit[b, v]
-                    if ok and has_link:
-                        ok = link[b, i, v]
-                out[b, i, d] = ok
 
 
 @njit(cache=True, inline="always")
@@ -194,5 +181,4 @@ def _mask_row(m, msg_row, o, M, D):
             m[o * W + w] = 0
 
 
-_messages = Driver(_messages)
 _fill = Driver(_fill)

@@ -18,6 +18,7 @@ row function       rule
 ``innovation_row`` fixed-gain source correction ``L_j (y_j - C_bar_j z_j)``, eq. (7)
 ``vecmat_row``     ``x[b] @ M`` in a fixed order (plant eq. (1), outputs eq. (2))
 ``check_row``      the action rule: range, message present, own substate only keep
+``message_row``    which slots hold a message (neighbour present, sent, delivered)
 =================  ==============================================================
 """
 
@@ -170,3 +171,16 @@ def check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
                 break
 
 
+@njit(cache=True, inline="always")
+def message_row(nbr, b, i, transmit, link, has_link, out, ob, oi):
+    """Slot ``d`` of agent ``i`` holds a message: its neighbour ``l = nbr[b, i, d] >= 0``
+    transmitted (``transmit[b, l]``) and the link ``l -> i`` delivered (``link[b, i, l]``,
+    when ``has_link``)."""
+    for d in range(nbr.shape[2]):
+        v = nbr[b, i, d]
+        ok = v >= 0
+        if ok:
+            ok = transmit[b, v]
+            if ok and has_link:
+                ok = link[b, i, v]
+        out[ob, oi, d] = ok

@@ -274,3 +274,48 @@ def test_fused_validation_agrees_with_check_actions():
         np.testing.assert_array_equal(out.masked, ref_masked)
         np.testing.assert_array_equal(out.status, st)
         assert (st[0] >= 0) == (bad is not None)
+
+
+def test_sense_equals_outputs_plus_noise_and_slot_messages():
+    rng = np.random.default_rng(4)
+    B, N, n, r, D = 5, 7, 4, 2, 3
+    x = rng.standard_normal((B, n))
+    C_T = rng.standard_normal((n, N * r))
+    slots = rng.integers(-1, N, size=(B, N, D)).astype(np.int16)
+    transmit = rng.random((B, N)) < 0.6
+    link = rng.random((B, N, N)) < 0.7
+    v = rng.standard_normal((B, N * r))
+    y, nbr, msg = kernels.sense(x, C_T, slots, transmit, v=v, link=link)
+    np.testing.assert_array_equal(y, kernels.vecmat(x, C_T) + v)
+    assert nbr.dtype == np.int64
+    np.testing.assert_array_equal(nbr, slots)
+    np.testing.assert_array_equal(msg, observation.slot_messages(nbr, transmit, link))
+    b, i, d = np.nonzero(slots >= 0)
+    expect = np.zeros((B, N, D), bool)
+    expect[b, i, d] = transmit[b, slots[b, i, d]] & link[b, i, slots[b, i, d]]
+    np.testing.assert_array_equal(msg, expect)
+    y2, _, msg2 = kernels.sense(x, C_T, slots, transmit)  # no noise, every link delivers
+    np.testing.assert_array_equal(y2, kernels.vecmat(x, C_T))
+    expect[b, i, d] = transmit[b, slots[b, i, d]]
+    np.testing.assert_array_equal(msg2, expect)
+    with pytest.raises(ValueError, match="do not fit"):
+        kernels.sense(x, C_T[:-1], slots, transmit)
+
+
+def test_markov_slots_write_into_a_given_int16_buffer():
+    base = np.zeros((9, 9), bool)
+    for off in (1, 2, 5):
+        base[np.arange(9), (np.arange(9) + off) % 9] = True
+    proc = MarkovLinkFailures(base, 0.3, 0.4, draws="base")
+    seeds = [3, 4]
+    st = [proc.initial_state(np.random.default_rng(s)) for s in seeds]
+    ref, _ = proc.sample_slots_many([np.random.default_rng(s) for s in seeds], 12, st, 3)
+    st = [proc.initial_state(np.random.default_rng(s)) for s in seeds]
+    buf = np.full((2, 12, 9, 3), 99, np.int16)
+    got, _ = proc.sample_slots_many([np.random.default_rng(s) for s in seeds], 12, st, 3,
+                                    out=buf)
+    assert got is buf
+    np.testing.assert_array_equal(buf, ref)
+    with pytest.raises(ValueError, match="out must be"):
+        proc.sample_slots_many([np.random.default_rng(0)], 12, st[:1], 3,
+                               out=np.zeros((1, 12, 9, 3)))
