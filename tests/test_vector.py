@@ -277,7 +277,7 @@ def test_rollout_seeds_cuts_members_at_their_own_end():
                   {"horizon": 40, "divergence_limit": 3.0})
     np.testing.assert_array_equal(recs[short].rewards, ref.rewards)
     with pytest.raises(ValueError, match="cannot run batched"):
-        rollout_seeds("fig1_scalar-v0", "random", [0])
+        rollout_seeds("fig1_scalar-v0", "learned:policy.zip", [0])
 
 
 def test_pickle_round_trip_continues_identically():
