@@ -242,7 +242,8 @@ def test_agent_vector_env_works_with_gymnasium_vector_wrappers():
 
 @pytest.mark.parametrize("sid,policy", [("link_failures-v0", "freshness"),
                                         ("fig1_scalar-v0", "tree_consensus"),
-                                        ("message_cost-v0", "uniform_consensus")])
+                                        ("message_cost-v0", "uniform_consensus"),
+                                        ("message_cost-v0", "random")])
 def test_rollout_seeds_equals_the_benchmark_rollout_per_seed(sid, policy):
     from netsense.benchmark import rollout
     from netsense.vector import rollout_seeds
