@@ -190,3 +190,20 @@ def test_batched_kf_equals_one_filter_per_member():
         singles[0].step(y[0], members=np.ones(1, bool))
     with pytest.raises(ValueError, match="batch_size"):
         bm.CentralizedKF(plant, batch_size=0)
+
+
+def test_backend_timing_experiment_smoke(tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "experiments" / "bench_benchmark_backends.py"
+    spec = importlib.util.spec_from_file_location("_exp_bench_backends", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "t.txt"
+    report = mod.main(["--seeds", "2", "--horizon", "4", "--backends", "batched", "serial",
+                       "--out", str(out)])
+    assert out.read_text() == report
+    assert "20 episodes" in report and "results of every backend equal" in report
+    rows = [ln.split() for ln in report.splitlines() if ln.startswith(("batched", "serial"))]
+    assert [r[0] for r in rows] == ["batched", "serial"] and float(rows[0][3]) == 1.0
