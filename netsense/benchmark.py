@@ -83,12 +83,16 @@ class EpisodeRecord:
         ``||x[k]||``.
     messages : (K, N) bool array or None
         Whether agent ``i`` transmitted at step ``k`` (None for the oracle).
-    aoi : (K + 1, N, N) int array or None
-        Freshness indices ``tau_i^{(j)}[k]``, ``-1`` for omega (None when not tracked).
+    aoi : (K + 1, N, M) int array or None
+        Freshness indices ``tau_i^{(j)}[k]``, ``-1`` for omega (None when not tracked);
+        ``M = N`` or, with ``substates = "sources"``, one column per source.
     rewards : (K, N) array or None
         Per-agent rewards (None for the oracle).
     floor : float
         Smallest ``||x||`` used to normalise (the scenario's ``reward.error_floor``).
+    own : (N,) int array or None
+        Column of ``aoi`` holding agent ``i``'s own substate (``-1``: none); None means
+        the diagonal (``M = N``).
     """
 
     errors: np.ndarray
@@ -97,6 +101,7 @@ class EpisodeRecord:
     aoi: np.ndarray | None = None
     rewards: np.ndarray | None = None
     floor: float = 1e-3
+    own: np.ndarray | None = None
 
     def relative_errors(self) -> np.ndarray:
         """``e_i[k]``, ``(K + 1, N)``: errors over ``max(||x[k]||, floor)``."""
@@ -126,6 +131,7 @@ class EpisodeRecorder:
         self._aoi: list[np.ndarray] = []
         self._msgs: list[np.ndarray] = []
         self._rews: list[np.ndarray] = []
+        self._own: np.ndarray | None = None
 
     def state(self, core, estimates: np.ndarray | None = None) -> None:
         """Record step ``k``: ``||x_hat_i - x||``, ``||x||`` and (network) ``tau``.
@@ -143,6 +149,7 @@ class EpisodeRecorder:
         self._xn.append(np.linalg.norm(x, axis=-1))
         if self.network:
             self._aoi.append(core.tau.copy())
+            self._own = core.own
 
     def step(self, transmit: np.ndarray, reward) -> None:
         """Record the transmissions ``(B, N)`` and rewards ``(B, N)`` of the last step."""
@@ -166,8 +173,10 @@ class EpisodeRecorder:
             return [EpisodeRecord(E[b, : end[b] + 1], X[b, : end[b] + 1], floor=self.floor)
                     for b in range(B)]
         A, M, R = np.stack(self._aoi, 1), np.stack(self._msgs, 1), np.stack(self._rews, 1)
+        own = None if self._own.shape[0] == A.shape[-1] and np.array_equal(
+            self._own, np.arange(A.shape[-1])) else self._own
         return [EpisodeRecord(E[b, : end[b] + 1], X[b, : end[b] + 1], M[b, : end[b]],
-                              A[b, : end[b] + 1], R[b, : end[b]], floor=self.floor)
+                              A[b, : end[b] + 1], R[b, : end[b]], floor=self.floor, own=own)
                 for b in range(B)]
 
 
@@ -242,23 +251,41 @@ def steps_to_epsilon(rel: np.ndarray, eps: float) -> float:
     return float(above[-1] + 1)
 
 
-def aoi_statistics(aoi: np.ndarray | None) -> dict[str, float]:
-    """Age-of-information statistics of ``tau`` (``(K + 1, N, N)``, ``-1`` = omega).
+def aoi_statistics(aoi: np.ndarray | None, own: np.ndarray | None = None
+                   ) -> dict[str, float]:
+    """Age-of-information statistics of ``tau`` (``(K + 1, N, M)``, ``-1`` = omega).
 
-    Only off-diagonal entries count (a source's own index is always 0). Returns
-    ``aoi_mean``, ``aoi_max`` over finite entries and ``aoi_omega_frac``; NaN when
-    ``aoi`` is None or the graph has a single agent.
+    Only the entries of other agents' substates count (a source's own index is always
+    0). Returns ``aoi_mean``, ``aoi_max`` over finite entries and ``aoi_omega_frac``; NaN
+    when ``aoi`` is None or no entry counts (a single agent).
+
+    Parameters
+    ----------
+    aoi : (K + 1, N, M) int array or None
+    own : (N,) int array, optional
+        Column of agent ``i``'s own substate (``-1``: none); default the diagonal, which
+        needs ``M = N``.
     """
     nan = {"aoi_mean": float("nan"), "aoi_max": float("nan"), "aoi_omega_frac": float("nan")}
     if aoi is None:
         return nan
     aoi = np.asarray(aoi)
-    N = aoi.shape[-1]
-    if aoi.ndim != 3 or aoi.shape[1] != N:
-        raise ValueError(f"aoi must have shape (K+1, N, N), got {aoi.shape}")
-    if N < 2:
+    if aoi.ndim != 3:
+        raise ValueError(f"aoi must have shape (K+1, N, M), got {aoi.shape}")
+    N, M = aoi.shape[1:]
+    if own is None:
+        if M != N:
+            raise ValueError(f"aoi of shape {aoi.shape} has M != N columns: pass own")
+        own = np.arange(N)
+    own = np.asarray(own, dtype=np.int64)
+    if own.shape != (N,) or own.max(initial=-1) >= M or own.min(initial=-1) < -1:
+        raise ValueError(f"own must hold N = {N} columns in -1..{M - 1}, got {own.tolist()}")
+    others = np.ones((N, M), dtype=bool)
+    has = own >= 0
+    others[np.flatnonzero(has), own[has]] = False
+    if not others.any():
         return nan
-    off = aoi[:, ~np.eye(N, dtype=bool)]
+    off = aoi[:, others]
     finite = off[off >= 0]
     return {
         "aoi_mean": float(finite.mean()) if finite.size else float("nan"),
@@ -282,7 +309,7 @@ def episode_metrics(rec: EpisodeRecord, eps: float = 1e-2) -> dict[str, float]:
         "reward": (float(np.mean(np.sum(rec.rewards, axis=0))) if rec.rewards is not None
                    else float("nan")),
     }
-    out.update(aoi_statistics(rec.aoi))
+    out.update(aoi_statistics(rec.aoi, rec.own))
     return {m: out[m] for m in METRICS}
 
 

@@ -41,6 +41,8 @@ def _assert_same_results(batched, serial):
     # divergence: members end at their own step
     ("random_structured_n20_N10-v0", ["open_loop", "random", "kf_oracle"],
      {"horizon": 40, "divergence_limit": 3.0}),
+    # one index column per source (M = 20 < N = 100)
+    ("large_n20_N100-v2", ["freshness", "random", "kf_oracle"], {"horizon": 4}),
 ])
 def test_batched_backend_equals_serial_per_seed(scenario, policies, overrides):
     jobs = bm.make_jobs([scenario], policies, [0, 1, 2, 5], overrides=overrides)
