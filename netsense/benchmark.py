@@ -151,7 +151,7 @@ class EpisodeRecorder:
             self._aoi.append(core.tau.copy())
             self._own = core.own
 
-    def step(self, transmit: np.ndarray, reward) -> None:
+    def step(self, transmit: np.ndarray, reward: np.ndarray | Sequence) -> None:
         """Record the transmissions ``(B, N)`` and rewards ``(B, N)`` of the last step."""
         self._msgs.append(np.array(transmit, dtype=bool))
         self._rews.append(np.array(reward, dtype=float))
