@@ -30,8 +30,20 @@ Policies (names accepted by :func:`run_benchmark` and ``netsense benchmark``):
     a policy trained by :mod:`netsense.rl.sb3` and loaded from ``PATH`` (a ``.zip``); in
     ``PATH`` the text ``{scenario}`` is replaced by the scenario id.
 
-Seeds run in parallel in worker processes (``backend="process"``) or as Ray tasks
-(``backend="ray"``, optionally on a cluster given by ``ray_address``), with a tqdm bar.
+Backends (:func:`execute`), all with a tqdm bar and the same results in job order:
+
+``batched`` (default)
+    the jobs of one (scenario, policy, overrides) run as **one** batched simulation
+    (:func:`netsense.vector.rollout_seeds`, one :class:`netsense.envcore.BatchedCore`
+    member per seed) instead of one episode per seed; every policy but ``learned``
+    batches (``random`` with one generator per member, ``kf_oracle`` with a batched
+    centralized filter), and member ``b``'s record equals the single episode of its seed.
+    ``learned`` policies run episode by episode in the calling process;
+``process`` / ``serial``
+    one episode per job (:func:`run_job`) in worker processes / in the calling process;
+``ray``
+    one episode per job as Ray tasks, optionally on a cluster given by ``ray_address``
+    (for learned policies or many scenarios on many machines).
 """
 
 from __future__ import annotations
@@ -71,12 +83,16 @@ class EpisodeRecord:
         ``||x[k]||``.
     messages : (K, N) bool array or None
         Whether agent ``i`` transmitted at step ``k`` (None for the oracle).
-    aoi : (K + 1, N, N) int array or None
-        Freshness indices ``tau_i^{(j)}[k]``, ``-1`` for omega (None when not tracked).
+    aoi : (K + 1, N, M) int array or None
+        Freshness indices ``tau_i^{(j)}[k]``, ``-1`` for omega (None when not tracked);
+        ``M = N`` or, with ``substates = "sources"``, one column per source.
     rewards : (K, N) array or None
         Per-agent rewards (None for the oracle).
     floor : float
         Smallest ``||x||`` used to normalise (the scenario's ``reward.error_floor``).
+    own : (N,) int array or None
+        Column of ``aoi`` holding agent ``i``'s own substate (``-1``: none); None means
+        the diagonal (``M = N``).
     """
 
     errors: np.ndarray
@@ -85,10 +101,83 @@ class EpisodeRecord:
     aoi: np.ndarray | None = None
     rewards: np.ndarray | None = None
     floor: float = 1e-3
+    own: np.ndarray | None = None
 
     def relative_errors(self) -> np.ndarray:
         """``e_i[k]``, ``(K + 1, N)``: errors over ``max(||x[k]||, floor)``."""
         return relative_errors(self.errors, self.x_norm, self.floor)
+
+
+class EpisodeRecorder:
+    """Collects the curves of :class:`EpisodeRecord` from a core's ``B`` members.
+
+    One recorder serves the single episode through the PettingZoo env (``B = 1``, its
+    ``env.core``), the batched runs of :func:`netsense.vector.rollout_seeds` and both forms
+    of the oracle, so every path builds its records the same way.
+
+    Parameters
+    ----------
+    floor : float
+        The scenario's ``reward.error_floor`` (:attr:`EpisodeRecord.floor`).
+    network : bool
+        Record freshness indices, transmissions and rewards (False for the oracle).
+    """
+
+    def __init__(self, floor: float, *, network: bool = True) -> None:
+        self.floor = float(floor)
+        self.network = bool(network)
+        self._errs: list[np.ndarray] = []
+        self._xn: list[np.ndarray] = []
+        self._aoi: list[np.ndarray] = []
+        self._msgs: list[np.ndarray] = []
+        self._rews: list[np.ndarray] = []
+        self._own: np.ndarray | None = None
+
+    def state(self, core, estimates: np.ndarray | None = None) -> None:
+        """Record step ``k``: ``||x_hat_i - x||``, ``||x||`` and (network) ``tau``.
+
+        Parameters
+        ----------
+        core : netsense.envcore.BatchedCore
+        estimates : (B, N', n) array, optional
+            Estimates to score (default the agents' ``core.estimates``; the oracle passes
+            its own, ``N' = 1``).
+        """
+        x = core.x
+        est = core.estimates if estimates is None else estimates
+        self._errs.append(np.linalg.norm(est - x[:, None, :], axis=-1))
+        self._xn.append(np.linalg.norm(x, axis=-1))
+        if self.network:
+            self._aoi.append(core.tau.copy())
+            self._own = core.own
+
+    def step(self, transmit: np.ndarray, reward: np.ndarray | Sequence) -> None:
+        """Record the transmissions ``(B, N)`` and rewards ``(B, N)`` of the last step."""
+        self._msgs.append(np.array(transmit, dtype=bool))
+        self._rews.append(np.array(reward, dtype=float))
+
+    def records(self, end: Sequence[int] | None = None) -> list[EpisodeRecord]:
+        """One record per member, member ``b`` cut after its last step ``end[b]``.
+
+        Parameters
+        ----------
+        end : sequence of B ints, optional
+            The step at which each member's episode ended (default: the last recorded).
+        """
+        E, X = np.stack(self._errs, 1), np.stack(self._xn, 1)
+        B, K = E.shape[0], E.shape[1] - 1
+        end = np.full(B, K) if end is None else np.asarray(end, dtype=np.int64)
+        if end.shape != (B,) or end.min() < 0 or end.max() > K:
+            raise ValueError(f"end must hold {B} steps in 0..{K}, got {end.tolist()}")
+        if not self.network:
+            return [EpisodeRecord(E[b, : end[b] + 1], X[b, : end[b] + 1], floor=self.floor)
+                    for b in range(B)]
+        A, M, R = np.stack(self._aoi, 1), np.stack(self._msgs, 1), np.stack(self._rews, 1)
+        own = None if self._own.shape[0] == A.shape[-1] and np.array_equal(
+            self._own, np.arange(A.shape[-1])) else self._own
+        return [EpisodeRecord(E[b, : end[b] + 1], X[b, : end[b] + 1], M[b, : end[b]],
+                              A[b, : end[b] + 1], R[b, : end[b]], floor=self.floor, own=own)
+                for b in range(B)]
 
 
 @dataclass(frozen=True)
@@ -162,23 +251,41 @@ def steps_to_epsilon(rel: np.ndarray, eps: float) -> float:
     return float(above[-1] + 1)
 
 
-def aoi_statistics(aoi: np.ndarray | None) -> dict[str, float]:
-    """Age-of-information statistics of ``tau`` (``(K + 1, N, N)``, ``-1`` = omega).
+def aoi_statistics(aoi: np.ndarray | None, own: np.ndarray | None = None
+                   ) -> dict[str, float]:
+    """Age-of-information statistics of ``tau`` (``(K + 1, N, M)``, ``-1`` = omega).
 
-    Only off-diagonal entries count (a source's own index is always 0). Returns
-    ``aoi_mean``, ``aoi_max`` over finite entries and ``aoi_omega_frac``; NaN when
-    ``aoi`` is None or the graph has a single agent.
+    Only the entries of other agents' substates count (a source's own index is always
+    0). Returns ``aoi_mean``, ``aoi_max`` over finite entries and ``aoi_omega_frac``; NaN
+    when ``aoi`` is None or no entry counts (a single agent).
+
+    Parameters
+    ----------
+    aoi : (K + 1, N, M) int array or None
+    own : (N,) int array, optional
+        Column of agent ``i``'s own substate (``-1``: none); default the diagonal, which
+        needs ``M = N``.
     """
     nan = {"aoi_mean": float("nan"), "aoi_max": float("nan"), "aoi_omega_frac": float("nan")}
     if aoi is None:
         return nan
     aoi = np.asarray(aoi)
-    N = aoi.shape[-1]
-    if aoi.ndim != 3 or aoi.shape[1] != N:
-        raise ValueError(f"aoi must have shape (K+1, N, N), got {aoi.shape}")
-    if N < 2:
+    if aoi.ndim != 3:
+        raise ValueError(f"aoi must have shape (K+1, N, M), got {aoi.shape}")
+    N, M = aoi.shape[1:]
+    if own is None:
+        if M != N:
+            raise ValueError(f"aoi of shape {aoi.shape} has M != N columns: pass own")
+        own = np.arange(N)
+    own = np.asarray(own, dtype=np.int64)
+    if own.shape != (N,) or own.max(initial=-1) >= M or own.min(initial=-1) < -1:
+        raise ValueError(f"own must hold N = {N} columns in -1..{M - 1}, got {own.tolist()}")
+    others = np.ones((N, M), dtype=bool)
+    has = own >= 0
+    others[np.flatnonzero(has), own[has]] = False
+    if not others.any():
         return nan
-    off = aoi[:, ~np.eye(N, dtype=bool)]
+    off = aoi[:, others]
     finite = off[off >= 0]
     return {
         "aoi_mean": float(finite.mean()) if finite.size else float("nan"),
@@ -202,7 +309,7 @@ def episode_metrics(rec: EpisodeRecord, eps: float = 1e-2) -> dict[str, float]:
         "reward": (float(np.mean(np.sum(rec.rewards, axis=0))) if rec.rewards is not None
                    else float("nan")),
     }
-    out.update(aoi_statistics(rec.aoi))
+    out.update(aoi_statistics(rec.aoi, rec.own))
     return {m: out[m] for m in METRICS}
 
 
@@ -217,6 +324,11 @@ class CentralizedKF:
     plant's noise models; a noise-free plant gets ``jitter`` so the filter stays well
     posed (it then acts like a near-deadbeat centralized observer).
 
+    With ``batch_size=B`` it runs ``B`` independent filters (one per member of a
+    :class:`netsense.envcore.BatchedCore`) as stacked arrays: members whose arrived
+    measurements coincide share one stacked update, and every member computes exactly
+    what a single filter computes on its data.
+
     Parameters
     ----------
     plant : netsense.systems.Plant
@@ -224,9 +336,17 @@ class CentralizedKF:
         Prior ``x[0] ~ N(0, x0_std^2 I)`` (the scenario's initial-state law).
     jitter : float
         Covariance floor for noise-free plants.
+    batch_size : int, optional
+        ``B`` filters; then :attr:`x` is ``(B, n)``, :attr:`P` ``(B, n, n)`` and
+        :meth:`step` takes ``(B, N, r_max)`` measurements. Default: one filter with
+        unbatched shapes.
     """
 
-    def __init__(self, plant, *, x0_std: float = 1.0, jitter: float = 1e-9) -> None:
+    def __init__(self, plant, *, x0_std: float = 1.0, jitter: float = 1e-9,
+                 batch_size: int | None = None) -> None:
+        if batch_size is not None and (isinstance(batch_size, bool) or int(batch_size) < 1
+                                       or int(batch_size) != batch_size):
+            raise ValueError(f"batch_size must be an integer >= 1 or None, got {batch_size!r}")
         self.A = np.asarray(plant.A, dtype=float)
         W = plant.W_effective
         self.Qw = max(_noise_variance(plant.process_noise), jitter) * (W @ W.T)
@@ -234,29 +354,98 @@ class CentralizedKF:
         self.rows = plant.output_mask  # (N, r_max)
         self.r_var = max(_noise_variance(plant.measurement_noise), jitter)
         n = self.A.shape[0]
-        self.x = np.zeros(n)
-        self.P = max(x0_std, jitter) ** 2 * np.eye(n)
+        self.batch_size = None if batch_size is None else int(batch_size)
+        B = self.batch_size or 1
+        self._x = np.zeros((B, n))
+        self._P = np.repeat((max(x0_std, jitter) ** 2 * np.eye(n))[None], B, axis=0)
+
+    @property
+    def x(self) -> np.ndarray:
+        """Prediction of ``x[k]``: ``(n,)``, or ``(B, n)`` when batched (a view)."""
+        return self._x if self.batch_size is not None else self._x[0]
+
+    @property
+    def P(self) -> np.ndarray:
+        """Its covariance: ``(n, n)``, or ``(B, n, n)`` when batched (a view)."""
+        return self._P if self.batch_size is not None else self._P[0]
 
     @property
     def estimate(self) -> np.ndarray:
-        """Current prediction of ``x[k]``, ``(n,)``."""
+        """Copy of the current prediction of ``x[k]`` (shape of :attr:`x`)."""
         return self.x.copy()
 
-    def step(self, y_padded: np.ndarray, arrived: np.ndarray | None = None) -> np.ndarray:
-        """Update with ``y[k]`` (``(N, r_max)``, rows of ``arrived`` agents) and predict."""
-        use = self.rows if arrived is None else self.rows & np.asarray(arrived)[:, None]
-        C = self.C_pad[use]
-        if C.shape[0]:
-            y = np.asarray(y_padded, dtype=float)[use]
-            S = C @ self.P @ C.T + self.r_var * np.eye(C.shape[0])
-            K = np.linalg.solve(S, C @ self.P).T
-            self.x = self.x + K @ (y - C @ self.x)
-            I_KC = np.eye(self.x.shape[0]) - K @ C
-            self.P = I_KC @ self.P @ I_KC.T + self.r_var * K @ K.T
-        self.x = self.A @ self.x
-        self.P = self.A @ self.P @ self.A.T + self.Qw
-        self.P = 0.5 * (self.P + self.P.T)
+    def step(self, y_padded: np.ndarray, arrived: np.ndarray | None = None,
+             members: np.ndarray | None = None) -> np.ndarray:
+        """Update with ``y[k]`` (rows of the ``arrived`` agents) and predict ``x[k+1]``.
+
+        Parameters
+        ----------
+        y_padded : (N, r_max) array, or (B, N, r_max) when batched
+        arrived : (N,) bool, or (B, N) when batched, optional
+            Agents whose ``y_i[k]`` arrived (default all).
+        members : (B,) bool, optional
+            Batched only: advance just these filters (the others are left as they are,
+            e.g. members whose episode already ended).
+
+        Returns
+        -------
+        array
+            :attr:`x`, the new prediction.
+        """
+        B, (N, r) = self._x.shape[0], self.rows.shape
+        y = np.asarray(y_padded, dtype=float)
+        arr = None if arrived is None else np.asarray(arrived, dtype=bool)
+        if self.batch_size is None:
+            if members is not None:
+                raise ValueError("members needs a batched filter (batch_size=B)")
+            y = y[None]
+            arr = None if arr is None else arr[None]
+        if y.shape != (B, N, r) or (arr is not None and arr.shape != (B, N)):
+            lead = () if self.batch_size is None else (B,)
+            raise ValueError(f"y_padded must have shape {lead + (N, r)} and arrived "
+                             f"{lead + (N,)}, got {np.shape(y_padded)} and "
+                             f"{None if arrived is None else np.shape(arrived)}")
+        use = (np.broadcast_to(self.rows, (B, N, r)) if arr is None
+               else self.rows & arr[..., None])
+        if members is None:
+            live = np.arange(B)
+        else:
+            sel = np.asarray(members, dtype=bool)
+            if sel.shape != (B,):
+                raise ValueError(f"members must have shape ({B},), got {sel.shape}")
+            live = np.flatnonzero(sel)
+        if live.size == 0:
+            return self.x
+        # members with the same measurement rows share one stacked update
+        pattern = use[live].reshape(live.size, -1)
+        if (pattern == pattern[:1]).all():
+            groups = [live]
+        else:
+            _, inv = np.unique(pattern, axis=0, return_inverse=True)
+            inv = inv.reshape(-1)
+            groups = [live[inv == g] for g in range(int(inv.max()) + 1)]
+        for g in groups:
+            self._update(g, use[g[0]], y[g])
+        x, P = self._x[live], self._P[live]
+        x = (self.A @ x[..., None])[..., 0]
+        P = self.A @ P @ self.A.T + self.Qw
+        self._x[live] = x
+        self._P[live] = 0.5 * (P + np.swapaxes(P, -1, -2))
         return self.x
+
+    def _update(self, g: np.ndarray, use: np.ndarray, y: np.ndarray) -> None:
+        """Measurement update of filters ``g`` whose measurement rows are ``use``."""
+        C = self.C_pad[use]  # (m, n)
+        if not C.shape[0]:
+            return
+        x, P = self._x[g], self._P[g]
+        S = C @ P @ C.T + self.r_var * np.eye(C.shape[0])
+        K = np.swapaxes(np.linalg.solve(S, C @ P), -1, -2)  # (G, n, m)
+        innov = y[:, use] - (C @ x[..., None])[..., 0]
+        x = x + (K @ innov[..., None])[..., 0]
+        I_KC = np.eye(x.shape[-1]) - K @ C
+        P = I_KC @ P @ np.swapaxes(I_KC, -1, -2) + self.r_var * K @ np.swapaxes(K, -1, -2)
+        self._x[g], self._P[g] = x, P
 
 
 def _noise_variance(model) -> float:
@@ -269,7 +458,7 @@ def _noise_variance(model) -> float:
 
 
 # ---------------------------------------------------------------------------- rollouts
-class NotApplicable(Exception):
+class NotApplicable(ValueError):
     """A policy that does not apply to a scenario (e.g. tree consensus on random graphs)."""
 
 
@@ -284,12 +473,35 @@ _SCRIPTED = {"freshness": "freshness", "uniform_consensus": "uniform",
              "tree_consensus": "tree", "open_loop": "open_loop", "random": "random"}
 
 
-def _scripted(name: str, env, seed: int):
-    """A scripted policy of :mod:`netsense.policies` for ``env`` (``random`` is seeded)."""
+def scripted_policy(name: str, env, seed: int | Sequence[int]):
+    """The scripted policy ``name`` (a benchmark name) of :mod:`netsense.policies`.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`SCRIPTED_POLICIES`.
+    env : netsense.env.NetSenseEnv or netsense.envcore.BatchedCore
+    seed : int or sequence of int
+        Seeds ``random`` (a sequence: one generator per batch member, see
+        :class:`netsense.policies.RandomPolicy`); unused by the other policies.
+
+    Raises
+    ------
+    NotApplicable
+        ``tree_consensus`` on a scenario without a periodic graph schedule.
+    """
     from netsense.policies import make_policy
 
+    if name not in _SCRIPTED:
+        raise ValueError(f"unknown scripted policy {name!r}; choose from "
+                         f"{', '.join(SCRIPTED_POLICIES)}")
     kwargs = {"seed": seed} if name == "random" else {}
-    return make_policy(_SCRIPTED[name], env, **kwargs)
+    try:
+        return make_policy(_SCRIPTED[name], env, **kwargs)
+    except ValueError as exc:
+        if name == "tree_consensus":  # needs a periodic graph schedule
+            raise NotApplicable(str(exc)) from exc
+        raise
 
 
 def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
@@ -298,11 +510,11 @@ def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
 
     The true state, every estimate and the freshness indices are read from the
     environment's core after each step (``env.core``); transmissions are the transmit
-    bits the agents chose.
+    bits the agents chose. :func:`netsense.vector.rollout_seeds` is the batched
+    counterpart (one run for many seeds, the same record per seed).
     """
     env = _make_env(scenario, overrides)
     core = env.core
-    floor = env.model.reward.error_floor
     learned = policy.startswith("learned")
     if learned:
         from netsense.rl.sb3 import LearnedPolicy
@@ -318,33 +530,19 @@ def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
             return model.act(o, agent_env)
     else:
         agent_env = env
-        try:
-            pol = _scripted(policy, env, seed)
-        except ValueError as exc:
-            if policy == "tree_consensus":  # needs a periodic graph schedule
-                raise NotApplicable(str(exc)) from exc
-            raise
+        pol = scripted_policy(policy, env, seed)
 
         def act(o, i):
             return pol.act_dict(env, o, i)
     obs, infos = agent_env.reset(seed=seed)
-    errs, xn, aoi, msgs, rews = [], [], [], [], []
-
-    def record() -> None:
-        x = core.x[0]
-        errs.append(np.linalg.norm(core.estimates[0] - x, axis=-1))
-        xn.append(np.linalg.norm(x))
-        aoi.append(core.tau[0].copy())
-
-    record()
+    rec = EpisodeRecorder(env.model.reward.error_floor)
+    rec.state(core)
     while env.agents:
         actions = act(obs, infos)
         obs, rew, term, trunc, infos = agent_env.step(actions)
-        record()
-        msgs.append(core.transmit[0].copy())
-        rews.append([rew[a] for a in env.possible_agents])
-    return EpisodeRecord(np.array(errs), np.array(xn), np.array(msgs), np.array(aoi),
-                         np.array(rews, dtype=float), floor=floor)
+        rec.state(core)
+        rec.step(core.transmit, [[rew[a] for a in env.possible_agents]])
+    return rec.records()[0]
 
 
 def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> EpisodeRecord:
@@ -352,26 +550,32 @@ def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> E
 
     The environment is stepped with the always-valid "keep everything, stay silent"
     action just to advance the plant and draw the measurements; only ``x[k]`` and
-    ``y[k]`` are used.
+    ``y[k]`` are used. ``rollout_seeds(scenario, "kf_oracle", seeds)`` of
+    :mod:`netsense.vector` runs many seeds as one batch with the same records.
     """
     env = _make_env(scenario, overrides)
     core = env.core
-    kf = CentralizedKF(env.model.plant, x0_std=env.model.x0_std)
+    kf = CentralizedKF(env.model.plant, x0_std=env.model.x0_std, batch_size=1)
     env.reset(seed=seed)
     idle = {a: np.zeros(core.M + 1, dtype=np.int64) for a in env.possible_agents}
-    errs, xn = [], []
+    rec = EpisodeRecorder(env.model.reward.error_floor, network=False)
     while True:
-        x = core.x[0]
-        errs.append([np.linalg.norm(kf.estimate - x)])
-        xn.append(np.linalg.norm(x))
+        rec.state(core, kf.x[:, None, :])
         if not env.agents:
             break
-        kf.step(core.y[0], core.y_arrived[0])
+        kf.step(core.y, core.y_arrived)
         env.step(idle)
-    return EpisodeRecord(np.array(errs), np.array(xn), floor=env.model.reward.error_floor)
+    return rec.records()[0]
 
 
 # ---------------------------------------------------------------------------- runners
+def _result(job: Job, rec: EpisodeRecord) -> dict:
+    """The result dict of ``job`` from its record (shared by every backend)."""
+    rel = rec.relative_errors()
+    return {"job": asdict(job), "metrics": episode_metrics(rec, job.eps),
+            "curve": np.mean(rel, axis=1)}
+
+
 def run_job(job: Job) -> dict | None:
     """Run one episode; returns ``{"job": ..., "metrics": ..., "curve": ...}``.
 
@@ -386,9 +590,80 @@ def run_job(job: Job) -> dict | None:
             rec = rollout(job.scenario, job.policy, job.seed, job.overrides)
     except NotApplicable:
         return None
-    rel = rec.relative_errors()
-    return {"job": asdict(job), "metrics": episode_metrics(rec, job.eps),
-            "curve": np.mean(rel, axis=1)}
+    return _result(job, rec)
+
+
+#: Memory budget (bytes) of the records of one batch of the batched backend; larger
+#: groups of seeds run as several batches (e.g. 16 seeds of a 100-agent, 200-step
+#: scenario, whose freshness indices alone take 16 MB per episode).
+BATCH_BYTES = 256 * 2**20
+
+
+def _members_per_batch(model) -> int:
+    """Seeds per batch so that the records of one batch stay within :data:`BATCH_BYTES`."""
+    N, K = model.plant.num_agents, int(model.horizon)
+    per_member = (K + 1) * (8 * N * N + 8 * N + 8) + K * 9 * N  # indices, errors, ...
+    return max(1, BATCH_BYTES // per_member)
+
+
+def run_batched(jobs: Sequence[Job], *, runner: Callable[[Job], dict | None] = run_job,
+                on_done: Callable[[int], object] | None = None) -> list[dict | None]:
+    """Run ``jobs`` as batched simulations, one per (scenario, policy, overrides) group.
+
+    The seeds of a group run as one :func:`netsense.vector.rollout_seeds` batch (split
+    into batches whose records fit :data:`BATCH_BYTES`), so a group costs about one
+    episode of Python per step instead of one per seed. Policies outside
+    :data:`netsense.vector.BATCHABLE_POLICIES` (``learned``) run job by job through
+    ``runner`` in this process. A group whose policy does not apply to the scenario
+    (:class:`NotApplicable`) gives None for each of its jobs, as :func:`run_job` does.
+
+    Parameters
+    ----------
+    jobs : sequence of Job
+    runner : callable
+        Per-job function for the policies that cannot batch.
+    on_done : callable, optional
+        Called with the number of jobs just finished (progress).
+
+    Returns
+    -------
+    list of dict or None
+        One entry per job, in job order, equal to ``[runner(job) for job in jobs]``
+        (estimates up to the last bits of the matrix products).
+    """
+    from netsense.vector import BATCHABLE_POLICIES, load_model, rollout_seeds
+
+    jobs = list(jobs)
+    done = on_done or (lambda count: None)
+    results: list[dict | None] = [None] * len(jobs)
+    groups: list[tuple[tuple, list[int]]] = []  # overrides are dicts: compared, not hashed
+    for i, job in enumerate(jobs):
+        key = (job.scenario, job.policy, job.overrides)
+        for k, members in groups:
+            if k == key:
+                members.append(i)
+                break
+        else:
+            groups.append((key, [i]))
+    for (scenario, policy, overrides), idx in groups:
+        if policy not in BATCHABLE_POLICIES:
+            for i in idx:
+                results[i] = runner(jobs[i])
+                done(1)
+            continue
+        model, _ = load_model(scenario, **overrides)
+        size = _members_per_batch(model)
+        for start in range(0, len(idx), size):
+            part = idx[start:start + size]
+            try:
+                recs = rollout_seeds(model, policy, [jobs[i].seed for i in part])
+            except NotApplicable:
+                done(len(idx) - start)  # the whole group is skipped
+                break
+            for i, rec in zip(part, recs, strict=True):
+                results[i] = _result(jobs[i], rec)
+            done(len(part))
+    return results
 
 
 def _progress(total: int, desc: str, enabled: bool):
@@ -397,7 +672,11 @@ def _progress(total: int, desc: str, enabled: bool):
     return tqdm(total=total, desc=desc, disable=not enabled, unit="ep")
 
 
-def execute(jobs: Sequence[Job], *, backend: str = "process", workers: int | None = None,
+#: Backends of :func:`execute`.
+BACKENDS = ("batched", "process", "serial", "ray")
+
+
+def execute(jobs: Sequence[Job], *, backend: str = "batched", workers: int | None = None,
             ray_address: str | None = None, progress: bool = True,
             runner: Callable[[Job], dict | None] = run_job) -> list[dict]:
     """Run ``jobs`` and return their results in job order (skipping inapplicable ones).
@@ -405,25 +684,39 @@ def execute(jobs: Sequence[Job], *, backend: str = "process", workers: int | Non
     Parameters
     ----------
     jobs : sequence of Job
-    backend : {"process", "serial", "ray"}
-        Worker processes on this machine, the calling process, or Ray tasks.
+    backend : {"batched", "process", "serial", "ray"}
+        ``batched``: the seeds of each (scenario, policy, overrides) as one batched run
+        in this process (:func:`run_batched`; learned policies episode by episode);
+        ``process``: one episode per job in worker processes; ``serial``: one episode per
+        job in this process; ``ray``: one episode per job as Ray tasks. All return the
+        same results (batched: estimates up to the last bits of the matrix products).
     workers : int, optional
-        Process count (default ``min(len(jobs), os.cpu_count())``).
+        Process count of ``process`` (default ``min(len(jobs), os.cpu_count())``); the
+        other backends ignore it.
     ray_address : str, optional
         ``ray.init(address=...)`` (e.g. ``"auto"`` or ``"ray://head:10001"``); default a
         local Ray instance.
     progress : bool
-        Show a tqdm bar.
+        Show a tqdm bar (per episode; per batch of seeds with ``batched``).
     runner : callable
-        The per-job function (module level, picklable).
+        The per-job function (module level, picklable); with ``batched`` it runs only
+        the jobs whose policy cannot batch.
+
+    Returns
+    -------
+    list of dict
+        ``{"job", "metrics", "curve"}`` per applicable job (see :func:`run_job`).
     """
-    if backend not in ("process", "serial", "ray"):
-        raise ValueError(f"backend must be 'process', 'serial' or 'ray', got {backend!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, "
+                         f"got {backend!r}")
     jobs = list(jobs)
     results: list[dict | None] = [None] * len(jobs)
     bar = _progress(len(jobs), f"benchmark ({backend})", progress)
     try:
-        if backend == "serial" or (backend == "process" and (workers or 2) <= 1):
+        if backend == "batched":
+            results = run_batched(jobs, runner=runner, on_done=bar.update)
+        elif backend == "serial" or (backend == "process" and (workers or 2) <= 1):
             for i, job in enumerate(jobs):
                 results[i] = runner(job)
                 bar.update()
@@ -630,13 +923,30 @@ def make_jobs(scenarios: Sequence[str], policies: Sequence[str], seeds: Sequence
 
 def run_benchmark(scenarios: Sequence[str], policies: Sequence[str] = DEFAULT_POLICIES,
                   seeds: Sequence[int] = range(5), *, out: str | Path | None = None,
-                  overrides: dict | None = None, eps: float = 1e-2, backend: str = "process",
+                  overrides: dict | None = None, eps: float = 1e-2, backend: str = "batched",
                   workers: int | None = None, ray_address: str | None = None,
                   progress: bool = True) -> tuple[list[dict], list[dict]]:
     """Run the benchmark and (when ``out`` is given) write its CSV, table and plots.
 
     Writes ``episodes.csv`` (one row per episode), ``summary.csv`` and ``summary.md``
     (mean ± std over seeds), ``errors_<scenario>.png`` and ``reward_vs_messages.png``.
+
+    Parameters
+    ----------
+    scenarios : sequence of str
+        Scenario ids.
+    policies : sequence of str
+        Policy names (see the module docstring).
+    seeds : sequence of int
+        Seeds of every (scenario, policy).
+    out : str or Path, optional
+        Output directory (nothing is written without it).
+    overrides : dict, optional
+        Scenario overrides for every scenario.
+    eps : float
+        Threshold of ``steps_to_eps``.
+    backend, workers, ray_address, progress
+        As in :func:`execute` (default ``backend="batched"``).
 
     Returns
     -------

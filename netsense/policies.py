@@ -23,6 +23,8 @@ policy                  rule
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from netsense.envcore import ObsLayout
@@ -151,24 +153,56 @@ class OpenLoopPolicy(Policy):
 
 
 class RandomPolicy(Policy):
-    """Uniformly random unmasked choices; transmit with probability ``p_transmit``."""
+    """Uniformly random unmasked choices; transmit with probability ``p_transmit``.
+
+    Parameters
+    ----------
+    layout : ObsLayout
+    seed : int, sequence of int, or None
+        An int (or None) seeds one generator shared by the whole batch. A sequence of
+        ``B`` seeds gives batch member ``b`` its own generator ``default_rng(seed[b])``,
+        from which it draws exactly what a ``B = 1`` policy with ``seed=seed[b]`` draws
+        on the same observations; so a batch of seeds reproduces the single episodes
+        (used by :func:`netsense.vector.rollout_seeds`).
+    p_transmit : float
+        Probability of transmitting, per agent and step.
+    """
 
     name = "random"
 
-    def __init__(self, layout: ObsLayout, seed: int | None = None,
+    def __init__(self, layout: ObsLayout, seed: int | Sequence[int] | None = None,
                  p_transmit: float = 0.5) -> None:
         super().__init__(layout)
-        self.rng = np.random.default_rng(seed)
+        if seed is None or np.ndim(seed) == 0:
+            self.rng = np.random.default_rng(seed)
+            self.member_rngs = None
+        else:
+            seeds = [int(s) for s in seed]
+            if not seeds:
+                raise ValueError("seed must be an int, None or a non-empty sequence of ints")
+            self.rng = None
+            self.member_rngs = [np.random.default_rng(s) for s in seeds]
         self.p_transmit = p_transmit
 
     def act(self, obs, mask):
         N, D, M = self.N, self.D, self.M
         B = obs.shape[0]
         m = mask[..., : M * (D + 2)].reshape(B, N, M, D + 2).astype(float)
-        u = self.rng.random(m.shape) * m  # masked choices score 0, allowed ones > 0
+        if self.member_rngs is None:
+            u = self.rng.random(m.shape)
+            t = self.rng.random((B, N))
+        else:
+            if B != len(self.member_rngs):
+                raise ValueError(f"this random policy has {len(self.member_rngs)} member "
+                                 f"generators, got a batch of {B} observations")
+            # per member, the draws of a B = 1 policy: its choices, then its transmit bits
+            draws = [(g.random(m.shape[1:]), g.random(N)) for g in self.member_rngs]
+            u = np.stack([d[0] for d in draws])
+            t = np.stack([d[1] for d in draws])
+        u *= m  # masked choices score 0, allowed ones > 0
         out = self._base(obs, 0)
         out[..., :M] = np.argmax(u, axis=-1)
-        out[..., M] = self.rng.random((B, N)) < self.p_transmit
+        out[..., M] = t < self.p_transmit
         return out
 
 

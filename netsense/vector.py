@@ -13,8 +13,8 @@ class                   what it is
 :func:`make_sb3_vec_env`  a Stable-Baselines3 ``VecEnv`` with the same ``B x N`` slots and an
                         ``action_masks()`` method, so ``sb3_contrib.MaskablePPO`` trains on it
                         directly (SB3 is imported only when this is called)
-:func:`rollout_seeds`   benchmark episodes of many seeds as one batch (scripted policies);
-                        the records equal :func:`netsense.benchmark.rollout`'s per seed
+:func:`rollout_seeds`   benchmark episodes of many seeds as one batch (scripted policies
+                        and the KF oracle); the records equal the benchmark's per seed
 ======================  ======================================================================
 
 No rule is re-implemented here: every step is one call of :meth:`BatchedCore.step` on the
@@ -361,66 +361,84 @@ class AgentVectorEnv(VectorEnv):
 
 
 # ---------------------------------------------------------------------------- benchmark
-#: Scripted benchmark policies that :func:`rollout_seeds` runs as one batch (deterministic
-#: given the observations, so a batch member equals the single-env episode of its seed).
-BATCHABLE_POLICIES = {"freshness": "freshness", "uniform_consensus": "uniform",
-                      "tree_consensus": "tree", "open_loop": "open_loop"}
+#: Benchmark policies that :func:`rollout_seeds` runs as one batch: the scripted ones
+#: (``random`` with one generator per member) and the centralized KF oracle. Learned
+#: policies act through the PettingZoo env episode by episode (:func:`netsense.benchmark.
+#: rollout`).
+BATCHABLE_POLICIES = ("freshness", "uniform_consensus", "tree_consensus", "open_loop",
+                      "random", "kf_oracle")
 
 
 def rollout_seeds(scenario: str | CoreModel, policy: str, seeds: Sequence[int],
                   overrides: dict | None = None) -> list:
     """Episodes of several seeds as **one** batched run; one record per seed.
 
-    The batched counterpart of :func:`netsense.benchmark.rollout` for the scripted
-    policies in :data:`BATCHABLE_POLICIES`: member ``b`` is seeded with ``seeds[b]``, so
-    its record equals ``rollout(scenario, policy, seeds[b], overrides)`` (same errors up
-    to matmul rounding, identical indices, transmissions and rewards). Members that end
+    The batched counterpart of :func:`netsense.benchmark.rollout` (and, for
+    ``"kf_oracle"``, of :func:`netsense.benchmark.rollout_oracle`) for the policies in
+    :data:`BATCHABLE_POLICIES`: member ``b`` is seeded with ``seeds[b]``, so its record
+    equals ``rollout(scenario, policy, seeds[b], overrides)`` (same errors up to matmul
+    rounding, identical indices, transmissions and rewards). ``random`` draws member
+    ``b``'s choices from its own generator seeded with ``seeds[b]``, as the single
+    episode does; ``kf_oracle`` steps the members with the idle action (keep every
+    estimate, stay silent) and runs one centralized filter per member
+    (:class:`netsense.benchmark.CentralizedKF` with ``batch_size=B``). Members that end
     early (``divergence_limit``) are cut at their last step, like the single episode.
+
+    Parameters
+    ----------
+    scenario : str or CoreModel
+    policy : str
+        One of :data:`BATCHABLE_POLICIES`.
+    seeds : sequence of int
+        One batch member per seed.
+    overrides : dict, optional
+        Scenario overrides (with a scenario id only).
 
     Returns
     -------
     list of netsense.benchmark.EpisodeRecord
+
+    Raises
+    ------
+    netsense.benchmark.NotApplicable
+        ``tree_consensus`` on a scenario without a periodic graph schedule.
     """
-    from netsense.benchmark import EpisodeRecord
-    from netsense.policies import make_policy
+    from netsense.benchmark import CentralizedKF, EpisodeRecorder, scripted_policy
 
     if policy not in BATCHABLE_POLICIES:
         raise ValueError(f"policy {policy!r} cannot run batched; choose one of "
-                         f"{sorted(BATCHABLE_POLICIES)} (random and learned policies keep "
-                         "their per-episode seeding in netsense.benchmark)")
+                         f"{', '.join(BATCHABLE_POLICIES)} (learned policies run episode by "
+                         "episode in netsense.benchmark)")
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("seeds must be non-empty")
     model, _ = load_model(scenario, **dict(overrides or {}))
-    core = BatchedCore(model, len(seeds))
+    B = len(seeds)
+    core = BatchedCore(model, B)
+    oracle = policy == "kf_oracle"
+    if oracle:
+        kf = CentralizedKF(model.plant, x0_std=model.x0_std, batch_size=B)
+        idle = np.zeros((B, core.N, core.M + 1), dtype=np.int64)
+    else:
+        pol = scripted_policy(policy, core, seeds)
     obs, mask = core.reset(seeds)
-    pol = make_policy(BATCHABLE_POLICIES[policy], core)
-    B = core.B
-    errs, xn, aoi, msgs, rews = [], [], [], [], []
-
-    def record() -> None:
-        x = core.x
-        errs.append(np.linalg.norm(core.estimates - x[:, None, :], axis=-1))
-        xn.append(np.linalg.norm(x, axis=-1))
-        aoi.append(core.tau.copy())
-
-    record()
+    rec = EpisodeRecorder(model.reward.error_floor, network=not oracle)
+    rec.state(core, kf.x[:, None, :] if oracle else None)
     end = np.full(B, -1)
     k = 0
     while (end < 0).any():
-        out = core.step(pol.act(obs, mask))
-        obs, mask = out.obs, out.action_mask
+        if oracle:
+            kf.step(core.y, core.y_arrived, members=end < 0)
+            out = core.step(idle, observe=False)
+            rec.state(core, kf.x[:, None, :])
+        else:
+            out = core.step(pol.act(obs, mask))
+            obs, mask = out.obs, out.action_mask
+            rec.state(core)
+            rec.step(core.transmit, out.reward)
         k += 1
-        record()
-        msgs.append(core.transmit.copy())
-        rews.append(out.reward)
-        end[((out.terminated | out.truncated) & (end < 0))] = k
-    E, X, A = np.stack(errs, 1), np.stack(xn, 1), np.stack(aoi, 1)
-    M, R = np.stack(msgs, 1), np.stack(rews, 1)
-    floor = model.reward.error_floor
-    return [EpisodeRecord(E[b, : end[b] + 1], X[b, : end[b] + 1], M[b, : end[b]],
-                          A[b, : end[b] + 1], R[b, : end[b]].astype(float), floor=floor)
-            for b in range(B)]
+        end[(out.terminated | out.truncated) & (end < 0)] = k
+    return rec.records(end)
 
 
 # ---------------------------------------------------------------------------- SB3

@@ -44,6 +44,18 @@ def test_aoi_statistics_ignore_diagonal_and_omega():
     assert all(math.isnan(v) for v in bm.aoi_statistics(None).values())
 
 
+def test_aoi_statistics_with_source_columns():
+    # N = 3 agents, M = 2 substates (sources 0 and 2): agent 0 owns column 0, agent 2
+    # column 1, agent 1 none; the own entries (always 0 here) do not count
+    tau = np.array([[[0, -1], [4, 2], [-1, 0]]])  # (K+1=1, N=3, M=2)
+    s = bm.aoi_statistics(tau, own=np.array([0, -1, 1]))
+    assert s == {"aoi_mean": 3.0, "aoi_max": 4.0, "aoi_omega_frac": 0.5}
+    with pytest.raises(ValueError, match="pass own"):
+        bm.aoi_statistics(tau)
+    with pytest.raises(ValueError, match="own must hold"):
+        bm.aoi_statistics(tau, own=np.array([0, 2, 1]))
+
+
 def test_episode_metrics_by_hand():
     rec = bm.EpisodeRecord(
         errors=np.array([[1.0, 1.0], [0.5, 0.1], [0.0, 0.0]]), x_norm=np.array([1.0, 1.0, 2.0]),

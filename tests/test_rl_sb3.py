@@ -129,6 +129,13 @@ def test_train_then_benchmark_fig1(tmp_path):
     assert np.isfinite(learned_row["mean_rel_error_mean"])
     assert np.isfinite(learned_row["final_rel_error_mean"])
     assert 0.0 <= learned_row["msgs_per_agent_step_mean"] <= 1.0
+    # the batched backend: learned jobs fall back to per-episode runs, freshness batches
+    batched, _ = bm.run_benchmark(["fig1_scalar-v0"], ["learned:" + str(policy), "freshness"],
+                                  [0, 1], overrides={"horizon": 12}, progress=False)
+    assert [r["job"] for r in batched] == [r["job"] for r in results]
+    for a, b in zip(batched, results, strict=True):
+        np.testing.assert_allclose(a["curve"], b["curve"], rtol=1e-12, atol=1e-12)
+        assert a["metrics"]["msgs_per_agent_step"] == b["metrics"]["msgs_per_agent_step"]
 
 
 def test_learned_policy_path_must_exist(tmp_path):

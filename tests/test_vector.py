@@ -242,7 +242,8 @@ def test_agent_vector_env_works_with_gymnasium_vector_wrappers():
 
 @pytest.mark.parametrize("sid,policy", [("link_failures-v0", "freshness"),
                                         ("fig1_scalar-v0", "tree_consensus"),
-                                        ("message_cost-v0", "uniform_consensus")])
+                                        ("message_cost-v0", "uniform_consensus"),
+                                        ("message_cost-v0", "random")])
 def test_rollout_seeds_equals_the_benchmark_rollout_per_seed(sid, policy):
     from netsense.benchmark import rollout
     from netsense.vector import rollout_seeds
@@ -277,7 +278,7 @@ def test_rollout_seeds_cuts_members_at_their_own_end():
                   {"horizon": 40, "divergence_limit": 3.0})
     np.testing.assert_array_equal(recs[short].rewards, ref.rewards)
     with pytest.raises(ValueError, match="cannot run batched"):
-        rollout_seeds("fig1_scalar-v0", "random", [0])
+        rollout_seeds("fig1_scalar-v0", "learned:policy.zip", [0])
 
 
 def test_pickle_round_trip_continues_identically():

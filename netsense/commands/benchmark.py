@@ -6,11 +6,12 @@ import argparse
 
 NAME = "benchmark"
 HELP = ("Benchmark learned and scripted policies and a centralized KF oracle on scenarios "
-        "(seeds in parallel processes or on Ray); writes CSV, a Markdown table and plots.")
+        "(seeds as one batched run, or in processes or on Ray); writes CSV, a Markdown table "
+        "and plots.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from netsense.benchmark import DEFAULT_POLICIES, POLICY_NAMES
+    from netsense.benchmark import BACKENDS, DEFAULT_POLICIES, POLICY_NAMES
 
     parser.add_argument("scenarios", nargs="+", help="scenario ids (see `netsense list`)")
     parser.add_argument("--policies", nargs="+", default=list(DEFAULT_POLICIES),
@@ -25,10 +26,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eps", type=float, default=1e-2,
                         help="relative-error threshold of 'steps to eps' (default: 0.01)")
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--backend", choices=("process", "serial", "ray"), default="process",
-                        help="where episodes run (default: process)")
+    parser.add_argument("--backend", choices=BACKENDS, default="batched",
+                        help="batched: the seeds of each scenario and policy as one batched "
+                             "run in this process (learned policies episode by episode); "
+                             "process / serial / ray: one episode per job in worker "
+                             "processes / this process / Ray tasks (default: batched)")
     parser.add_argument("--workers", type=int, default=None,
-                        help="worker processes (default: number of cores)")
+                        help="worker processes of --backend process (default: number of "
+                             "cores)")
     parser.add_argument("--address", default=None,
                         help="Ray cluster address for --backend ray (e.g. auto, "
                              "ray://head:10001); default a local Ray instance")
