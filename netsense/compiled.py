@@ -9,6 +9,13 @@ thread pool (``NUMBA_NUM_THREADS``, default one thread per core). Every member i
 by the same row functions, independently, so both builds give bit-identical results
 (``tests/test_kernels_compiled.py``).
 
+Threads: numba's threading layer is left as the user configures it (``NUMBA_THREADING_LAYER``;
+numba's default is OpenMP when present, whose workers spin after every call: fastest on free
+cores, but on cores busy with other work every threaded call waits for a time slice — see
+the README's batched section for measurements and ``workqueue`` as the remedy). Threaded
+calls are serialised by a lock, so several Python threads may step their own batches under
+any layer.
+
 Drivers are compiled without numba's reference counting (``_nrt=False``): they allocate
 nothing (outputs and scratch rows come from the Python wrapper), so no array needs a
 reference count, and the row functions they inline run without the atomic
@@ -19,6 +26,7 @@ correction).
 
 from __future__ import annotations
 
+import threading
 import types
 
 from numba import njit
@@ -27,6 +35,11 @@ from numba import njit
 PARALLEL_WORK = 1 << 16
 
 __all__ = ["PARALLEL_WORK", "Driver"]
+
+# numba's workqueue threading layer (a choice for busy machines, see the module docstring)
+# refuses concurrent parallel calls from several Python threads (it aborts the process);
+# netsense's threaded drivers therefore run one at a time, whatever the layer.
+_PARALLEL_LOCK = threading.Lock()
 
 
 class Driver:
@@ -37,8 +50,13 @@ class Driver:
         self.parallel = njit(cache=True, parallel=True, _nrt=False)(_renamed(fn, "parallel"))
 
     def at(self, work: int):
-        """The build for a call that touches ``work`` array elements."""
-        return self.parallel if work >= PARALLEL_WORK else self.serial
+        """The build for a call that touches ``work`` array elements (the threaded one
+        holds a process-wide lock while it runs)."""
+        return self._threaded if work >= PARALLEL_WORK else self.serial
+
+    def _threaded(self, *args):
+        with _PARALLEL_LOCK:
+            return self.parallel(*args)
 
 
 def _renamed(fn, tag: str):

@@ -71,7 +71,6 @@ from netsense import kernels, observation
 from netsense.design import ObserverDesign
 from netsense.graphs import GraphProcess
 from netsense.observers.source import LuenbergerSource, SourceEstimator
-from netsense.pool import each_part
 from netsense.sensing.arrivals import AlwaysArrive, ArrivalModel
 from netsense.sensing.noise import NoNoise
 from netsense.systems import Plant
@@ -498,10 +497,7 @@ class BatchedCore:
                 rngs["message_arrivals"], (self.N, self.N))
 
     def _refill(self, members: np.ndarray) -> None:
-        """Draw the next ``chunk`` steps of graphs, noise and arrivals for ``members``.
-
-        Every member draws from its own generators; members are split over threads
-        (:mod:`netsense.pool`: one thread per member, so the streams do not change)."""
+        """Draw the next ``chunk`` steps of graphs, noise and arrivals for ``members``."""
         m, K, N = self.model, self.chunk, self.N
         members = np.asarray(members, dtype=np.int64)
         # graphs for groups of members at once (each from its own "graph" generator, so
@@ -520,12 +516,6 @@ class BatchedCore:
                 self.graph_state[b] = st
             if not run:
                 self.buf_nbr[mem] = out
-        each_part(lambda lo, hi: self._draw_members(members[lo:hi]), members.size)
-        self.ptr[members] = 0
-
-    def _draw_members(self, members: np.ndarray) -> None:
-        """Noise and arrivals of the next chunk for ``members`` (one thread's share)."""
-        m, K = self.model, self.chunk
         for b in members:
             rngs = self.rngs[b]
             if self._has_pnoise:
@@ -542,6 +532,7 @@ class BatchedCore:
             if not self._msg_always:
                 s = self.msg_sampler[b]
                 self.buf_msg[b] = np.stack([s.next() for _ in range(K)])
+        self.ptr[members] = 0
 
     def _load_step(self) -> None:
         """Expose the current step's graph, measurements and messages (from the chunk)."""

@@ -25,7 +25,6 @@ import numpy as np
 from numba import prange
 
 from netsense.compiled import Driver
-from netsense.pool import each_part
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -380,21 +379,16 @@ class MarkovLinkFailures(GraphProcess):
     def sample_slots_many(self, rngs, num_steps, states, max_degree, out=None,
                           _adjacency=False):
         # Works on the E base edges only: each run draws its own chunk from its own
-        # generator (the stream of sample(); runs split over threads, netsense.pool), keeps
-        # the edges' uniforms, and the two-state recursion and the slot tables run once
-        # over all runs on (M, K, E) arrays.
+        # generator (the stream of sample()), keeps the edges' uniforms, and the two-state
+        # recursion and the slot tables run once over all runs on (M, K, E) arrays.
         ei, el, eq, slot_nbr = self._edges
         M, K, N, E = len(rngs), num_steps, self.num_nodes, ei.size
         ue = np.empty((M, K, E))
-
-        def draw(lo: int, hi: int) -> None:
-            for m in range(lo, hi):
-                if self.draws == "base":
-                    rngs[m].random(out=ue[m])  # the stream of _edge_uniforms, in place
-                else:
-                    ue[m] = self._edge_uniforms(rngs[m], (K,))
-
-        each_part(draw, M)
+        for m, rng in enumerate(rngs):
+            if self.draws == "base":
+                rng.random(out=ue[m])  # the stream of _edge_uniforms, written in place
+            else:
+                ue[m] = self._edge_uniforms(rng, (K,))
         up = (np.stack([np.asarray(st, dtype=bool) for st in states])[:, ei, el] if M
               else np.zeros((0, E), bool))
         if _adjacency:

@@ -319,3 +319,40 @@ def test_markov_slots_write_into_a_given_int16_buffer():
     with pytest.raises(ValueError, match="out must be"):
         proc.sample_slots_many([np.random.default_rng(0)], 12, st[:1], 3,
                                out=np.zeros((1, 12, 9, 3)))
+
+
+def test_threaded_drivers_called_from_several_python_threads_under_workqueue():
+    # numba's workqueue layer (the README's choice for busy machines) aborts the process
+    # on concurrent parallel calls; the drivers' lock must serialise them, and every
+    # thread must get its own, correct result
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import numpy as np, numba
+from concurrent.futures import ThreadPoolExecutor
+from netsense import compiled
+import tests.test_kernels_compiled as t
+steps = [t._random_step(40 + k, B=6) for k in range(4)]
+kws = [{"luenberger": (s["y"], s["arrived"], s["C"], s["L"])} for s in steps]
+compiled.PARALLEL_WORK = 1 << 62
+expect = [t._fused(s, **kw) for s, kw in zip(steps, kws)]
+compiled.PARALLEL_WORK = 0
+def run(k):
+    return [t._fused(steps[k], **kws[k]) for _ in range(20)]
+with ThreadPoolExecutor(4) as ex:
+    got = list(ex.map(run, range(4)))
+for k in range(4):
+    for rep in got[k]:
+        for a, b in zip(rep, expect[k]):
+            np.testing.assert_array_equal(a, b)
+print(numba.threading_layer())
+"""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, "NUMBA_THREADING_LAYER": "workqueue",
+           "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=root,
+                         capture_output=True, text=True, timeout=600, check=False)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.split()[-1] == "workqueue"
