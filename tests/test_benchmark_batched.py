@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from netsense import benchmark as bm
+from netsense.benchmark import backends
 from netsense.cli import build_parser, main
 
 #: metrics computed from integers (transmissions, indices): equal, not just close
@@ -97,7 +98,7 @@ def test_batched_splits_groups_beyond_the_memory_budget(monkeypatch):
 
     monkeypatch.setattr(vec, "rollout_seeds", spy)
     per_member = 9 * (8 * 100 + 8 * 10 + 8) + 8 * 9 * 10  # K = 8, N = 10
-    monkeypatch.setattr(bm, "BATCH_BYTES", 2 * per_member)
+    monkeypatch.setattr(backends, "BATCH_BYTES", 2 * per_member)  # where it is read
     out = bm.run_batched(jobs, on_done=done.append)
     assert sizes == [2, 2, 1] and done == [2, 2, 1]
     _assert_same_results(out, bm.execute(jobs, backend="serial", progress=False))

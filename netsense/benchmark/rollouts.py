@@ -1,0 +1,131 @@
+"""Policy names and single episodes: scripted or learned policies through the env, the oracle.
+
+:func:`netsense.vector.rollout_seeds` is the batched counterpart of :func:`rollout` and
+:func:`rollout_oracle` (the same record per seed).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from netsense.benchmark.oracle import CentralizedKF
+from netsense.benchmark.records import EpisodeRecord, EpisodeRecorder
+
+#: Scripted policies run through the environment.
+SCRIPTED_POLICIES = ("freshness", "uniform_consensus", "tree_consensus", "open_loop", "random")
+#: Every policy name the harness knows (``learned`` may carry ``:PATH``).
+POLICY_NAMES = SCRIPTED_POLICIES + ("kf_oracle", "learned")
+#: Default policy set of ``netsense benchmark``.
+DEFAULT_POLICIES = ("freshness", "uniform_consensus", "open_loop", "random", "kf_oracle")
+
+
+class NotApplicable(ValueError):
+    """A policy that does not apply to a scenario (e.g. tree consensus on random graphs)."""
+
+
+def _make_env(scenario: str, overrides: dict | None):
+    from netsense.scenarios import make
+
+    return make(scenario, **dict(overrides or {}))
+
+
+#: Benchmark policy name -> name in :mod:`netsense.policies`.
+_SCRIPTED = {"freshness": "freshness", "uniform_consensus": "uniform",
+             "tree_consensus": "tree", "open_loop": "open_loop", "random": "random"}
+
+
+def scripted_policy(name: str, env, seed: int | Sequence[int]):
+    """The scripted policy ``name`` (a benchmark name) of :mod:`netsense.policies`.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`SCRIPTED_POLICIES`.
+    env : netsense.env.NetSenseEnv or netsense.envcore.BatchedCore
+    seed : int or sequence of int
+        Seeds ``random`` (a sequence: one generator per batch member, see
+        :class:`netsense.policies.RandomPolicy`); unused by the other policies.
+
+    Raises
+    ------
+    NotApplicable
+        ``tree_consensus`` on a scenario without a periodic graph schedule.
+    """
+    from netsense.policies import make_policy
+
+    if name not in _SCRIPTED:
+        raise ValueError(f"unknown scripted policy {name!r}; choose from "
+                         f"{', '.join(SCRIPTED_POLICIES)}")
+    kwargs = {"seed": seed} if name == "random" else {}
+    try:
+        return make_policy(_SCRIPTED[name], env, **kwargs)
+    except ValueError as exc:
+        if name == "tree_consensus":  # needs a periodic graph schedule
+            raise NotApplicable(str(exc)) from exc
+        raise
+
+
+def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
+            ) -> EpisodeRecord:
+    """One episode of ``scenario`` under ``policy`` through the PettingZoo API.
+
+    The true state, every estimate and the freshness indices are read from the
+    environment's core after each step (``env.core``); transmissions are the transmit
+    bits the agents chose. :func:`netsense.vector.rollout_seeds` is the batched
+    counterpart (one run for many seeds, the same record per seed).
+    """
+    env = _make_env(scenario, overrides)
+    core = env.core
+    learned = policy.startswith("learned")
+    if learned:
+        from netsense.rl.sb3 import LearnedPolicy
+        from netsense.rl.wrappers import MaskedFlatObs
+
+        path = policy.split(":", 1)[1] if ":" in policy else None
+        if not path:
+            raise ValueError("the learned policy needs a path: learned:PATH")
+        agent_env = MaskedFlatObs(env)
+        model = LearnedPolicy(path)
+
+        def act(o, i):
+            return model.act(o, agent_env)
+    else:
+        agent_env = env
+        pol = scripted_policy(policy, env, seed)
+
+        def act(o, i):
+            return pol.act_dict(env, o, i)
+    obs, infos = agent_env.reset(seed=seed)
+    rec = EpisodeRecorder(env.model.reward.error_floor)
+    rec.state(core)
+    while env.agents:
+        actions = act(obs, infos)
+        obs, rew, term, trunc, infos = agent_env.step(actions)
+        rec.state(core)
+        rec.step(core.transmit, [[rew[a] for a in env.possible_agents]])
+    return rec.records()[0]
+
+
+def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> EpisodeRecord:
+    """The centralized KF on the same realisation (same seed) as the policies see.
+
+    The environment is stepped with the always-valid "keep everything, stay silent"
+    action just to advance the plant and draw the measurements; only ``x[k]`` and
+    ``y[k]`` are used. ``rollout_seeds(scenario, "kf_oracle", seeds)`` of
+    :mod:`netsense.vector` runs many seeds as one batch with the same records.
+    """
+    env = _make_env(scenario, overrides)
+    core = env.core
+    kf = CentralizedKF(env.model.plant, x0_std=env.model.x0_std, batch_size=1)
+    env.reset(seed=seed)
+    idle = {a: np.zeros(core.M + 1, dtype=np.int64) for a in env.possible_agents}
+    rec = EpisodeRecorder(env.model.reward.error_floor, network=False)
+    while True:
+        rec.state(core, kf.x[:, None, :])
+        if not env.agents:
+            break
+        kf.step(core.y, core.y_arrived)
+        env.step(idle)
+    return rec.records()[0]
