@@ -88,13 +88,13 @@ field               size       content
 ==================  =========  ===========================================================
 
 ``symlog(v) = sign(v) log(1 + |v|)``; all entries are clipped to ``[-1000, 1000]``.
-:attr:`NetSenseEnv.layout` (:class:`netsense.envcore.ObsLayout`) gives the slices.
+:attr:`NetSenseEnv.layout` (:class:`netsense.coremodel.ObsLayout`) gives the slices.
 
 Rewards
 -------
 ``r_i = -w_e((1 - w_t) e_i + w_t mean(e)) - c t_i`` with ``e_i`` agent ``i``'s estimation
 error normalised by ``max(||x||, floor)`` and clipped (see
-:class:`netsense.envcore.RewardConfig`), ``t_i`` its transmit bit.
+:class:`netsense.coremodel.RewardConfig`), ``t_i`` its transmit bit.
 
 Starting State
 --------------

@@ -1,6 +1,6 @@
 """Observations and action masks of the environment, written in one pass (numba).
 
-The layout of the flat per-agent vector is :class:`netsense.envcore.ObsLayout` (and the
+The layout of the flat per-agent vector is :class:`netsense.coremodel.ObsLayout` (and the
 table in :mod:`netsense.env`). :func:`fill` writes the observations of every member and
 agent of a :class:`~netsense.envcore.BatchedCore` and their action masks straight into
 their output arrays, with no temporaries of size ``obs_dim``: at ``B = 1024``,
@@ -57,7 +57,7 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     """Write observations ``obs (B, N, size)`` float32 and masks ``mask (B, N, M)`` int8.
 
     ``starts`` holds the offsets of the layout's fields in the order of
-    :meth:`netsense.envcore.ObsLayout.table`. ``exact_f32`` (every index and the horizon
+    :meth:`netsense.coremodel.ObsLayout.table`. ``exact_f32`` (every index and the horizon
     below ``2^24``) selects float32 arithmetic for the ages, equal to the float64
     quotient rounded to float32 (both operands are exact in float32 and double rounding of
     a quotient through float64 is innocuous); otherwise the quotient is taken in float64.

@@ -3,7 +3,7 @@
 Each policy maps batched arrays ``obs (B, N, obs_dim)`` and ``mask (B, N, M)`` (as
 :class:`netsense.envcore.BatchedCore` returns them) to actions ``(B, N, M + 1)``; for the
 PettingZoo environment, :meth:`Policy.act_dict` takes and returns ``{agent: ...}`` dicts.
-Decoding uses the documented observation layout (:class:`netsense.envcore.ObsLayout`).
+Decoding uses the documented observation layout (:class:`netsense.coremodel.ObsLayout`).
 
 ======================  =====================================================================
 policy                  rule
@@ -27,7 +27,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from netsense.envcore import ObsLayout
+from netsense.coremodel import ObsLayout
 
 
 class Policy:

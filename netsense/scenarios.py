@@ -4,7 +4,7 @@ A file ``netsense/envs/<name>_v<k>.toml`` defines the scenario ``<name>-v<k>``
 (``envs/`` at the repository root is a symlink to that folder; the files ship as
 package data). :func:`make` builds a :class:`netsense.env.NetSenseEnv`,
 :func:`list_scenarios` lists the ids, :func:`load` returns the validated
-:class:`Scenario` and :func:`build_model` the :class:`netsense.envcore.CoreModel` (what
+:class:`Scenario` and :func:`build_model` the :class:`netsense.coremodel.CoreModel` (what
 the batched core consumes).
 
 File format (every key optional unless marked *required*; unknown keys raise)::
@@ -60,7 +60,7 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     # kind = "stuck_sensor"            # agents, at, mode = "stuck" | "stale", delay
     # kind = "liar"                    # agents, claim = 0, at: false freshness indices
 
-    [reward]                           # netsense.envcore.RewardConfig
+    [reward]                           # netsense.coremodel.RewardConfig
     error_weight = 1.0
     team_weight = 0.0
     message_cost = 0.0
@@ -88,7 +88,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-from netsense.envcore import CoreModel, RewardConfig
+from netsense.coremodel import CoreModel, RewardConfig
 
 _TOP = {"description", "horizon", "x0_std", "initial_transmit", "divergence_limit",
         "plant", "graph", "design", "noise", "arrivals", "reward", "source_estimator",
@@ -142,7 +142,7 @@ class Scenario:
         ``[[faults]]`` specs (:func:`netsense.faults.fault_from_dict` form).
     substates : {"all", "sources"}
         Substates the indices, actions and observations cover (see
-        :class:`netsense.envcore.CoreModel`).
+        :class:`netsense.coremodel.CoreModel`).
     source : str
         Where the scenario came from (file path), for error messages.
     """
