@@ -411,8 +411,12 @@ class MarkovLinkFailures(GraphProcess):
             _check_slot_out(out, (M, K, N, max_degree))
             nbr = out
         ok = np.ones(M, dtype=bool)
-        _markov_slots.at(ue.size)(ue, up, ei, el, float(self.p_fail), float(self.p_recover),
-                                  nbr, ok, np.empty((M, N), dtype=np.int64))
+        # serial build on purpose: this pass follows the runs' draws (a long stretch with
+        # no threaded call, after which numba's idle workers must be woken); on the 2-vCPU
+        # VM of the benchmarks that wake-up alone took 13-15 ms per chunk, ten times the
+        # 1.4 ms the threaded pass saves at 64 runs x 64 steps x 300 edges
+        _markov_slots.serial(ue, up, ei, el, float(self.p_fail), float(self.p_recover),
+                             nbr, ok, np.empty((M, N), dtype=np.int64))
         if not ok.all():
             raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
         new = np.zeros((M, N, N), dtype=bool)
