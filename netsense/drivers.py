@@ -76,20 +76,6 @@ def messages_all(nbr, transmit, link, has_link, out):
             message_row(nbr, b, i, transmit, link, has_link, out, b, i)
 
 
-def sense_all(x, C_T, v, has_v, slots, transmit, link, has_link, y, nbr, msg):
-    # a step's inputs in one pass per member: outputs y = C x (+ v), eq. (2), the slot
-    # table as int64 and the messages of its slots
-    for b in prange(x.shape[0]):
-        vecmat_row(x, b, C_T, y, b)
-        if has_v:
-            for c in range(y.shape[1]):
-                y[b, c] += v[b, c]
-        for i in range(nbr.shape[1]):
-            for d in range(nbr.shape[2]):
-                nbr[b, i, d] = slots[b, i, d]
-            message_row(nbr, b, i, transmit, link, has_link, msg, b, i)
-
-
 def check_actions(act, msg, own, choice, masked, first, okt):
     B, N, D = msg.shape
     for b in prange(B):
@@ -158,7 +144,7 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused
 
 
 for _name in ("advance_all", "average_all", "gather_all", "mix_all", "propagate_all",
-              "innovation_all", "vecmat_all", "messages_all", "sense_all", "check_actions",
+              "innovation_all", "vecmat_all", "messages_all", "check_actions",
               "apply_all"):
     globals()[_name] = Driver(globals()[_name])
 del _name

@@ -353,19 +353,17 @@ class BatchedCore:
         # all members at the same chunk position (the usual case): basic slicing, no copies
         same = self.ptr.min() == self.ptr.max()
         b, p = (slice(None), int(self.ptr[0])) if same else (self._bidx, self.ptr)
-        B, N, r = self.B, self.N, self.r
-        # outputs (eq. (2)) plus noise, the slot table and its messages in one pass
-        # (link l -> i is buf_msg[..., i, l])
-        y, self.nbr, self.msg = kernels.sense(
-            self.x, self._C_flat_T, self.buf_nbr[b, p], self.transmit,
-            v=self.buf_v[b, p].reshape(B, N * r) if self._has_mnoise else None,
-            link=None if self._msg_always else self.buf_msg[b, p])
+        self.nbr = self.buf_nbr[b, p].astype(np.int64)
         self._adjacency = None
-        y = y.reshape(B, N, r)
+        y = kernels.vecmat(self.x, self._C_flat_T).reshape(self.B, self.N, self.r)  # eq. (2)
+        if self._has_mnoise:
+            y += self.buf_v[b, p]
         for f, memory in zip(self._stuck, self._stuck_memory, strict=True):
             y = f.apply(self.k, y, memory)  # stuck/stale readings replace y_i[k]
         self.y = y
         self.y_arrived = self._ones_BN if self._meas_always else self.buf_meas[b, p]
+        self.msg = observation.slot_messages(  # link l -> i is buf_msg[..., i, l]
+            self.nbr, self.transmit, None if self._msg_always else self.buf_msg[b, p])
         self._mask = None
         self._obs = None
 

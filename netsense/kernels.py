@@ -231,51 +231,6 @@ def vecmat(x: np.ndarray, M: np.ndarray) -> np.ndarray:
     return out
 
 
-def sense(x: np.ndarray, C_T: np.ndarray, slots: np.ndarray, transmit: np.ndarray, *,
-          v: np.ndarray | None = None, link: np.ndarray | None = None
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A step's inputs in one pass: outputs, slot table and messages of every member.
-
-    Parameters
-    ----------
-    x : (B, n)
-        Plant states ``x[k]``.
-    C_T : (n, N r)
-        The stacked output matrices, transposed: ``y[b] = x[b] @ C_T`` (eq. (2)), summed
-        in the order of :func:`vecmat`.
-    slots : (B, N, D) int
-        In-neighbour slots of ``G[k]`` (``-1`` = empty), any integer type.
-    transmit : (B, N) bool
-        Who transmitted.
-    v : (B, N r), optional
-        Measurement noise added to ``y`` (after the product).
-    link : (B, N, N) bool, optional
-        ``link[b, i, l]``: the message ``l -> i`` was delivered.
-
-    Returns
-    -------
-    y : (B, N r)
-    nbr : (B, N, D) int64
-        ``slots`` as int64.
-    msg : (B, N, D) bool
-        The messages of :func:`netsense.observation.slot_messages`.
-    """
-    x = np.ascontiguousarray(x, dtype=float)
-    C_T = np.ascontiguousarray(C_T, dtype=float)
-    B, (n, m) = x.shape[0], C_T.shape
-    if x.shape[1] != n or slots.ndim != 3 or slots.shape[0] != B:
-        raise ValueError(f"sense: x {x.shape}, C_T {C_T.shape} and slots {slots.shape} "
-                         "do not fit together")
-    y = np.empty((B, m))
-    nbr = np.empty(slots.shape, np.int64)
-    msg = np.empty(slots.shape, bool)
-    has_v, has_link = v is not None, link is not None
-    drivers.sense_all.at(B * n * m // 8 + msg.size)(
-        x, C_T, v if has_v else np.zeros((1, 1)), has_v, slots, transmit,
-        link if has_link else np.ones((1, 1, 1), bool), has_link, y, nbr, msg)
-    return y, nbr, msg
-
-
 # ----------------------------------------------------------------------------- the step
 #: Meaning of the entries of :func:`apply_actions`' ``status``.
 STATUS_FIELDS = ("range_b", "range_i", "range_j", "masked_b", "masked_i", "masked_j")

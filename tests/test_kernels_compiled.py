@@ -276,32 +276,6 @@ def test_fused_validation_agrees_with_check_actions():
         assert (st[0] >= 0) == (bad is not None)
 
 
-def test_sense_equals_outputs_plus_noise_and_slot_messages():
-    rng = np.random.default_rng(4)
-    B, N, n, r, D = 5, 7, 4, 2, 3
-    x = rng.standard_normal((B, n))
-    C_T = rng.standard_normal((n, N * r))
-    slots = rng.integers(-1, N, size=(B, N, D)).astype(np.int16)
-    transmit = rng.random((B, N)) < 0.6
-    link = rng.random((B, N, N)) < 0.7
-    v = rng.standard_normal((B, N * r))
-    y, nbr, msg = kernels.sense(x, C_T, slots, transmit, v=v, link=link)
-    np.testing.assert_array_equal(y, kernels.vecmat(x, C_T) + v)
-    assert nbr.dtype == np.int64
-    np.testing.assert_array_equal(nbr, slots)
-    np.testing.assert_array_equal(msg, observation.slot_messages(nbr, transmit, link))
-    b, i, d = np.nonzero(slots >= 0)
-    expect = np.zeros((B, N, D), bool)
-    expect[b, i, d] = transmit[b, slots[b, i, d]] & link[b, i, slots[b, i, d]]
-    np.testing.assert_array_equal(msg, expect)
-    y2, _, msg2 = kernels.sense(x, C_T, slots, transmit)  # no noise, every link delivers
-    np.testing.assert_array_equal(y2, kernels.vecmat(x, C_T))
-    expect[b, i, d] = transmit[b, slots[b, i, d]]
-    np.testing.assert_array_equal(msg2, expect)
-    with pytest.raises(ValueError, match="do not fit"):
-        kernels.sense(x, C_T[:-1], slots, transmit)
-
-
 def test_markov_slots_write_into_a_given_int16_buffer():
     base = np.zeros((9, 9), bool)
     for off in (1, 2, 5):
@@ -356,3 +330,17 @@ print(numba.threading_layer())
                          capture_output=True, text=True, timeout=600, check=False)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.split()[-1] == "workqueue"
+
+
+def test_slot_messages_follow_neighbour_transmit_and_link():
+    rng = np.random.default_rng(4)
+    B, N, D = 5, 7, 3
+    nbr = rng.integers(-1, N, size=(B, N, D))
+    transmit = rng.random((B, N)) < 0.6
+    link = rng.random((B, N, N)) < 0.7
+    b, i, d = np.nonzero(nbr >= 0)
+    expect = np.zeros((B, N, D), bool)
+    expect[b, i, d] = transmit[b, nbr[b, i, d]]
+    np.testing.assert_array_equal(observation.slot_messages(nbr, transmit), expect)
+    expect[b, i, d] &= link[b, i, nbr[b, i, d]]
+    np.testing.assert_array_equal(observation.slot_messages(nbr, transmit, link), expect)
