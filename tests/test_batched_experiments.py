@@ -118,3 +118,21 @@ def test_speed_main_prints_table_and_rejects_bad_shapes(tmp_path, capsys):
     assert out.exists()
     with pytest.raises(SystemExit):
         speed.main(["--shapes", "4,5"])
+
+
+def test_vmas_contender_runs_in_a_process_of_its_own():
+    from netsense.speed.runners import _VmasProcess
+
+    # a failing worker (no vmas, or an invalid thread count) is reported, not hung on
+    with pytest.raises(RuntimeError, match="VMAS worker failed"):
+        _VmasProcess(2, 2, threads=0)
+    if not speed.vmas_available():
+        return
+    vm = _VmasProcess(2, 2, threads=1)
+    try:
+        assert vm.threads == 1
+        assert vm._proc.pid != __import__("os").getpid() and vm._proc.is_alive()
+        assert vm.block(3) > 0
+    finally:
+        vm.close()
+    assert not vm._proc.is_alive()

@@ -22,7 +22,9 @@ contender alike; compare the *ratios*):
     (:mod:`netsense.speed.runners`).
 ``vmas``
     VMAS ``simple_spread`` on CPU with ``B`` environments and ``N`` agents (zero
-    continuous actions), when ``vmas`` is installed.
+    continuous actions), when ``vmas`` is installed; it runs in a spawned process of its
+    own, driven block by block between the other contenders, so torch's thread pool
+    never shares a process with the core.
 
 Rates are agent-steps/s ``= B N / (time of one step)``; each figure is the best of
 ``repeats`` blocks of ``steps`` steps. Targets (issue 8): core >= 10x VMAS at

@@ -20,7 +20,7 @@ from netsense.speed.runners import (
     _CoreRunner,
     _KernelRunner,
     _ReplayRunner,
-    _VmasRunner,
+    _VmasProcess,
     bench_model,
     vmas_available,
 )
@@ -84,21 +84,25 @@ def _measure_shape(B, N, n, steps, repeats, vmas, vmas_budget, vmas_threads, sub
     kern = _KernelRunner(core.core, seed)
     vm = None
     if vmas and vmas_available():
-        vm = _VmasRunner(B, N, seed, vmas_threads)
-    core.block(2)
-    live.block(2)
-    kern.block(2)
-    vm_steps = steps
-    if vm is not None:
-        one = vm.block(1)
-        vm_steps = int(max(1, min(steps, vmas_budget // max(one, 1e-9))))
-    best = {"core": math.inf, "live": math.inf, "kernel": math.inf, "vmas": math.inf}
-    for _ in range(repeats):
-        best["core"] = min(best["core"], core.block() / steps)
-        best["kernel"] = min(best["kernel"], kern.block(steps) / steps)
-        best["live"] = min(best["live"], live.block(steps) / steps)
+        vm = _VmasProcess(B, N, seed, vmas_threads)
+    try:
+        core.block(2)
+        live.block(2)
+        kern.block(2)
+        vm_steps = steps
         if vm is not None:
-            best["vmas"] = min(best["vmas"], vm.block(vm_steps) / vm_steps)
+            one = vm.block(1)
+            vm_steps = int(max(1, min(steps, vmas_budget // max(one, 1e-9))))
+        best = {"core": math.inf, "live": math.inf, "kernel": math.inf, "vmas": math.inf}
+        for _ in range(repeats):
+            best["core"] = min(best["core"], core.block() / steps)
+            best["kernel"] = min(best["kernel"], kern.block(steps) / steps)
+            best["live"] = min(best["live"], live.block(steps) / steps)
+            if vm is not None:
+                best["vmas"] = min(best["vmas"], vm.block(vm_steps) / vm_steps)
+    finally:
+        if vm is not None:
+            vm.close()
     c = core.core
     row = {"B": B, "N": N, "n": n, "D": c.D, "M": c.M, "substates": substates,
            "obs_dim": c.layout.size,

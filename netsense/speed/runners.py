@@ -4,7 +4,7 @@
 ``block(steps)`` returns the seconds its contender spends in ``steps`` steps (what each
 one measures is described in :mod:`netsense.speed`): ``core`` is :class:`_ReplayRunner`,
 ``core_live`` :class:`_CoreRunner`, ``kernel`` :class:`_KernelRunner` and ``vmas``
-:class:`_VmasRunner`.
+:class:`_VmasRunner` (driven in its own process by :class:`_VmasProcess`).
 """
 
 from __future__ import annotations
@@ -168,6 +168,65 @@ class _VmasRunner:
         for _ in range(steps):
             self.env.step(self.actions)
         return time.perf_counter() - t0
+
+
+class _VmasProcess:
+    """:class:`_VmasRunner` in a process of its own (same ``block``/``threads``).
+
+    torch brings its own OpenMP runtime; in the core's process its thread pool slowed
+    the core's later blocks (measured at (64, 100, 20): 0.52x the kernel before a VMAS
+    shape, 0.47x after it, and 0.37x at the end of a three-shape run), so VMAS runs in a
+    spawned worker that the benchmark drives block by block, interleaved as before.
+    """
+
+    def __init__(self, B: int, N: int, seed: int = 0, threads: int | None = None) -> None:
+        import multiprocessing as mp
+
+        if threads is None:
+            import numba
+
+            threads = numba.get_num_threads()
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_vmas_worker, args=(child, B, N, seed, threads),
+                                 daemon=True)
+        self._proc.start()
+        child.close()
+        self.threads = self._recv()
+
+    def _recv(self):
+        kind, value = self._conn.recv()
+        if kind == "error":
+            self.close()
+            raise RuntimeError(f"VMAS worker failed: {value}")
+        return value
+
+    def block(self, steps: int) -> float:
+        self._conn.send(int(steps))
+        return self._recv()
+
+    def close(self) -> None:
+        if self._proc.is_alive():
+            try:
+                self._conn.send(None)
+            except (BrokenPipeError, OSError):
+                pass
+            self._proc.join(timeout=10)
+        if self._proc.is_alive():
+            self._proc.kill()
+        self._conn.close()
+
+
+def _vmas_worker(conn, B: int, N: int, seed: int, threads: int) -> None:
+    try:
+        runner = _VmasRunner(B, N, seed, threads)
+        conn.send(("ok", runner.threads))
+        while (steps := conn.recv()) is not None:
+            conn.send(("ok", runner.block(steps)))
+    except Exception as exc:  # noqa: BLE001 - reported to the benchmark process
+        conn.send(("error", repr(exc)))
+    finally:
+        conn.close()
 
 
 def vmas_available() -> bool:
