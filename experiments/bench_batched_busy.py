@@ -48,6 +48,15 @@ print(json.dumps({"core_s": row["core_s"], "kernel_s": row["kernel_s"],
 """
 
 
+def _head() -> str:
+    """Short hash of the checkout measured (``?`` outside git)."""
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE.parent,
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "?"
+
+
 def _spin(stop) -> None:  # a process that keeps one core busy
     while not stop.is_set():
         pass
@@ -96,7 +105,8 @@ def main(argv=None) -> int:
         free = next(x for x in rows if x["condition"] == "free" and x["mode"] == row["mode"]
                     and (x["B"], x["N"], x["n"]) == (row["B"], row["N"], row["n"]))
         row["busy_slowdown"] = row["core_ms"] / free["core_ms"]
-    lines = [f"busy = {args.busy_procs} busy-looping process(es) on {os.cpu_count()} cores",
+    lines = [f"netsense {_head()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
+             f"busy = {args.busy_procs} busy-looping process(es) on {os.cpu_count()} cores",
              "| condition | B, N, n | mode (layer, threads) | core ms/step | kernel ms/step "
              "| core/kernel | core time vs free |", "|---|---|---|---|---|---|---|"]
     for r in rows:
