@@ -4,12 +4,11 @@ oracle checks; no timing is asserted."""
 from __future__ import annotations
 
 import csv
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from experiment_loader import load_experiment
 
 from netsense import speed
 from netsense.envcore import BatchedCore
@@ -18,12 +17,7 @@ from netsense.examples import FIG2_OBSERVERS, run_fig2
 EXP = Path(__file__).parents[1] / "experiments"
 
 
-def load(name):
-    spec = importlib.util.spec_from_file_location(f"_exp_{name}", EXP / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up here
-    spec.loader.exec_module(mod)
-    return mod
+load = load_experiment
 
 
 def test_fig2_montecarlo_batch_equals_single_runs_and_reproduces_the_claim(tmp_path):

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from experiment_loader import load_experiment
 
 from netsense import benchmark as bm
 from netsense.benchmark import backends
@@ -196,13 +197,7 @@ def test_batched_kf_equals_one_filter_per_member():
 
 
 def test_backend_timing_experiment_smoke(tmp_path):
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).parents[1] / "experiments" / "bench_benchmark_backends.py"
-    spec = importlib.util.spec_from_file_location("_exp_bench_backends", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_experiment("bench_benchmark_backends")
     out = tmp_path / "t.txt"
     report = mod.main(["--seeds", "2", "--horizon", "4", "--backends", "batched", "serial",
                        "--out", str(out)])

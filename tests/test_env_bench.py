@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
-from pathlib import Path
+
+from experiment_loader import load_experiment
 
 from netsense.cli import main
 
@@ -20,10 +20,7 @@ def test_cli_bench_env_smoke(tmp_path, capsys):
 
 
 def test_experiment_script_smoke(tmp_path):
-    path = Path(__file__).parents[1] / "experiments" / "bench_env.py"
-    spec = importlib.util.spec_from_file_location("bench_env", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_experiment("bench_env")
     out = tmp_path / "s.csv"
     assert mod.main(["--smoke", "--csv", str(out)]) == 0
     assert out.exists()

@@ -1,19 +1,16 @@
 """Smoke-size run of experiments/equalized_batch_reactor.py (section IV-A)."""
 
 import csv
-import importlib.util
 from pathlib import Path
 
 import numpy as np
+from experiment_loader import load_experiment
 
 SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "equalized_batch_reactor.py"
 
 
 def load():
-    spec = importlib.util.spec_from_file_location("equalized_batch_reactor", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_experiment(SCRIPT.stem)
 
 
 def test_resolved_B_reproduces_printed_A():

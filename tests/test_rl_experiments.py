@@ -1,20 +1,16 @@
 """The RL experiment configs agree with the code, and the scripts run at smoke size."""
 
-import importlib.util
 import inspect
 from pathlib import Path
 
 import pytest
+from experiment_loader import load_experiment
 
 ROOT = Path(__file__).resolve().parents[1]
 EXP = ROOT / "experiments"
 
 
-def _load(name):
-    spec = importlib.util.spec_from_file_location(name, EXP / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+_load = load_experiment
 
 
 def test_rllib_config_keys_are_ppo_config_arguments():

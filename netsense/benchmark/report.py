@@ -126,12 +126,7 @@ def plot_errors(results: Sequence[dict], path: str | Path, scenario: str) -> Pat
     ax.set_ylabel("relative error (mean over agents)")
     ax.set_title(scenario)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_reward_vs_messages(rows: Sequence[dict], path: str | Path) -> Path:
@@ -155,6 +150,13 @@ def plot_reward_vs_messages(rows: Sequence[dict], path: str | Path) -> Path:
         ax.set_ylabel("episode reward (mean over agents)")
         ax.set_title(sc, fontsize=9)
         ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def _save(fig, path: str | Path) -> Path:
+    """Write ``fig`` as a PNG at ``path`` (directories created) and close it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

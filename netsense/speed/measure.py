@@ -163,13 +163,8 @@ def profile_core(B: int, N: int, n: int, *, steps: int = 64, top: int = 15,
     core, so only ``step`` is profiled), sorted by own time.
     """
     model = bench_model(N, n, seed=seed)
-    twin = _CoreRunner(model, B, seed)
-    acts = []
-    for _ in range(steps):
-        a = twin.policy.act(twin.obs, twin.mask)
-        acts.append(a)
-        out = twin.core.step(a)
-        twin.obs, twin.mask = out.obs, out.action_mask
+    twin = _ReplayRunner(model, B, steps, seed)  # records the freshness policy's actions
+    acts = [a.astype(np.int64) for a in twin.actions]
     core = BatchedCore(model, B)
     core.reset(seed)
     prof = cProfile.Profile()
@@ -198,13 +193,8 @@ def observation_cost(B: int, N: int, n: int, *, steps: int = 64, repeats: int = 
     ``kernel_s`` and the rate ratios ``full_vs_kernel``, ``no_obs_vs_kernel``.
     """
     model = bench_model(N, n, seed=seed)
-    twin = _CoreRunner(model, B, seed)
-    acts = []
-    for _ in range(steps):
-        a = twin.policy.act(twin.obs, twin.mask)
-        acts.append(a)
-        out = twin.core.step(a)
-        twin.obs, twin.mask = out.obs, out.action_mask
+    twin = _ReplayRunner(model, B, steps, seed)  # records the freshness policy's actions
+    acts = [a.astype(np.int64) for a in twin.actions]
     full, bare = BatchedCore(model, B), BatchedCore(model, B)
     kern = _KernelRunner(twin.core, seed)
     best = {"full": math.inf, "no_obs": math.inf, "kernel": math.inf}
