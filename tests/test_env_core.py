@@ -355,3 +355,31 @@ def test_step_without_observations_builds_them_on_demand():
         np.testing.assert_array_equal(ob, out.obs)
         np.testing.assert_array_equal(mb, out.action_mask)
         oa, ma = out.obs, out.action_mask
+
+
+def test_partial_reset_of_scattered_members_with_short_chunks():
+    # members 0 and 2 restart together (a non-contiguous group: their slot tables are drawn
+    # into a scratch array, not a view of the chunk buffer), chunks of 3 steps put the
+    # members' refills at different steps; every member must still equal its own env
+    B, seeds = 4, [5, 6, 7, 8]
+    model = model_of("link_failures-v0", horizon=40)
+    core = BatchedCore(model, B, chunk=3)
+    obs, mask = core.reset(seeds)
+    pol = make_policy("freshness", core)
+    ref = [make("link_failures-v0", horizon=40) for _ in range(B)]
+    ref_obs = [r.reset(seed=s)[0] for r, s in zip(ref, seeds, strict=True)]
+    for k in range(14):
+        if k == 4:
+            obs, mask = core.reset([41, 0, 43, 0], members=np.array([True, False, True, False]))
+            ref_obs[0] = ref[0].reset(seed=41)[0]
+            ref_obs[2] = ref[2].reset(seed=43)[0]
+            assert core.ptr.tolist() == [0, 1, 0, 1]
+        act = pol.act(obs, mask)
+        out = core.step(act)
+        obs, mask = out.obs, out.action_mask
+        for b in range(B):
+            ref_obs[b], *_ = ref[b].step({a: act[b, i]
+                                          for i, a in enumerate(ref[b].possible_agents)})
+            o, m = env_arrays(ref[b], ref_obs[b])
+            np.testing.assert_array_equal(obs[b], o)
+            np.testing.assert_array_equal(mask[b], m)
