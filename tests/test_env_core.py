@@ -94,6 +94,20 @@ def test_masks_follow_graph_and_transmit_flags_per_member():
             np.testing.assert_array_equal(out.action_mask[b, :, -2:], 1)
 
 
+def _step_both(core, pol, obs, mask, ref, ref_obs):
+    """One step of the batch and of each member's own env under the same actions; the
+    observations and masks must be equal. Returns the batch's next ``obs, mask``."""
+    act = pol.act(obs, mask)
+    out = core.step(act)
+    for b in range(core.B):
+        ref_obs[b], *_ = ref[b].step({a: act[b, i]
+                                      for i, a in enumerate(ref[b].possible_agents)})
+        o, m = env_arrays(ref[b], ref_obs[b])
+        np.testing.assert_array_equal(out.obs[b], o)
+        np.testing.assert_array_equal(out.action_mask[b], m)
+    return out.obs, out.action_mask
+
+
 def test_partial_reset_restarts_only_selected_members():
     B = 3
     model = model_of("link_failures-v0", horizon=30)
@@ -107,15 +121,7 @@ def test_partial_reset_restarts_only_selected_members():
             obs, mask = core.reset([0, 99, 0], members=np.array([False, True, False]))
             ref_obs[1] = ref[1].reset(seed=99)[0]
             assert core.k.tolist() == [9, 0, 9]
-        act = pol.act(obs, mask)
-        out = core.step(act)
-        obs, mask = out.obs, out.action_mask
-        for b in range(B):
-            ref_obs[b], *_ = ref[b].step({a: act[b, i]
-                                          for i, a in enumerate(ref[b].possible_agents)})
-            o, m = env_arrays(ref[b], ref_obs[b])
-            np.testing.assert_array_equal(obs[b], o)
-            np.testing.assert_array_equal(mask[b], m)
+        obs, mask = _step_both(core, pol, obs, mask, ref, ref_obs)
     assert core.k.tolist() == [25, 16, 25]
 
 
@@ -374,12 +380,4 @@ def test_partial_reset_of_scattered_members_with_short_chunks():
             ref_obs[0] = ref[0].reset(seed=41)[0]
             ref_obs[2] = ref[2].reset(seed=43)[0]
             assert core.ptr.tolist() == [0, 1, 0, 1]
-        act = pol.act(obs, mask)
-        out = core.step(act)
-        obs, mask = out.obs, out.action_mask
-        for b in range(B):
-            ref_obs[b], *_ = ref[b].step({a: act[b, i]
-                                          for i, a in enumerate(ref[b].possible_agents)})
-            o, m = env_arrays(ref[b], ref_obs[b])
-            np.testing.assert_array_equal(obs[b], o)
-            np.testing.assert_array_equal(mask[b], m)
+        obs, mask = _step_both(core, pol, obs, mask, ref, ref_obs)
