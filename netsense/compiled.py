@@ -22,19 +22,28 @@ reference count, and the row functions they inline run without the atomic
 increments and decrements numba otherwise wraps around every array argument — at
 ``N = 10`` those cost more than the arithmetic of the rules (measured 10x on the source
 correction).
+
+:func:`uniform_streams` hands numpy's own ``next_double`` and the generators' states to a
+driver, so per-member uniforms are drawn inside the threaded pass that consumes them
+(:class:`netsense.graphs.MarkovLinkFailures`), continuing each member's stream exactly.
 """
 
 from __future__ import annotations
 
+import ctypes
 import threading
 import types
+from collections.abc import Sequence
 
+import numba.experimental.function_type  # noqa: F401  (lets numba type the class below)
+import numpy as np
 from numba import njit
+from numba import types as nbtypes
 
 #: Work (array elements touched) from which a call runs on numba's thread pool.
 PARALLEL_WORK = 1 << 16
 
-__all__ = ["PARALLEL_WORK", "Driver"]
+__all__ = ["PARALLEL_WORK", "Driver", "NextDouble", "uniform_streams"]
 
 # numba's workqueue threading layer (a choice for busy machines, see the module docstring)
 # refuses concurrent parallel calls from several Python threads (it aborts the process);
@@ -66,3 +75,48 @@ def _renamed(fn, tag: str):
     out.__qualname__ = f"{fn.__qualname__}_{tag}"
     out.__module__ = fn.__module__
     return out
+
+
+class NextDouble(nbtypes.WrapperAddressProtocol):
+    """numpy's own ``next_double`` of one bit-generator type, callable in compiled code.
+
+    The C function a :class:`numpy.random.BitGenerator` exposes through its documented
+    ``ctypes`` interface, handed to numba as a first-class function (``fn(state_address)``
+    returns the next double in ``[0, 1)`` and advances that generator). It is what
+    ``Generator.random`` calls once per value, so compiled draws continue each
+    generator's stream exactly (``tests/test_kernels_compiled.py``). It is passed as an
+    argument, never baked into the code, so drivers that take it stay cacheable.
+    """
+
+    def __init__(self, address: int) -> None:
+        self.address = int(address)
+
+    def __wrapper_address__(self) -> int:
+        return self.address
+
+    def signature(self):
+        return nbtypes.float64(nbtypes.uintp)  # (void *state): a pointer-sized integer
+
+
+def uniform_streams(rngs: Sequence[np.random.Generator]
+                    ) -> tuple[NextDouble, np.ndarray] | None:
+    """``(next_double, state addresses (len(rngs),) uintp)`` of the generators, or None.
+
+    A driver that calls ``next_double(states[m])`` ``K`` times draws exactly what
+    ``rngs[m].random(K)`` would, and leaves ``rngs[m]`` where that call would. None when
+    the list is empty, its bit generators are not all of one type, or one generator
+    appears twice (then the caller draws through numpy). The generators must stay alive,
+    and nobody else may use them, while a driver draws (numpy's per-generator lock is not
+    taken).
+    """
+    if not rngs:
+        return None
+    fns = set()
+    states = np.empty(len(rngs), dtype=np.uintp)
+    for m, rng in enumerate(rngs):
+        iface = rng.bit_generator.ctypes
+        fns.add(ctypes.cast(iface.next_double, ctypes.c_void_p).value)
+        states[m] = iface.state_address
+    if len(fns) != 1 or np.unique(states).size != states.size:  # one generator twice:
+        return None  # its two runs must be drawn one after the other
+    return NextDouble(fns.pop()), states

@@ -24,7 +24,7 @@ import networkx as nx
 import numpy as np
 from numba import prange
 
-from netsense.compiled import Driver
+from netsense.compiled import Driver, uniform_streams
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -335,10 +335,11 @@ class MarkovLinkFailures(GraphProcess):
         return int(self.base.sum(-1).max())
 
     def slot_sample_bytes(self, num_steps):
-        # the (K, E) uniforms of a run (and the (K, N, N) draw of draws = "all")
-        per_step = self._edges[0].size * 8 + (self.num_nodes ** 2 * 8
-                                               if self.draws == "all" else 0)
-        return int(num_steps) * per_step
+        # draws = "base": the link states and slot counters of a run (its uniforms are
+        # drawn inside the compiled pass); "all": the (K, E) uniforms and (K, N, N) draw
+        if self.draws == "base":
+            return self._edges[0].size + 8 * self.num_nodes
+        return int(num_steps) * (self._edges[0].size * 8 + self.num_nodes ** 2 * 8)
 
     def _edge_uniforms(self, rng, shape) -> np.ndarray:
         """Uniforms of the base edges, ``shape + (E,)``: ``draws = "all"`` draws one per
@@ -379,18 +380,28 @@ class MarkovLinkFailures(GraphProcess):
     def sample_slots_many(self, rngs, num_steps, states, max_degree, out=None,
                           _adjacency=False):
         # Works on the E base edges only: each run draws its own chunk from its own
-        # generator (the stream of sample()), keeps the edges' uniforms, and the two-state
-        # recursion and the slot tables run once over all runs on (M, K, E) arrays.
+        # generator (the stream of sample()), and the two-state recursion and the slot
+        # tables run once over all runs.
         ei, el, eq, slot_nbr = self._edges
         M, K, N, E = len(rngs), num_steps, self.num_nodes, ei.size
-        ue = np.empty((M, K, E))
-        for m, rng in enumerate(rngs):
-            if self.draws == "base":
-                rng.random(out=ue[m])  # the stream of _edge_uniforms, written in place
-            else:
-                ue[m] = self._edge_uniforms(rng, (K,))
         up = (np.stack([np.asarray(st, dtype=bool) for st in states])[:, ei, el] if M
               else np.zeros((0, E), bool))
+        # draws = "base" slot tables: each run's uniforms are drawn inside the compiled
+        # pass, from its own generator through numpy's next_double (the same stream as
+        # rng.random), so no (M, K, E) array of uniforms is built
+        streams = (uniform_streams(rngs) if self.draws == "base" and not _adjacency
+                   else None)
+        if streams is None:
+            ue = np.empty((M, K, E))
+            for m, rng in enumerate(rngs):
+                if self.draws == "base":
+                    rng.random(out=ue[m])  # the stream of _edge_uniforms, written in place
+                else:
+                    ue[m] = self._edge_uniforms(rng, (K,))
+            draw, addr = _NO_STREAMS[0], np.zeros(M, dtype=np.uintp)
+        else:
+            ue = np.empty((0, 0, 0))
+            draw, addr = streams
         if _adjacency:
             stay_up, come_back = ue >= self.p_fail, ue < self.p_recover
             del ue
@@ -411,12 +422,9 @@ class MarkovLinkFailures(GraphProcess):
             _check_slot_out(out, (M, K, N, max_degree))
             nbr = out
         ok = np.ones(M, dtype=bool)
-        # serial build on purpose: this pass follows the runs' draws (a long stretch with
-        # no threaded call, after which numba's idle workers must be woken); on the 2-vCPU
-        # VM of the benchmarks that wake-up alone took 13-15 ms per chunk, ten times the
-        # 1.4 ms the threaded pass saves at 64 runs x 64 steps x 300 edges
-        _markov_slots.serial(ue, up, ei, el, float(self.p_fail), float(self.p_recover),
-                             nbr, ok, np.empty((M, N), dtype=np.int64))
+        _markov_slots.at(M * K * E)(ue, draw, addr, streams is not None, up, ei, el,
+                                    float(self.p_fail), float(self.p_recover), nbr, ok,
+                                    np.empty((M, N), dtype=np.int64))
         if not ok.all():
             raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
         new = np.zeros((M, N, N), dtype=bool)
@@ -595,19 +603,24 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     return Gossip.complete(N)
 
 
-def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr, ok, pos_all):
+def _markov_slots(u, draw, states, drawn, up, ei, el, p_fail, p_recover, nbr, ok, pos_all):
     """Two-state link chains and slot tables of :class:`MarkovLinkFailures`.
 
-    ``u (M, K, E)`` uniforms, ``up (M, E)`` link states at the first step (advanced in
-    place to the state after the last), edges ``(ei, el)`` in row-major order. Step ``k``
-    uses the states before its transition (an up link stays up iff ``u >= p_fail``, a
-    down link comes back iff ``u < p_recover``). Writes ``nbr (M, K, N, D)`` (``-1`` =
-    empty slot); ``ok[m]`` turns False if a node of run ``m`` has more than ``D`` up links.
+    The uniform of run ``m``, step ``k``, edge ``e`` is ``u[m, k, e]``, or, when
+    ``drawn``, the next ``draw(states[m])`` (numpy's ``next_double`` of run ``m``'s
+    generator, taken in ``(k, e)`` order: the stream of ``rng.random((K, E))``; see
+    :func:`netsense.compiled.uniform_streams`). ``up (M, E)`` link states at the first step
+    (advanced in place to the state after the last), edges ``(ei, el)`` in row-major
+    order. Step ``k`` uses the states before its transition (an up link stays up iff
+    ``u >= p_fail``, a down link comes back iff ``u < p_recover``). Writes
+    ``nbr (M, K, N, D)`` (``-1`` = empty slot); ``ok[m]`` turns False if a node of run
+    ``m`` has more than ``D`` up links.
     """
-    M, K, E = u.shape
-    D = nbr.shape[3]
+    M, K, N, D = nbr.shape
+    E = ei.shape[0]
     for m in prange(M):
         pos = pos_all[m]
+        st = states[m]
         for k in range(K):
             nbr[m, k] = -1
             pos[:] = 0
@@ -619,7 +632,10 @@ def _markov_slots(u, up, ei, el, p_fail, p_recover, nbr, ok, pos_all):
                     else:
                         nbr[m, k, i, pos[i]] = el[e]
                         pos[i] += 1
-                up[m, e] = u[m, k, e] >= p_fail if up[m, e] else u[m, k, e] < p_recover
+                v = draw(st) if drawn else u[m, k, e]
+                up[m, e] = v >= p_fail if up[m, e] else v < p_recover
 
 
 _markov_slots = Driver(_markov_slots)
+#: the draw argument of _markov_slots when the uniforms come as an array (never called)
+_NO_STREAMS = uniform_streams([np.random.default_rng(0)])

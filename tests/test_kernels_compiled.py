@@ -14,7 +14,7 @@ import pytest
 
 from netsense import compiled, kernels, observation
 from netsense.envcore import BatchedCore
-from netsense.graphs import MarkovLinkFailures
+from netsense.graphs import MarkovLinkFailures, in_neighbor_slots
 from netsense.scenarios import build_model, load
 
 OMEGA = kernels.OMEGA
@@ -293,6 +293,55 @@ def test_markov_slots_write_into_a_given_int16_buffer():
     with pytest.raises(ValueError, match="out must be"):
         proc.sample_slots_many([np.random.default_rng(0)], 12, st[:1], 3,
                                out=np.zeros((1, 12, 9, 3)))
+
+
+def _ring(N, offsets=(1, 2, 5)):
+    base = np.zeros((N, N), bool)
+    for off in offsets:
+        base[np.arange(N), (np.arange(N) + off) % N] = True
+    return base
+
+
+def test_compiled_uniform_draws_continue_each_generators_stream():
+    # 64 runs x 64 steps x 27 edges: the threaded build draws (above PARALLEL_WORK)
+    from netsense.compiled import PARALLEL_WORK, uniform_streams
+
+    proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
+    seeds = list(range(100, 164))
+    E = int(proc.base.sum())
+    assert len(seeds) * 64 * E >= PARALLEL_WORK
+    rngs = [np.random.default_rng(s) for s in seeds]
+    assert uniform_streams(rngs) is not None
+    st = [proc.initial_state(np.random.default_rng(s)) for s in seeds]
+    nbr, new = proc.sample_slots_many(rngs, 64, st, 3)
+    for m, s in enumerate(seeds):
+        ref_rng = np.random.default_rng(s)
+        adj, end = proc.sample(ref_rng, 64, st[m])  # numpy's own draws
+        np.testing.assert_array_equal(nbr[m], in_neighbor_slots(adj, 3)[0])
+        np.testing.assert_array_equal(new[m], end)
+        assert rngs[m].random() == ref_rng.random()  # left where rng.random left it
+
+
+def test_mixed_or_repeated_generators_are_drawn_through_numpy():
+    from netsense.compiled import uniform_streams
+
+    proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
+    mixed = [np.random.default_rng(1), np.random.Generator(np.random.MT19937(2))]
+    one = np.random.default_rng(3)
+    assert uniform_streams(mixed) is None and uniform_streams([one, one]) is None
+    assert uniform_streams([]) is None
+    st = [proc.initial_state(np.random.default_rng(s)) for s in (7, 8)]
+    nbr, _ = proc.sample_slots_many(mixed, 10, st, 3)
+    for m, rng in enumerate([np.random.default_rng(1),
+                             np.random.Generator(np.random.MT19937(2))]):
+        adj, _ = proc.sample(rng, 10, st[m])
+        np.testing.assert_array_equal(nbr[m], in_neighbor_slots(adj, 3)[0])
+    # one generator for both runs: run 0 takes its first 10 steps, run 1 the next 10
+    nbr, _ = proc.sample_slots_many([one, one], 10, st, 3)
+    ref = np.random.default_rng(3)
+    for m in range(2):
+        adj, _ = proc.sample(ref, 10, st[m])
+        np.testing.assert_array_equal(nbr[m], in_neighbor_slots(adj, 3)[0])
 
 
 def test_threaded_drivers_called_from_several_python_threads_under_workqueue():
