@@ -111,12 +111,14 @@ def uniform_streams(rngs: Sequence[np.random.Generator]
     """
     if not rngs:
         return None
-    fns = set()
+    fns: dict[type, int] = {}  # one C function per bit-generator class
     states = np.empty(len(rngs), dtype=np.uintp)
     for m, rng in enumerate(rngs):
-        iface = rng.bit_generator.ctypes
-        fns.add(ctypes.cast(iface.next_double, ctypes.c_void_p).value)
+        bg = rng.bit_generator
+        iface = bg.ctypes
+        if type(bg) not in fns:
+            fns[type(bg)] = ctypes.cast(iface.next_double, ctypes.c_void_p).value
         states[m] = iface.state_address
     if len(fns) != 1 or np.unique(states).size != states.size:  # one generator twice:
         return None  # its two runs must be drawn one after the other
-    return NextDouble(fns.pop()), states
+    return NextDouble(fns.popitem()[1]), states
