@@ -296,6 +296,11 @@ class RandomJointlyConnected(GraphProcess):
                 "extra_edge_prob": self.extra_edge_prob}
 
 
+#: Fewest runs for which :meth:`MarkovLinkFailures.sample_slots_many` runs its pass
+#: threaded (see the measurements there).
+MARKOV_THREADED_RUNS = 256
+
+
 @dataclass(frozen=True, eq=False)
 class MarkovLinkFailures(GraphProcess):
     """Each edge of a base graph fails and recovers as an independent two-state chain.
@@ -422,9 +427,15 @@ class MarkovLinkFailures(GraphProcess):
             _check_slot_out(out, (M, K, N, max_degree))
             nbr = out
         ok = np.ones(M, dtype=bool)
-        _markov_slots.at(M * K * E)(ue, draw, addr, streams is not None, up, ei, el,
-                                    float(self.p_fail), float(self.p_recover), nbr, ok,
-                                    np.empty((M, N), dtype=np.int64))
+        # threaded over runs only for many runs: measured on the 2-vCPU benchmark VM, the
+        # threaded pass takes 4.4 vs 9.4 ms (serial) per 64-step chunk at 1,024 runs of
+        # 30 edges and 12.5 vs 27 ms at 1,024 x 90, but at 64 runs x 300 edges it took
+        # either 3.2 ms or, in about half of the processes (under numba's OpenMP layer,
+        # for every chunk of that process), 16-20 ms against a steady 5.4 ms serial
+        run = (_markov_slots.at(M * K * E) if M >= MARKOV_THREADED_RUNS
+               else _markov_slots.serial)
+        run(ue, draw, addr, streams is not None, up, ei, el, float(self.p_fail),
+            float(self.p_recover), nbr, ok, np.empty((M, N), dtype=np.int64))
         if not ok.all():
             raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
         new = np.zeros((M, N, N), dtype=bool)

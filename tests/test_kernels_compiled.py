@@ -303,11 +303,12 @@ def _ring(N, offsets=(1, 2, 5)):
 
 
 def test_compiled_uniform_draws_continue_each_generators_stream():
-    # 64 runs x 64 steps x 27 edges: the threaded build draws (above PARALLEL_WORK)
+    # 256 runs x 64 steps x 27 edges: the threaded build draws
     from netsense.compiled import PARALLEL_WORK, uniform_streams
+    from netsense.graphs import MARKOV_THREADED_RUNS
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
-    seeds = list(range(100, 164))
+    seeds = list(range(100, 100 + MARKOV_THREADED_RUNS))
     E = int(proc.base.sum())
     assert len(seeds) * 64 * E >= PARALLEL_WORK
     rngs = [np.random.default_rng(s) for s in seeds]
