@@ -71,6 +71,7 @@ import numpy as np
 
 from netsense import kernels, observation
 from netsense.coremodel import SUBSTATES, CoreModel, ObsLayout, RewardConfig, symlog
+from netsense.graphs import slot_adjacency
 from netsense.observers.source import LuenbergerSource, SourceEstimator
 from netsense.sensing.arrivals import AlwaysArrive
 from netsense.sensing.noise import NoNoise
@@ -541,10 +542,7 @@ class BatchedCore:
     def adjacency(self) -> np.ndarray:
         """``G[k]`` as ``(B, N, N)`` bool (``[b, i, l]``: ``l -> i``), from the slots."""
         if self._adjacency is None:
-            adj = np.zeros((self.B, self.N, self.N), dtype=bool)
-            b, i, d = np.nonzero(self.valid)
-            adj[b, i, self.nbr[b, i, d]] = True
-            self._adjacency = adj
+            self._adjacency = slot_adjacency(self.nbr, self.N)
         return self._adjacency
 
     @property

@@ -111,6 +111,19 @@ def in_neighbor_slots(adj: np.ndarray, max_degree: int | None = None
     return nbr, valid
 
 
+def slot_adjacency(nbr: np.ndarray, num_nodes: int) -> np.ndarray:
+    """The graphs of slot tables (inverse of :func:`in_neighbor_slots`).
+
+    ``nbr (..., N, D)`` in-neighbour slots (``-1`` = empty); returns ``adj (..., N, N)``
+    bool with ``adj[..., i, l]`` True iff ``l`` is in a slot of ``i``.
+    """
+    nbr = np.asarray(nbr)
+    adj = np.zeros(nbr.shape[:-1] + (int(num_nodes),), dtype=bool)
+    *lead, d = np.nonzero(nbr >= 0)
+    adj[(*lead, nbr[(*lead, d)])] = True
+    return adj
+
+
 def _check_slot_out(out: np.ndarray, shape: tuple[int, ...]) -> None:
     if not isinstance(out, np.ndarray) or out.shape != tuple(shape) \
             or out.dtype.kind != "i":
@@ -328,12 +341,8 @@ class MarkovLinkFailures(GraphProcess):
             raise ValueError(f"draws must be one of {MARKOV_DRAWS}, got {self.draws!r}")
         object.__setattr__(self, "base", base)
         object.__setattr__(self, "num_nodes", base.shape[0])
-        # base edges in row-major order (node i, then ascending l) and their base slot
-        ei, el = np.nonzero(base)
-        eq = np.cumsum(base, axis=1)[ei, el] - 1
-        slot_nbr = np.full((base.shape[0], max(int(base.sum(-1).max(initial=0)), 1)), -1)
-        slot_nbr[ei, eq] = el
-        object.__setattr__(self, "_edges", (ei, el, eq, slot_nbr))
+        # base edges in row-major order (node i, then ascending l)
+        object.__setattr__(self, "_edges", np.nonzero(base))
 
     @property
     def max_in_degree(self) -> int:
@@ -349,7 +358,7 @@ class MarkovLinkFailures(GraphProcess):
     def _edge_uniforms(self, rng, shape) -> np.ndarray:
         """Uniforms of the base edges, ``shape + (E,)``: ``draws = "all"`` draws one per
         node pair (the original stream) and keeps the edges', ``"base"`` only the E."""
-        ei, el = self._edges[:2]
+        ei, el = self._edges
         if self.draws == "base":
             return rng.random(shape + (ei.size,))
         return rng.random(shape + self.base.shape)[..., ei, el]
@@ -357,45 +366,34 @@ class MarkovLinkFailures(GraphProcess):
     def initial_state(self, rng):
         p_up = self.p_recover / (self.p_fail + self.p_recover)
         if self.draws == "base":
-            ei, el = self._edges[:2]
+            ei, el = self._edges
             up = np.zeros(self.base.shape, dtype=bool)
             up[ei, el] = self._edge_uniforms(rng, ()) < p_up
             return up
         return (rng.random(self.base.shape) < p_up) & self.base
 
     def sample(self, rng, num_steps, state):
-        if self.draws == "base":
-            nbr, (state,) = self.sample_slots_many([rng], num_steps, [state],
-                                                   self.max_in_degree, _adjacency=True)
-            return nbr[0], state
-        out = np.empty((num_steps,) + self.base.shape, dtype=bool)
-        # One draw for the chunk: the same stream as one draw of base.shape per step.
-        u = rng.random((num_steps,) + self.base.shape)
-        stay_up, come_back = u >= self.p_fail, u < self.p_recover
-        up = state
-        for k in range(num_steps):
-            out[k] = up
-            up = np.where(up, stay_up[k], come_back[k]) & self.base
-        return out, up
+        adj, (state,) = self.sample_many([rng], num_steps, [state])
+        return adj[0], state
 
     def sample_many(self, rngs, num_steps, states):
-        return self.sample_slots_many(rngs, num_steps, states, self.max_in_degree,
-                                      _adjacency=True)
+        # the graphs of the slot tables: every up base link fits (D = max in-degree), so
+        # the two-state recursion has one implementation, the compiled one below
+        nbr, new = self.sample_slots_many(rngs, num_steps, states, self.max_in_degree)
+        return slot_adjacency(nbr, self.num_nodes), new
 
-    def sample_slots_many(self, rngs, num_steps, states, max_degree, out=None,
-                          _adjacency=False):
+    def sample_slots_many(self, rngs, num_steps, states, max_degree, out=None):
         # Works on the E base edges only: each run draws its own chunk from its own
         # generator (the stream of sample()), and the two-state recursion and the slot
         # tables run once over all runs.
-        ei, el, eq, slot_nbr = self._edges
+        ei, el = self._edges
         M, K, N, E = len(rngs), num_steps, self.num_nodes, ei.size
         up = (np.stack([np.asarray(st, dtype=bool) for st in states])[:, ei, el] if M
               else np.zeros((0, E), bool))
         # draws = "base" slot tables: each run's uniforms are drawn inside the compiled
         # pass, from its own generator through numpy's next_double (the same stream as
         # rng.random), so no (M, K, E) array of uniforms is built
-        streams = (uniform_streams(rngs) if self.draws == "base" and not _adjacency
-                   else None)
+        streams = uniform_streams(rngs) if self.draws == "base" else None
         if streams is None:
             ue = np.empty((M, K, E))
             for m, rng in enumerate(rngs):
@@ -407,18 +405,6 @@ class MarkovLinkFailures(GraphProcess):
         else:
             ue = np.empty((0, 0, 0))
             draw, addr = streams
-        if _adjacency:
-            stay_up, come_back = ue >= self.p_fail, ue < self.p_recover
-            del ue
-            ups = np.empty((M, K, E), dtype=bool)
-            for k in range(K):
-                ups[:, k] = up
-                up = np.where(up, stay_up[:, k], come_back[:, k])
-            new = np.zeros((M, N, N), dtype=bool)
-            new[:, ei, el] = up
-            out = np.zeros((M, K, N, N), dtype=bool)
-            out[:, :, ei, el] = ups
-            return out, list(new)
         # slots: the up base links of each node in ascending order (edges are row-major),
         # and the two-state recursion, in one compiled pass over (run, step, edge)
         if out is None:

@@ -14,7 +14,7 @@ import pytest
 
 from netsense import compiled, kernels, observation
 from netsense.envcore import BatchedCore
-from netsense.graphs import MarkovLinkFailures, in_neighbor_slots
+from netsense.graphs import MarkovLinkFailures
 from netsense.scenarios import build_model, load
 
 OMEGA = kernels.OMEGA
@@ -303,46 +303,44 @@ def _ring(N, offsets=(1, 2, 5)):
 
 
 def test_compiled_uniform_draws_continue_each_generators_stream():
-    # 256 runs x 64 steps x 27 edges: the threaded build draws
+    # 256 runs x 12 steps x 27 edges: the threaded build draws
     from netsense.compiled import PARALLEL_WORK, uniform_streams
     from netsense.graphs import MARKOV_THREADED_RUNS
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
     seeds = list(range(100, 100 + MARKOV_THREADED_RUNS))
-    E = int(proc.base.sum())
-    assert len(seeds) * 64 * E >= PARALLEL_WORK
+    K, E = 12, int(proc.base.sum())
+    assert len(seeds) * K * E >= PARALLEL_WORK
     rngs = [np.random.default_rng(s) for s in seeds]
     assert uniform_streams(rngs) is not None
     st = [proc.initial_state(np.random.default_rng(s)) for s in seeds]
-    nbr, new = proc.sample_slots_many(rngs, 64, st, 3)
-    for m, s in enumerate(seeds):
-        ref_rng = np.random.default_rng(s)
-        adj, end = proc.sample(ref_rng, 64, st[m])  # numpy's own draws
-        np.testing.assert_array_equal(nbr[m], in_neighbor_slots(adj, 3)[0])
-        np.testing.assert_array_equal(new[m], end)
-        assert rngs[m].random() == ref_rng.random()  # left where rng.random left it
+    nbr, new = proc.sample_slots_many(rngs, K, st, 3)
+    ref_rngs = [np.random.default_rng(s) for s in seeds]
+    ref, final = _markov_reference(proc, ref_rngs, K, st, 3)  # numpy's own draws
+    np.testing.assert_array_equal(nbr, ref)
+    for m in range(len(seeds)):
+        np.testing.assert_array_equal(new[m], final[m])
+        assert rngs[m].random() == ref_rngs[m].random()  # left where rng.random left it
 
 
 def test_mixed_or_repeated_generators_are_drawn_through_numpy():
     from netsense.compiled import uniform_streams
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
-    mixed = [np.random.default_rng(1), np.random.Generator(np.random.MT19937(2))]
+
+    def mixed():
+        return [np.random.default_rng(1), np.random.Generator(np.random.MT19937(2))]
+
     one = np.random.default_rng(3)
-    assert uniform_streams(mixed) is None and uniform_streams([one, one]) is None
+    assert uniform_streams(mixed()) is None and uniform_streams([one, one]) is None
     assert uniform_streams([]) is None
     st = [proc.initial_state(np.random.default_rng(s)) for s in (7, 8)]
-    nbr, _ = proc.sample_slots_many(mixed, 10, st, 3)
-    for m, rng in enumerate([np.random.default_rng(1),
-                             np.random.Generator(np.random.MT19937(2))]):
-        adj, _ = proc.sample(rng, 10, st[m])
-        np.testing.assert_array_equal(nbr[m], in_neighbor_slots(adj, 3)[0])
+    nbr, _ = proc.sample_slots_many(mixed(), 10, st, 3)
+    np.testing.assert_array_equal(nbr, _markov_reference(proc, mixed(), 10, st, 3)[0])
     # one generator for both runs: run 0 takes its first 10 steps, run 1 the next 10
     nbr, _ = proc.sample_slots_many([one, one], 10, st, 3)
     ref = np.random.default_rng(3)
-    for m in range(2):
-        adj, _ = proc.sample(ref, 10, st[m])
-        np.testing.assert_array_equal(nbr[m], in_neighbor_slots(adj, 3)[0])
+    np.testing.assert_array_equal(nbr, _markov_reference(proc, [ref, ref], 10, st, 3)[0])
 
 
 def test_threaded_drivers_called_from_several_python_threads_under_workqueue():
