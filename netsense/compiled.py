@@ -23,9 +23,12 @@ increments and decrements numba otherwise wraps around every array argument — 
 ``N = 10`` those cost more than the arithmetic of the rules (measured 10x on the source
 correction).
 
-:func:`uniform_streams` hands numpy's own ``next_double`` and the generators' states to a
-driver, so per-member uniforms are drawn inside the threaded pass that consumes them
-(:class:`netsense.graphs.MarkovLinkFailures`), continuing each member's stream exactly.
+:func:`bit_streams` hands numpy's own C draw functions and the generators' states to a
+driver, and :func:`bit_generator` turns them into numba's bit-generator object, so
+per-member random numbers are drawn inside the threaded pass that consumes them, by
+numba's implementation of numpy's algorithms, continuing each member's stream exactly:
+link failures (:class:`netsense.graphs.MarkovLinkFailures`) and Gaussian noise
+(:meth:`netsense.noise.GaussianNoise.sample_many`).
 """
 
 from __future__ import annotations
@@ -35,15 +38,17 @@ import threading
 import types
 from collections.abc import Sequence
 
-import numba.experimental.function_type  # noqa: F401  (lets numba type the class below)
 import numpy as np
 from numba import njit
 from numba import types as nbtypes
+from numba.core import cgutils
+from numba.core.extending import intrinsic
+from numba.np.random import generator_core  # noqa: F401  (numba's bit-generator model)
 
 #: Work (array elements touched) from which a call runs on numba's thread pool.
 PARALLEL_WORK = 1 << 16
 
-__all__ = ["PARALLEL_WORK", "Driver", "NextDouble", "uniform_streams"]
+__all__ = ["NO_STREAMS", "PARALLEL_WORK", "Driver", "bit_generator", "bit_streams"]
 
 # numba's workqueue threading layer (a choice for busy machines, see the module docstring)
 # refuses concurrent parallel calls from several Python threads (it aborts the process);
@@ -77,48 +82,70 @@ def _renamed(fn, tag: str):
     return out
 
 
-class NextDouble(nbtypes.WrapperAddressProtocol):
-    """numpy's own ``next_double`` of one bit-generator type, callable in compiled code.
-
-    The C function a :class:`numpy.random.BitGenerator` exposes through its documented
-    ``ctypes`` interface, handed to numba as a first-class function (``fn(state_address)``
-    returns the next double in ``[0, 1)`` and advances that generator). It is what
-    ``Generator.random`` calls once per value, so compiled draws continue each
-    generator's stream exactly (``tests/test_kernels_compiled.py``). It is passed as an
-    argument, never baked into the code, so drivers that take it stay cacheable.
-    """
-
-    def __init__(self, address: int) -> None:
-        self.address = int(address)
-
-    def __wrapper_address__(self) -> int:
-        return self.address
-
-    def signature(self):
-        return nbtypes.float64(nbtypes.uintp)  # (void *state): a pointer-sized integer
+_BIT_GENERATOR = nbtypes.NumPyRandomBitGeneratorType("bit_generator")
 
 
-def uniform_streams(rngs: Sequence[np.random.Generator]
-                    ) -> tuple[NextDouble, np.ndarray] | None:
-    """``(next_double, state addresses (len(rngs),) uintp)`` of the generators, or None.
+@intrinsic
+def _bit_generator(typingctx, fns, state):
+    """numba's bit-generator struct over numpy's C functions ``fns`` and a raw state."""
+    sig = _BIT_GENERATOR(fns, state)
 
-    A driver that calls ``next_double(states[m])`` ``K`` times draws exactly what
-    ``rngs[m].random(K)`` would, and leaves ``rngs[m]`` where that call would. None when
-    the list is empty, its bit generators are not all of one type, or one generator
-    appears twice (then the caller draws through numpy). The generators must stay alive,
-    and nobody else may use them, while a driver draws (numpy's per-generator lock is not
-    taken).
+    def codegen(context, builder, signature, args):
+        fns_ty = signature.args[0]
+        arr = context.make_array(fns_ty)(context, builder, args[0])
+        data = arr.data
+        bg = cgutils.create_struct_proxy(_BIT_GENERATOR)(context, builder)
+        bg.parent = context.get_constant_null(nbtypes.pyobject)
+        bg.state_address = args[1]
+        bg.state = args[1]
+        for k, name in enumerate(("next_uint64", "next_uint32", "next_double")):
+            ptr = builder.gep(data, [context.get_constant(nbtypes.intp, k)])
+            setattr(bg, f"fnptr_{name}", builder.load(ptr))
+        bg.bit_generator = context.get_constant(nbtypes.uintp, 0)
+        return bg._getvalue()
+
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def bit_generator(fns, state):
+    """numba's view of one numpy bit generator: ``fns`` and ``state`` from
+    :func:`bit_streams`. numba's own draws (``next_double``, ``next_uint64`` of
+    ``numba.np.random.generator_core``, the distributions of
+    ``numba.np.random.distributions``) take it and continue that generator's stream
+    exactly as numpy's ``Generator`` methods would."""
+    return _bit_generator(fns, state)
+
+
+def bit_streams(rngs: Sequence[np.random.Generator]
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(fns (3,) uintp, states (len(rngs),) uintp)`` of the generators, or None.
+
+    ``fns`` are the C functions ``next_uint64``, ``next_uint32`` and ``next_double`` of
+    the generators' bit-generator type, from its documented ``ctypes`` interface, and
+    ``states[m]`` the state of ``rngs[m]``: a driver that draws through
+    ``bit_generator(fns, states[m])`` draws exactly what ``rngs[m]``'s methods would, and
+    leaves ``rngs[m]`` where they would. None when the list is empty, its bit generators
+    are not all of one type, or one generator appears twice (then the caller draws
+    through numpy). The generators must stay alive, and nobody else may use them, while
+    a driver draws (numpy's per-generator lock is not taken).
     """
     if not rngs:
         return None
-    fns: dict[type, int] = {}  # one C function per bit-generator class
+    fns: dict[type, np.ndarray] = {}  # one set of C functions per bit-generator class
     states = np.empty(len(rngs), dtype=np.uintp)
     for m, rng in enumerate(rngs):
         bg = rng.bit_generator
         iface = bg.ctypes
         if type(bg) not in fns:
-            fns[type(bg)] = ctypes.cast(iface.next_double, ctypes.c_void_p).value
+            fns[type(bg)] = np.array(
+                [ctypes.cast(f, ctypes.c_void_p).value for f in
+                 (iface.next_uint64, iface.next_uint32, iface.next_double)], dtype=np.uintp)
         states[m] = iface.state_address
     if len(fns) != 1 or np.unique(states).size != states.size:  # one generator twice:
         return None  # its two runs must be drawn one after the other
-    return NextDouble(fns.popitem()[1]), states
+    return fns.popitem()[1], states
+
+
+#: ``(fns, states)`` for drivers called without streams (never drawn from).
+NO_STREAMS = (np.zeros(3, dtype=np.uintp), np.zeros(1, dtype=np.uintp))

@@ -64,7 +64,8 @@ whose message did not arrive, or anything but 0 on the own substate) raise too w
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import NamedTuple
 
 import numpy as np
@@ -89,6 +90,18 @@ CHUNK_BUDGET = 48 * 2**20
 _STREAMS = ("init", "graph", "process_noise", "measurement_noise", "measurement_arrivals",
             "message_arrivals", "source")
 INVALID_ACTIONS = ("raise", "keep")
+
+
+@contextmanager
+def _rows(buf: np.ndarray, members: np.ndarray) -> Iterator[np.ndarray]:
+    """The rows ``buf[members]`` to write into: a view when the members are contiguous,
+    else a scratch array that is copied into ``buf`` on exit."""
+    if members.size and members[-1] - members[0] + 1 == members.size:
+        yield buf[members[0]:members[-1] + 1]
+        return
+    out = np.empty((members.size, *buf.shape[1:]), buf.dtype)
+    yield out
+    buf[members] = out
 
 
 class StepResult(NamedTuple):
@@ -313,7 +326,7 @@ class BatchedCore:
 
     def _refill(self, members: np.ndarray) -> None:
         """Draw the next ``chunk`` steps of graphs, noise and arrivals for ``members``."""
-        m, K, N = self.model, self.chunk, self.N
+        m, K = self.model, self.chunk
         members = np.asarray(members, dtype=np.int64)
         # graphs for groups of members at once (each from its own "graph" generator, so
         # equal to per-member sampling), in groups that keep the process's temporaries
@@ -321,26 +334,27 @@ class BatchedCore:
         group = max(1, (16 * 2**20) // max(m.graphs.slot_sample_bytes(K), 1))
         for g in range(0, len(members), group):
             mem = members[g:g + group]
-            run = mem.size and mem[-1] - mem[0] + 1 == mem.size  # contiguous: a view
-            out = self.buf_nbr[mem[0]:mem[-1] + 1] if run else np.empty(
-                (mem.size, K, N, self.D), self.buf_nbr.dtype)
-            _, states = m.graphs.sample_slots_many([self.rngs[b]["graph"] for b in mem],
-                                                   K, [self.graph_state[b] for b in mem],
-                                                   self.D, out=out)
+            with _rows(self.buf_nbr, mem) as out:
+                _, states = m.graphs.sample_slots_many(
+                    [self.rngs[b]["graph"] for b in mem], K,
+                    [self.graph_state[b] for b in mem], self.D, out=out)
             for b, st in zip(mem, states, strict=True):
                 self.graph_state[b] = st
-            if not run:
-                self.buf_nbr[mem] = out
-        for b in members:
-            rngs = self.rngs[b]
-            if self._has_pnoise:
-                m.plant.process_noise.sample(rngs["process_noise"], (K, self.W.shape[1]),
-                                             out=self.buf_w[b])
-            if self._has_mnoise:
-                v = m.plant.measurement_noise.sample(rngs["measurement_noise"],
-                                                     (K, self.N, self.r), out=self.buf_v[b])
+        # noise of all members in one call per model (one compiled pass for Gaussian
+        # noise), each member from its own generator: the same numbers as member by member
+        if self._has_pnoise:
+            with _rows(self.buf_w, members) as out:
+                m.plant.process_noise.sample_many(
+                    [self.rngs[b]["process_noise"] for b in members],
+                    (K, self.W.shape[1]), out)
+        if self._has_mnoise:
+            with _rows(self.buf_v, members) as out:
+                m.plant.measurement_noise.sample_many(
+                    [self.rngs[b]["measurement_noise"] for b in members],
+                    (K, self.N, self.r), out)
                 if not self._outputs_all_real:
-                    v *= self.output_mask  # padded outputs carry no noise
+                    out *= self.output_mask  # padded outputs carry no noise
+        for b in members:
             if not self._meas_always:
                 s = self.meas_sampler[b]
                 self.buf_meas[b] = np.stack([s.next() for _ in range(K)])

@@ -23,8 +23,9 @@ from typing import Any
 import networkx as nx
 import numpy as np
 from numba import prange
+from numba.np.random.generator_core import next_double
 
-from netsense.compiled import Driver, uniform_streams
+from netsense.compiled import NO_STREAMS, Driver, bit_generator, bit_streams
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -393,7 +394,7 @@ class MarkovLinkFailures(GraphProcess):
         # draws = "base" slot tables: each run's uniforms are drawn inside the compiled
         # pass, from its own generator through numpy's next_double (the same stream as
         # rng.random), so no (M, K, E) array of uniforms is built
-        streams = uniform_streams(rngs) if self.draws == "base" else None
+        streams = bit_streams(rngs) if self.draws == "base" else None
         if streams is None:
             ue = np.empty((M, K, E))
             for m, rng in enumerate(rngs):
@@ -401,10 +402,10 @@ class MarkovLinkFailures(GraphProcess):
                     rng.random(out=ue[m])  # the stream of _edge_uniforms, written in place
                 else:
                     ue[m] = self._edge_uniforms(rng, (K,))
-            draw, addr = _NO_STREAMS[0], np.zeros(M, dtype=np.uintp)
+            fns, addr = NO_STREAMS[0], np.zeros(M, dtype=np.uintp)
         else:
             ue = np.empty((0, 0, 0))
-            draw, addr = streams
+            fns, addr = streams
         # slots: the up base links of each node in ascending order (edges are row-major),
         # and the two-state recursion, in one compiled pass over (run, step, edge)
         if out is None:
@@ -420,7 +421,7 @@ class MarkovLinkFailures(GraphProcess):
         # for every chunk of that process), 16-20 ms against a steady 5.4 ms serial
         run = (_markov_slots.at(M * K * E) if M >= MARKOV_THREADED_RUNS
                else _markov_slots.serial)
-        run(ue, draw, addr, streams is not None, up, ei, el, float(self.p_fail),
+        run(ue, fns, addr, streams is not None, up, ei, el, float(self.p_fail),
             float(self.p_recover), nbr, ok, np.empty((M, N), dtype=np.int64))
         if not ok.all():
             raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
@@ -600,13 +601,13 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     return Gossip.complete(N)
 
 
-def _markov_slots(u, draw, states, drawn, up, ei, el, p_fail, p_recover, nbr, ok, pos_all):
+def _markov_slots(u, fns, states, drawn, up, ei, el, p_fail, p_recover, nbr, ok, pos_all):
     """Two-state link chains and slot tables of :class:`MarkovLinkFailures`.
 
     The uniform of run ``m``, step ``k``, edge ``e`` is ``u[m, k, e]``, or, when
-    ``drawn``, the next ``draw(states[m])`` (numpy's ``next_double`` of run ``m``'s
-    generator, taken in ``(k, e)`` order: the stream of ``rng.random((K, E))``; see
-    :func:`netsense.compiled.uniform_streams`). ``up (M, E)`` link states at the first step
+    ``drawn``, the next double of run ``m``'s generator (``fns``, ``states[m]`` of
+    :func:`netsense.compiled.bit_streams`), taken in ``(k, e)`` order: the stream of
+    ``rng.random((K, E))``. ``up (M, E)`` link states at the first step
     (advanced in place to the state after the last), edges ``(ei, el)`` in row-major
     order. Step ``k`` uses the states before its transition (an up link stays up iff
     ``u >= p_fail``, a down link comes back iff ``u < p_recover``). Writes
@@ -617,7 +618,7 @@ def _markov_slots(u, draw, states, drawn, up, ei, el, p_fail, p_recover, nbr, ok
     E = ei.shape[0]
     for m in prange(M):
         pos = pos_all[m]
-        st = states[m]
+        bg = bit_generator(fns, states[m])
         for k in range(K):
             nbr[m, k] = -1
             pos[:] = 0
@@ -629,10 +630,8 @@ def _markov_slots(u, draw, states, drawn, up, ei, el, p_fail, p_recover, nbr, ok
                     else:
                         nbr[m, k, i, pos[i]] = el[e]
                         pos[i] += 1
-                v = draw(st) if drawn else u[m, k, e]
+                v = next_double(bg) if drawn else u[m, k, e]
                 up[m, e] = v >= p_fail if up[m, e] else v < p_recover
 
 
 _markov_slots = Driver(_markov_slots)
-#: the draw argument of _markov_slots when the uniforms come as an array (never called)
-_NO_STREAMS = uniform_streams([np.random.default_rng(0)])

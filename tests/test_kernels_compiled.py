@@ -304,7 +304,7 @@ def _ring(N, offsets=(1, 2, 5)):
 
 def test_compiled_uniform_draws_continue_each_generators_stream():
     # 256 runs x 12 steps x 27 edges: the threaded build draws
-    from netsense.compiled import PARALLEL_WORK, uniform_streams
+    from netsense.compiled import PARALLEL_WORK, bit_streams
     from netsense.graphs import MARKOV_THREADED_RUNS
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
@@ -312,7 +312,7 @@ def test_compiled_uniform_draws_continue_each_generators_stream():
     K, E = 12, int(proc.base.sum())
     assert len(seeds) * K * E >= PARALLEL_WORK
     rngs = [np.random.default_rng(s) for s in seeds]
-    assert uniform_streams(rngs) is not None
+    assert bit_streams(rngs) is not None
     st = [proc.initial_state(np.random.default_rng(s)) for s in seeds]
     nbr, new = proc.sample_slots_many(rngs, K, st, 3)
     ref_rngs = [np.random.default_rng(s) for s in seeds]
@@ -324,7 +324,7 @@ def test_compiled_uniform_draws_continue_each_generators_stream():
 
 
 def test_mixed_or_repeated_generators_are_drawn_through_numpy():
-    from netsense.compiled import uniform_streams
+    from netsense.compiled import bit_streams
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
 
@@ -332,8 +332,8 @@ def test_mixed_or_repeated_generators_are_drawn_through_numpy():
         return [np.random.default_rng(1), np.random.Generator(np.random.MT19937(2))]
 
     one = np.random.default_rng(3)
-    assert uniform_streams(mixed()) is None and uniform_streams([one, one]) is None
-    assert uniform_streams([]) is None
+    assert bit_streams(mixed()) is None and bit_streams([one, one]) is None
+    assert bit_streams([]) is None
     st = [proc.initial_state(np.random.default_rng(s)) for s in (7, 8)]
     nbr, _ = proc.sample_slots_many(mixed(), 10, st, 3)
     np.testing.assert_array_equal(nbr, _markov_reference(proc, mixed(), 10, st, 3)[0])
@@ -392,3 +392,48 @@ def test_slot_messages_follow_neighbour_transmit_and_link():
     np.testing.assert_array_equal(observation.slot_messages(nbr, transmit), expect)
     expect[b, i, d] &= link[b, i, nbr[b, i, d]]
     np.testing.assert_array_equal(observation.slot_messages(nbr, transmit, link), expect)
+
+
+def test_gaussian_sample_many_continues_each_generators_stream():
+    # 300 runs x (16, 7, 3): the threaded build draws; every value and every generator's
+    # final position must be what numpy's own standard_normal gives run by run
+    from netsense.compiled import PARALLEL_WORK
+    from netsense.sensing.noise import GaussianNoise
+
+    noise, shape, seeds = GaussianNoise(0.37), (16, 7, 3), range(500, 800)
+    assert len(seeds) * int(np.prod(shape)) >= PARALLEL_WORK
+    rngs = [np.random.default_rng(s) for s in seeds]
+    out = np.full((len(seeds), *shape), np.nan)
+    assert noise.sample_many(rngs, shape, out) is out
+    for m, s in enumerate(seeds):
+        ref = np.random.default_rng(s)
+        np.testing.assert_array_equal(out[m], 0.37 * ref.standard_normal(shape))
+        assert rngs[m].random() == ref.random()  # left where numpy would leave it
+    # the ziggurat's rare branches (the tail, idx 0, and the wedges) are in the stream:
+    # ~0.7 % of draws take them, so a stream of 2e5 exercises both many times
+    many = np.empty((2, 100_000))
+    GaussianNoise(1.0).sample_many([np.random.default_rng(1), np.random.default_rng(2)],
+                                   (100_000,), many)
+    np.testing.assert_array_equal(many[1], np.random.default_rng(2).standard_normal(100_000))
+    assert np.abs(many).max() > 3.6541528853610088  # beyond the ziggurat's base: the tail
+
+
+def test_gaussian_sample_many_falls_back_and_checks_out():
+    from netsense.sensing.noise import GaussianNoise, UniformNoise
+
+    noise = GaussianNoise(2.0)
+    mixed = [np.random.default_rng(1), np.random.Generator(np.random.MT19937(2))]
+    out = np.empty((2, 5))
+    noise.sample_many(mixed, (5,), out)
+    ref = [np.random.default_rng(1), np.random.Generator(np.random.MT19937(2))]
+    np.testing.assert_array_equal(out, [noise.sample(r, (5,)) for r in ref])
+    one, ref = np.random.default_rng(3), np.random.default_rng(3)  # one generator twice
+    noise.sample_many([one, one], (5,), out)
+    np.testing.assert_array_equal(out, [noise.sample(ref, (5,)), noise.sample(ref, (5,))])
+    u = UniformNoise(0.5)  # the generic path: member by member through sample()
+    u.sample_many([np.random.default_rng(4)], (5,), out[:1])
+    np.testing.assert_array_equal(out[0], u.sample(np.random.default_rng(4), (5,)))
+    for bad in (np.empty((2, 4)), np.empty((2, 5), np.float32), np.empty((5, 2)).T):
+        with pytest.raises(ValueError, match="C-contiguous float64 array of shape"):
+            noise.sample_many([np.random.default_rng(5), np.random.default_rng(6)], (5,), bad)
+

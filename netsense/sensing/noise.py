@@ -2,14 +2,21 @@
 
 Every model draws from a caller-supplied :class:`numpy.random.Generator`, so that all
 randomness in a run flows from one seed. ``sample(rng, shape)`` returns an array of the
-requested shape whose last axis is the noise dimension.
+requested shape whose last axis is the noise dimension; ``sample_many(rngs, shape, out)``
+fills ``out[m]`` with what ``sample(rngs[m], shape)`` would return, for many runs at once
+(the batched core's refills).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import prange
+from numba.np.random.distributions import random_standard_normal
+
+from netsense.compiled import Driver, bit_generator, bit_streams
 
 
 class NoiseModel:
@@ -20,6 +27,16 @@ class NoiseModel:
         """Draw noise of ``shape``; with ``out`` (float64, C-contiguous, that shape) write
         it there and return ``out`` (the same numbers as without)."""
         raise NotImplementedError
+
+    def sample_many(self, rngs: Sequence[np.random.Generator], shape: tuple[int, ...],
+                    out: np.ndarray) -> np.ndarray:
+        """``out[m] = sample(rngs[m], shape)`` for every run ``m``; returns ``out``
+        (float64, C-contiguous, ``(len(rngs), *shape)``). Each generator advances exactly
+        as by its own ``sample`` call."""
+        _check_many(out, len(rngs), shape)
+        for m, rng in enumerate(rngs):
+            self.sample(rng, shape, out=out[m])
+        return out
 
     @property
     def bound(self) -> float:
@@ -67,6 +84,19 @@ class GaussianNoise(NoiseModel):
         out *= self.std
         return out
 
+    def sample_many(self, rngs: Sequence[np.random.Generator], shape: tuple[int, ...],
+                    out: np.ndarray) -> np.ndarray:
+        # one compiled pass over the runs: each run's normals come from its own generator
+        # through numba's copy of numpy's ziggurat on numpy's own bit-generator functions
+        # (the stream of rng.standard_normal, bit for bit), without a Python call per run
+        streams = bit_streams(rngs)
+        if streams is None:  # mixed bit-generator types or a generator listed twice
+            return super().sample_many(rngs, shape, out)
+        _check_many(out, len(rngs), shape)
+        flat = out.reshape(len(rngs), -1)
+        _normals.at(flat.size)(streams[0], streams[1], float(self.std), flat)
+        return out
+
     @property
     def bound(self) -> float:
         return float("inf") if self.std > 0 else 0.0
@@ -101,6 +131,26 @@ class UniformNoise(NoiseModel):
 
     def to_dict(self) -> dict:
         return {"kind": "uniform", "half_width": self.half_width}
+
+
+def _check_many(out: np.ndarray, runs: int, shape: tuple[int, ...]) -> None:
+    want = (runs, *shape)
+    if (not isinstance(out, np.ndarray) or out.shape != want or out.dtype != np.float64
+            or not out.flags.c_contiguous):
+        raise ValueError(f"out must be a C-contiguous float64 array of shape {want}, got "
+                         f"{getattr(out, 'dtype', type(out))} {getattr(out, 'shape', '')}")
+
+
+def _normals(fns, states, std, out):
+    """``out[m, t] = std * z`` with ``z`` the next standard normal of run ``m``'s generator
+    (``Generator.standard_normal``'s algorithm and stream), for every ``t`` in order."""
+    for m in prange(out.shape[0]):
+        bg = bit_generator(fns, states[m])
+        for t in range(out.shape[1]):
+            out[m, t] = random_standard_normal(bg) * std
+
+
+_normals = Driver(_normals)
 
 
 def noise_from_dict(spec: dict | None) -> NoiseModel:
