@@ -81,6 +81,23 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
 
 
 @njit(cache=True, inline="always")
+def _log1p(x):
+    """``log(1 + x)`` for ``x >= 0`` (nan and inf pass through), within a few float64 ulps.
+
+    ``log(u) * (x / (u - 1))`` with ``u = 1 + x`` rounded (Goldberg, "What every computer
+    scientist should know about floating-point arithmetic", 1991, Thm. 4): the rounding
+    of ``u`` cancels in the quotient, so small ``x`` keeps full relative accuracy. Half
+    the cost of libm's ``log1p`` here (measured 16 % of this pass at N = n = 10); the
+    float32 observation is the float32 rounding of ``log1p`` except when ``log1p`` lies
+    within a few float64 ulps of a float32 rounding boundary.
+    """
+    u = 1.0 + x
+    if u == 1.0 or u == np.inf:  # x below half an ulp of 1 (log1p(x) = x), or inf
+        return x
+    return np.log(u) * (x / (u - 1.0))
+
+
+@njit(cache=True, inline="always")
 def _finite_or_repair(v):
     if np.isnan(v):
         return 0.0
@@ -114,7 +131,7 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
             arr = y_arrived[b, i]
             for q in range(r):
                 v = y[b, i, q] if arr else 0.0
-                o[o_y + q] = _finite_or_repair(np.sign(v) * np.log1p(np.abs(v)))
+                o[o_y + q] = _finite_or_repair(np.sign(v) * _log1p(np.abs(v)))
             o[o_yarr] = 1.0 if arr else 0.0
             _copy(om_tab[i], o[o_om:o_om + M])
             _copy(age_tab[i], o[o_age:o_age + M])
@@ -128,11 +145,11 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
                 inv = 1.0 / den  # one division per agent (float32 output: same values
                 for c in range(n):  # as z / den up to one float64 ulp)
                     o[o_zdir + c] = z[c] * inv
-                o[o_zlog] = np.log1p(norm)
+                o[o_zlog] = _log1p(norm)
             else:
                 for c in range(n):
                     o[o_zdir + c] = _finite_or_repair(z[c] / den)
-                o[o_zlog] = _finite_or_repair(np.log1p(norm))
+                o[o_zlog] = _finite_or_repair(_log1p(norm))
             for d in range(D):
                 got = msg[b, i, d]
                 l = nbr[b, i, d]
