@@ -132,19 +132,23 @@ def bit_streams(rngs: Sequence[np.random.Generator]
     """
     if not rngs:
         return None
-    fns: dict[type, np.ndarray] = {}  # one set of C functions per bit-generator class
+    kinds = set()
     states = np.empty(len(rngs), dtype=np.uintp)
     for m, rng in enumerate(rngs):
         bg = rng.bit_generator
         iface = bg.ctypes
-        if type(bg) not in fns:
-            fns[type(bg)] = np.array(
+        kinds.add(type(bg))
+        if type(bg) not in _FNS:  # C functions of a class: cast once per process (each
+            _FNS[type(bg)] = np.array(  # cast leaves garbage for the cyclic collector)
                 [ctypes.cast(f, ctypes.c_void_p).value for f in
                  (iface.next_uint64, iface.next_uint32, iface.next_double)], dtype=np.uintp)
         states[m] = iface.state_address
-    if len(fns) != 1 or np.unique(states).size != states.size:  # one generator twice:
+    if len(kinds) != 1 or np.unique(states).size != states.size:  # one generator twice:
         return None  # its two runs must be drawn one after the other
-    return fns.popitem()[1], states
+    return _FNS[kinds.pop()], states
+
+
+_FNS: dict[type, np.ndarray] = {}  # bit-generator class -> its C draw functions
 
 
 #: ``(fns, states)`` for drivers called without streams (never drawn from).
