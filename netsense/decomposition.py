@@ -96,7 +96,14 @@ class Decomposition:
 
     @property
     def A_lower(self) -> np.ndarray:
-        """Strictly block-lower part of ``A_bar`` (the couplings ``A_jq``, ``q < j``)."""
+        """``A_bar`` minus its block diagonal: the couplings ``A_jq``, ``q < j``, of eq. (3).
+
+        The blocks above the diagonal are zero in exact arithmetic (Lemma 1) and hold only
+        the decomposition's numerical error (largest entry 5e-15 at n = 10, 7e-10 at
+        N = 100, n = 20 and 3e-7 at N = 30, n = 80 in the benchmark models, against
+        ``|A_bar| ~ 1.1``); they are kept, so that the observers' model of ``z`` is
+        exactly the plant's.
+        """
         return self.A_bar - self.A_diag
 
     def to_z(self, x: np.ndarray) -> np.ndarray:
