@@ -28,7 +28,10 @@ driver, and :func:`bit_generator` turns them into numba's bit-generator object, 
 per-member random numbers are drawn inside the threaded pass that consumes them, by
 numba's implementation of numpy's algorithms, continuing each member's stream exactly:
 link failures (:class:`netsense.graphs.MarkovLinkFailures`) and Gaussian noise
-(:meth:`netsense.noise.GaussianNoise.sample_many`).
+(:meth:`netsense.sensing.noise.GaussianNoise.sample_many`). This builds on numba's own
+model of numpy bit generators (``numba.np.random``, the code behind numba's support for
+``np.random.Generator``); ``tests/test_kernels_compiled.py`` checks the streams against
+numpy's, so a change of that model in a future numba fails there, not silently.
 """
 
 from __future__ import annotations
@@ -88,6 +91,9 @@ _BIT_GENERATOR = nbtypes.NumPyRandomBitGeneratorType("bit_generator")
 @intrinsic
 def _bit_generator(typingctx, fns, state):
     """numba's bit-generator struct over numpy's C functions ``fns`` and a raw state."""
+    if not (isinstance(fns, nbtypes.Array) and fns.ndim == 1 and fns.dtype == nbtypes.uintp
+            and state == nbtypes.uintp):
+        return None  # typing error: fns must be bit_streams' (3,) uintp array
     sig = _BIT_GENERATOR(fns, state)
 
     def codegen(context, builder, signature, args):
