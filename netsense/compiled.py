@@ -157,5 +157,5 @@ def bit_streams(rngs: Sequence[np.random.Generator]
 _FNS: dict[type, np.ndarray] = {}  # bit-generator class -> its C draw functions
 
 
-#: ``(fns, states)`` for drivers called without streams (never drawn from).
-NO_STREAMS = (np.zeros(3, dtype=np.uintp), np.zeros(1, dtype=np.uintp))
+#: ``fns`` for drivers called without streams (never called).
+NO_STREAMS = np.zeros(3, dtype=np.uintp)

@@ -402,7 +402,7 @@ class MarkovLinkFailures(GraphProcess):
                     rng.random(out=ue[m])  # the stream of _edge_uniforms, written in place
                 else:
                     ue[m] = self._edge_uniforms(rng, (K,))
-            fns, addr = NO_STREAMS[0], np.zeros(M, dtype=np.uintp)
+            fns, addr = NO_STREAMS, np.zeros(M, dtype=np.uintp)
         else:
             ue = np.empty((0, 0, 0))
             fns, addr = streams
