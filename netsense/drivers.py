@@ -73,7 +73,25 @@ def vecmat_all(x, M, out):
 def messages_all(nbr, transmit, link, has_link, out):
     for b in prange(nbr.shape[0]):
         for i in range(nbr.shape[1]):
-            message_row(nbr, b, i, transmit, link, has_link, out, b, i)
+            message_row(nbr, b, i, transmit, link, b, 0, has_link, out, b, i)
+
+
+def load_all(buf_nbr, ptr, x, C_T, has_v, buf_v, transmit, has_link, buf_msg, nbr, y, msg):
+    """The environment's step ``k`` from its pre-drawn chunk, member ``b`` at position
+    ``ptr[b]``: the slot table ``nbr`` (widened to int64), the outputs ``y = C x (+ v)``
+    (eq. (2); ``y`` and ``buf_v`` flat over ``(N, r)``) and the message table ``msg``."""
+    N, D = nbr.shape[1], nbr.shape[2]
+    for b in prange(nbr.shape[0]):
+        p = ptr[b]
+        for i in range(N):
+            for d in range(D):
+                nbr[b, i, d] = buf_nbr[b, p, i, d]
+        vecmat_row(x, b, C_T, y, b)
+        if has_v:
+            for c in range(y.shape[1]):
+                y[b, c] += buf_v[b, p, c]
+        for i in range(N):
+            message_row(nbr, b, i, transmit, buf_msg, b, p, has_link, msg, b, i)
 
 
 def check_actions(act, msg, own, choice, masked, first, okt):
@@ -144,7 +162,7 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused
 
 
 for _name in ("advance_all", "average_all", "gather_all", "mix_all", "propagate_all",
-              "innovation_all", "vecmat_all", "messages_all", "check_actions",
-              "apply_all"):
+              "innovation_all", "vecmat_all", "messages_all", "load_all",
+              "check_actions", "apply_all"):
     globals()[_name] = Driver(globals()[_name])
 del _name

@@ -70,7 +70,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from netsense import kernels, observation
+from netsense import drivers, kernels, observation, rewards
 from netsense.coremodel import SUBSTATES, CoreModel, ObsLayout, RewardConfig, symlog
 from netsense.graphs import slot_adjacency
 from netsense.observers.source import LuenbergerSource, SourceEstimator
@@ -209,7 +209,6 @@ class BatchedCore:
             alive &= f.alive(self.N)
         #: ``(N,)`` agents whose errors count (crashed agents and liars excluded)
         self.alive = alive
-        self._all_alive = bool(alive.all())
         self._has_pnoise = not isinstance(plant.process_noise, NoNoise)
         self._has_mnoise = not isinstance(plant.measurement_noise, NoNoise)
         self._meas_always = isinstance(model.measurement_arrivals, AlwaysArrive)
@@ -299,6 +298,8 @@ class BatchedCore:
         # largest index a liar injects (indices are <= k + claim: exact in float32 below)
         self._claim = 0 if self._liar is None else int(self._liar.claim)
         self._gain_rows = None  # kernels.gain_rows of a LuenbergerSource, once
+        self._no_v = np.zeros((1, 1, 1))  # stand-ins for absent buffers (never read)
+        self._no_link = np.ones((1, 1, 1, 1), dtype=bool)
 
     def _reset_member(self, b: int, seed: int) -> None:
         m = self.model
@@ -366,19 +367,25 @@ class BatchedCore:
     def _load_step(self) -> None:
         """Expose the current step's graph, measurements and messages (from the chunk)."""
         # all members at the same chunk position (the usual case): basic slicing, no copies
+        B, N, r = self.B, self.N, self.r
         same = self.ptr.min() == self.ptr.max()
         b, p = (slice(None), int(self.ptr[0])) if same else (self._bidx, self.ptr)
-        self.nbr = self.buf_nbr[b, p].astype(np.int64)
+        # one compiled pass per member: slots, outputs y = C x + v (eq. (2)) and the
+        # message table (link l -> i is buf_msg[b, p, i, l])
+        self.nbr = np.empty((B, N, self.D), dtype=np.int64)
+        y = np.empty((B, N * r))
+        self.msg = np.empty((B, N, self.D), dtype=bool)
+        v = self.buf_v.reshape(B, self.chunk, N * r) if self._has_mnoise else self._no_v
+        link = self._no_link if self._msg_always else self.buf_msg
+        drivers.load_all.at(B * N * (self.D + self.n * r))(
+            self.buf_nbr, self.ptr, self.x, self._C_flat_T, self._has_mnoise, v,
+            self.transmit, not self._msg_always, link, self.nbr, y, self.msg)
         self._adjacency = None
-        y = kernels.vecmat(self.x, self._C_flat_T).reshape(self.B, self.N, self.r)  # eq. (2)
-        if self._has_mnoise:
-            y += self.buf_v[b, p]
+        y = y.reshape(B, N, r)
         for f, memory in zip(self._stuck, self._stuck_memory, strict=True):
             y = f.apply(self.k, y, memory)  # stuck/stale readings replace y_i[k]
         self.y = y
         self.y_arrived = self._ones_BN if self._meas_always else self.buf_meas[b, p]
-        self.msg = observation.slot_messages(  # link l -> i is buf_msg[..., i, l]
-            self.nbr, self.transmit, None if self._msg_always else self.buf_msg[b, p])
         self._mask = None
         self._obs = None
 
@@ -474,43 +481,23 @@ class BatchedCore:
             Z, tau, a, self.nbr, self.msg, self._block_of, self._ALT, self._band, x=self.x,
             A_T=self._A_T, T=self._TT, w=w, W_T=self._W_T, own=self.own, **src_kw)
         self._refuse(out.status, a)  # nothing committed yet
-        x_next, err, tx_next = out.x_next, out.err, a[..., self.M] != 0
         self.last_invalid = out.masked
-        self.x, self.Z, self.tau = x_next, out.Z_next, out.tau_next
+        self.x, self.Z, self.tau = out.x_next, out.Z_next, out.tau_next
         self.k += 1
-        if self._crashes:  # crashed agents send nothing from their crash step on
-            tx_next = tx_next & ~self._silenced(self.k)  # (k already advanced)
-        self.transmit = tx_next
-        self.messages_sent += tx_next.sum(1)
+        # rewards, next transmit flags (crashed agents send nothing from their crash step
+        # on; k already advanced), termination and truncation, in one compiled pass
+        tail = rewards.finish_step(
+            out.x_next, out.err, a, self.M, self._silenced(self.k) if self._crashes else None,
+            self.alive, self.model.reward, self.model.divergence_limit, self.k,
+            self.horizon, self.messages_sent)
+        self.transmit = tail.transmit
+        self.raw_errors, self.errors = tail.raw_errors, tail.errors
         self.ptr += 1
         if self.ptr.max() >= self.chunk:
             self._refill(np.flatnonzero(self.ptr >= self.chunk))
         self._load_step()
-        # --- rewards -------------------------------------------------------------------------
-        rw = self.model.reward
-        scale = np.maximum(np.sqrt(np.einsum("bn,bn->b", x_next, x_next)), rw.error_floor)
-        raw = err / scale[:, None]  # nan only if the estimates blew up (inf - inf)
-        self.raw_errors = raw
-        e = np.fmin(raw, rw.error_clip)  # fmin: nan -> the clip value
-        self.errors = e
-        if rw.team_weight:
-            mean = (e.mean(1, keepdims=True) if self._all_alive
-                    else e[:, self.alive].mean(1, keepdims=True))
-            e = (1 - rw.team_weight) * e + rw.team_weight * mean
-        reward = -rw.error_weight * e
-        if not self._all_alive:
-            reward[:, ~self.alive] = 0.0  # faulty agents' errors are not rewarded
-        if rw.message_cost:
-            reward -= rw.message_cost * tx_next
-        lim = self.model.divergence_limit
-        truncated = self.k >= self.horizon
-        if lim is None:
-            terminated = np.zeros(B, bool)
-        else:
-            terminated = ~(raw[:, self.alive].max(1) <= lim)  # nan counts as diverged
-            truncated &= ~terminated
         obs, mask = self.observe() if observe else (None, None)
-        return StepResult(obs, mask, reward, terminated, truncated)
+        return StepResult(obs, mask, tail.reward, tail.terminated, tail.truncated)
 
     # ------------------------------------------------------------------ faults
     def _silenced(self, k: np.ndarray) -> np.ndarray:

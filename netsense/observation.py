@@ -43,9 +43,11 @@ def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
     """
     out = np.empty(nbr.shape, dtype=bool)
     if link is None:
-        drivers.messages_all.at(out.size)(nbr, transmit, np.ones((1, 1, 1), bool), False, out)
+        drivers.messages_all.at(out.size)(nbr, transmit, np.ones((1, 1, 1, 1), bool), False,
+                                          out)
     else:
-        drivers.messages_all.at(out.size)(nbr, transmit, link, True, out)
+        drivers.messages_all.at(out.size)(nbr, transmit, np.asarray(link, bool)[:, None],
+                                          True, out)
     return out
 
 

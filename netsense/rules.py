@@ -172,15 +172,16 @@ def check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
 
 
 @njit(cache=True, inline="always")
-def message_row(nbr, b, i, transmit, link, has_link, out, ob, oi):
+def message_row(nbr, b, i, transmit, link, lb, lp, has_link, out, ob, oi):
     """Slot ``d`` of agent ``i`` holds a message: its neighbour ``l = nbr[b, i, d] >= 0``
-    transmitted (``transmit[b, l]``) and the link ``l -> i`` delivered (``link[b, i, l]``,
-    when ``has_link``)."""
+    transmitted (``transmit[b, l]``) and the link ``l -> i`` delivered
+    (``link[lb, lp, i, l]``, when ``has_link``: member ``lb``'s link draws at chunk
+    position ``lp``)."""
     for d in range(nbr.shape[2]):
         v = nbr[b, i, d]
         ok = v >= 0
         if ok:
             ok = transmit[b, v]
             if ok and has_link:
-                ok = link[b, i, v]
+                ok = link[lb, lp, i, v]
         out[ob, oi, d] = ok
