@@ -66,19 +66,46 @@ def finish_step(x: np.ndarray, err: np.ndarray, act: np.ndarray, M: int,
     horizon : int
     messages_sent : (B,) int
         Running count of transmissions, incremented in place.
+
+    Raises
+    ------
+    ValueError
+        If an array's shape does not match ``err``'s ``(B, N)`` (checked before anything
+        is written).
     """
+    if np.ndim(err) != 2:
+        raise ValueError(f"err must have shape (B, N), got {np.shape(err)}")
     B, N = err.shape
+    M = int(M)
+    alive = np.asarray(alive, bool)
+    _expect("x", x, (B, None))
+    _expect("act", act, (B, N, None))
+    if act.shape[2] <= M:
+        raise ValueError(f"act must have more than M = {M} columns, got {act.shape}")
+    _expect("alive", alive, (N,))
+    _expect("k", k, (B,))
+    _expect("messages_sent", messages_sent, (B,))
+    if silenced is not None:
+        _expect("silenced", silenced, (B, N))
     out = StepTail(np.empty((B, N)), np.empty((B, N)), np.empty((B, N)),
                    np.empty((B, N), bool), np.empty(B, bool), np.empty(B, bool))
     has_sil = silenced is not None
     sil = np.asarray(silenced, bool) if has_sil else np.zeros((1, 1), bool)
     has_lim = divergence_limit is not None
     _finish.at(x.size + err.size * (5 + act.shape[2]))(  # elements read and written
-        x, err, act, int(M), sil, has_sil, np.asarray(alive, bool), float(reward.error_floor),
+        x, err, act, M, sil, has_sil, alive, float(reward.error_floor),
         float(reward.error_clip), float(reward.team_weight), float(reward.error_weight),
         float(reward.message_cost), float(divergence_limit) if has_lim else 0.0, has_lim,
         k, int(horizon), messages_sent, *out)
     return out
+
+
+def _expect(name: str, a: np.ndarray, shape: tuple) -> None:
+    """Raise unless ``a.shape`` matches ``shape`` (``None``: any length)."""
+    if a.ndim != len(shape) or any(w is not None and s != w
+                                   for s, w in zip(a.shape, shape, strict=True)):
+        want = tuple("any" if w is None else w for w in shape)
+        raise ValueError(f"{name} must have shape {want}, got {a.shape}")
 
 
 def _finish(x, err, act, M, sil, has_sil, alive, floor, clip, team_w, err_w, cost, lim,

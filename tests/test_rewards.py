@@ -62,3 +62,19 @@ def test_finish_step_without_crashes_transmits_every_set_bit():
     np.testing.assert_array_equal(out.transmit, act[..., M] == 1)
     np.testing.assert_array_equal(out.reward, -0.5 * (act[..., M] == 1))
     np.testing.assert_array_equal(sent, np.ones(B))
+
+
+@pytest.mark.parametrize("which", ["x", "act", "alive", "k", "sent", "silenced", "err"])
+def test_finish_step_names_a_misshapen_array_and_writes_nothing(which):
+    B, N, M = 3, 4, 2
+    args = {"x": np.ones((B, 2)), "err": np.zeros((B, N)),
+            "act": np.zeros((B, N, M + 1), np.int64), "alive": np.ones(N, bool),
+            "k": np.zeros(B, np.int64), "sent": np.zeros(B, np.int64),
+            "silenced": np.zeros((B, N), bool)}
+    args[which] = args[which][:-1] if which != "err" else np.zeros(B)
+    sent = args["sent"].copy()
+    name = {"sent": "messages_sent"}.get(which, which)
+    with pytest.raises(ValueError, match=name):
+        finish_step(args["x"], args["err"], args["act"], M, args["silenced"], args["alive"],
+                    RewardConfig(), None, args["k"], 5, args["sent"])
+    np.testing.assert_array_equal(args["sent"], sent[:len(args["sent"])])
