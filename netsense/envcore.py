@@ -366,10 +366,7 @@ class BatchedCore:
 
     def _load_step(self) -> None:
         """Expose the current step's graph, measurements and messages (from the chunk)."""
-        # all members at the same chunk position (the usual case): basic slicing, no copies
         B, N, r = self.B, self.N, self.r
-        same = self.ptr.min() == self.ptr.max()
-        b, p = (slice(None), int(self.ptr[0])) if same else (self._bidx, self.ptr)
         # one compiled pass per member: slots, outputs y = C x + v (eq. (2)) and the
         # message table (link l -> i is buf_msg[b, p, i, l])
         self.nbr = np.empty((B, N, self.D), dtype=np.int64)
@@ -385,7 +382,12 @@ class BatchedCore:
         for f, memory in zip(self._stuck, self._stuck_memory, strict=True):
             y = f.apply(self.k, y, memory)  # stuck/stale readings replace y_i[k]
         self.y = y
-        self.y_arrived = self._ones_BN if self._meas_always else self.buf_meas[b, p]
+        if self._meas_always:
+            self.y_arrived = self._ones_BN
+        elif self.ptr.min() == self.ptr.max():  # all members at one chunk position: a view
+            self.y_arrived = self.buf_meas[:, int(self.ptr[0])]
+        else:
+            self.y_arrived = self.buf_meas[self._bidx, self.ptr]
         self._mask = None
         self._obs = None
 

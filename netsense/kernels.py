@@ -222,7 +222,8 @@ def vecmat(x: np.ndarray, M: np.ndarray) -> np.ndarray:
 
     Every member is computed alone (unlike one BLAS call on the stacked rows, whose
     rounding may depend on ``B``), so a member of a batch equals a ``B = 1`` run bit for
-    bit. Used for the plant (eq. (1)), the outputs (eq. (2)) and ``z = T^T x``.
+    bit. The rule of the plant (eq. (1)), the outputs (eq. (2)) and ``z = T^T x``; the
+    environment's compiled passes call its row function (``rules.vecmat_row``) directly.
     """
     x = np.ascontiguousarray(x, dtype=float)
     M = np.ascontiguousarray(M, dtype=float)
