@@ -126,11 +126,19 @@ def slot_adjacency(nbr: np.ndarray, num_nodes: int) -> np.ndarray:
 
 
 def _check_slot_out(out: np.ndarray, shape: tuple[int, ...]) -> None:
+    """``out`` must be a signed integer array of ``shape`` (runs, steps, N, D) whose type
+    holds every node id ``0..N-1``."""
     if not isinstance(out, np.ndarray) or out.shape != tuple(shape) \
-            or out.dtype.kind != "i":
+            or out.dtype.kind != "i" or np.iinfo(out.dtype).max < shape[2] - 1:
         got = (out.shape, out.dtype) if isinstance(out, np.ndarray) else type(out)
-        raise ValueError(f"out must be a signed integer array of shape {tuple(shape)}, "
-                         f"got {got}")
+        raise ValueError(f"out must be a signed integer array of shape {tuple(shape)} "
+                         f"that holds node ids up to {shape[2] - 1}, got {got}")
+
+
+def _check_runs(rngs: Sequence, states: Sequence) -> None:
+    if len(states) != len(rngs):
+        raise ValueError(f"states must hold one state per generator ({len(rngs)}), "
+                         f"got {len(states)}")
 
 
 # ----------------------------------------------------------------------------- processes
@@ -172,12 +180,17 @@ class GraphProcess:
         """:meth:`sample_many` as slot tables: ``nbr (M, K, N, max_degree)`` (the
         :func:`in_neighbor_slots` of the graphs, ``-1`` = empty slot) and the states.
 
-        ``out``: an integer array of that shape to write the slots into (returned)."""
+        ``out``: an integer array of that shape to write the slots into (returned). The
+        arguments are checked before anything is drawn; a node with more than
+        ``max_degree`` in-neighbours in a drawn graph raises after drawing (``out`` is not
+        written then)."""
+        _check_runs(rngs, states)
+        if out is not None:
+            _check_slot_out(out, (len(rngs), int(num_steps), self.num_nodes, max_degree))
         adj, new = self.sample_many(rngs, num_steps, states)
         nbr = in_neighbor_slots(adj, max_degree)[0]
         if out is None:
             return nbr, new
-        _check_slot_out(out, nbr.shape)
         out[...] = nbr
         return out, new
 
@@ -389,6 +402,17 @@ class MarkovLinkFailures(GraphProcess):
         # tables run once over all runs.
         ei, el = self._edges
         M, K, N, E = len(rngs), num_steps, self.num_nodes, ei.size
+        # every check before anything is drawn (the compiled pass has no bounds checks)
+        _check_runs(rngs, states)
+        if max_degree < self.max_in_degree:  # all of a node's base links can be up
+            raise ValueError(f"max_degree must be >= the base graph's in-degree "
+                             f"{self.max_in_degree}, got {max_degree}")
+        for st in states:
+            if np.shape(st) != self.base.shape:
+                raise ValueError(f"a link state must have shape {self.base.shape}, "
+                                 f"got {np.shape(st)}")
+        if out is not None:
+            _check_slot_out(out, (M, K, N, max_degree))
         up = (np.stack([np.asarray(st, dtype=bool) for st in states])[:, ei, el] if M
               else np.zeros((0, E), bool))
         # draws = "base" slot tables: each run's uniforms are drawn inside the compiled
@@ -408,12 +432,7 @@ class MarkovLinkFailures(GraphProcess):
             fns, addr = streams
         # slots: the up base links of each node in ascending order (edges are row-major),
         # and the two-state recursion, in one compiled pass over (run, step, edge)
-        if out is None:
-            nbr = np.empty((M, K, N, max_degree), dtype=np.int64)
-        else:
-            _check_slot_out(out, (M, K, N, max_degree))
-            nbr = out
-        ok = np.ones(M, dtype=bool)
+        nbr = np.empty((M, K, N, max_degree), dtype=np.int64) if out is None else out
         # threaded over runs only for many runs: measured on the 2-vCPU benchmark VM, the
         # threaded pass takes 4.4 vs 9.4 ms (serial) per 64-step chunk at 1,024 runs of
         # 30 edges and 12.5 vs 27 ms at 1,024 x 90, but at 64 runs x 300 edges it took
@@ -422,9 +441,7 @@ class MarkovLinkFailures(GraphProcess):
         run = (_markov_slots.at(M * K * E) if M >= MARKOV_THREADED_RUNS
                else _markov_slots.serial)
         run(ue, fns, addr, streams is not None, up, ei, el, float(self.p_fail),
-            float(self.p_recover), nbr, ok, np.empty((M, N), dtype=np.int64))
-        if not ok.all():
-            raise ValueError(f"a node has in-degree > max_degree = {max_degree}")
+            float(self.p_recover), nbr, np.empty((M, N), dtype=np.int64))
         new = np.zeros((M, N, N), dtype=bool)
         new[:, ei, el] = up
         return nbr, list(new)
@@ -601,7 +618,7 @@ def graph_process_from_dict(spec: dict) -> GraphProcess:
     return Gossip.complete(N)
 
 
-def _markov_slots(u, fns, states, drawn, up, ei, el, p_fail, p_recover, nbr, ok, pos_all):
+def _markov_slots(u, fns, states, drawn, up, ei, el, p_fail, p_recover, nbr, pos_all):
     """Two-state link chains and slot tables of :class:`MarkovLinkFailures`.
 
     The uniform of run ``m``, step ``k``, edge ``e`` is ``u[m, k, e]``, or, when
@@ -611,8 +628,8 @@ def _markov_slots(u, fns, states, drawn, up, ei, el, p_fail, p_recover, nbr, ok,
     (advanced in place to the state after the last), edges ``(ei, el)`` in row-major
     order. Step ``k`` uses the states before its transition (an up link stays up iff
     ``u >= p_fail``, a down link comes back iff ``u < p_recover``). Writes
-    ``nbr (M, K, N, D)`` (``-1`` = empty slot); ``ok[m]`` turns False if a node of run
-    ``m`` has more than ``D`` up links.
+    ``nbr (M, K, N, D)`` (``-1`` = empty slot); the caller guarantees ``D`` at least the
+    base graph's in-degree, so every up link has a slot.
     """
     M, K, N, D = nbr.shape
     E = ei.shape[0]
@@ -625,11 +642,8 @@ def _markov_slots(u, fns, states, drawn, up, ei, el, p_fail, p_recover, nbr, ok,
             for e in range(E):
                 if up[m, e]:
                     i = ei[e]
-                    if pos[i] >= D:
-                        ok[m] = False
-                    else:
-                        nbr[m, k, i, pos[i]] = el[e]
-                        pos[i] += 1
+                    nbr[m, k, i, pos[i]] = el[e]
+                    pos[i] += 1
                 v = next_double(bg) if drawn else u[m, k, e]
                 up[m, e] = v >= p_fail if up[m, e] else v < p_recover
 

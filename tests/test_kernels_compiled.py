@@ -295,6 +295,37 @@ def test_markov_slots_write_into_a_given_int16_buffer():
                                out=np.zeros((1, 12, 9, 3)))
 
 
+
+@pytest.mark.parametrize("bad", ["fewer_states", "more_states", "degree", "state_shape",
+                                 "out_shape", "out_narrow"])
+@pytest.mark.parametrize("draws", ["base", "all"])
+def test_markov_slot_sampling_rejects_bad_arguments_before_drawing(bad, draws):
+    """The compiled pass has no bounds checks: mismatched inputs must raise first, with
+    every generator untouched."""
+    proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws=draws)
+    rngs = [np.random.default_rng(s) for s in (3, 4)]
+    st = [proc.initial_state(np.random.default_rng(s)) for s in (3, 4)]
+    before = [r.bit_generator.state for r in rngs]
+    kw, D = {}, 3
+    if bad == "fewer_states":
+        st = st[:1]
+    elif bad == "more_states":
+        st = st + st[:1]
+    elif bad == "degree":
+        D = 2
+    elif bad == "state_shape":
+        st = [s_[:-1] for s_ in st]
+    elif bad == "out_shape":
+        kw["out"] = np.zeros((2, 12, 9, 2), np.int64)
+    else:
+        kw["out"] = np.zeros((2, 12, 300, 3), np.int8)  # int8 cannot hold ids up to 299
+        proc = MarkovLinkFailures(_ring(300), 0.3, 0.4, draws=draws)
+        st = [proc.initial_state(np.random.default_rng(s)) for s in (3, 4)]
+        before = [r.bit_generator.state for r in rngs]
+    with pytest.raises(ValueError, match="states must|max_degree|link state|out must"):
+        proc.sample_slots_many(rngs, 12, st, D, **kw)
+    assert [r.bit_generator.state for r in rngs] == before
+
 def _ring(N, offsets=(1, 2, 5)):
     base = np.zeros((N, N), bool)
     for off in offsets:
