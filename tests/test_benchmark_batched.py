@@ -98,8 +98,7 @@ def test_batched_splits_groups_beyond_the_memory_budget(monkeypatch):
         return real(scenario, policy, seeds, overrides)
 
     monkeypatch.setattr(vec, "rollout_seeds", spy)
-    per_member = 9 * (8 * 100 + 8 * 10 + 8) + 8 * 9 * 10  # K = 8, N = 10
-    monkeypatch.setattr(backends, "BATCH_BYTES", 2 * per_member)  # where it is read
+    monkeypatch.setattr(backends, "_members_per_batch", lambda model: 2)
     out = bm.run_batched(jobs, on_done=done.append)
     assert sizes == [2, 2, 1] and done == [2, 2, 1]
     _assert_same_results(out, bm.execute(jobs, backend="serial", progress=False))

@@ -68,7 +68,7 @@ def test_finish_step_without_crashes_transmits_every_set_bit():
 def test_finish_step_names_a_misshapen_array_and_writes_nothing(which):
     B, N, M = 3, 4, 2
     args = {"x": np.ones((B, 2)), "err": np.zeros((B, N)),
-            "act": np.zeros((B, N, M + 1), np.int64), "alive": np.ones(N, bool),
+            "act": np.ones((B, N, M + 1), np.int64), "alive": np.ones(N, bool),
             "k": np.zeros(B, np.int64), "sent": np.zeros(B, np.int64),
             "silenced": np.zeros((B, N), bool)}
     args[which] = args[which][:-1] if which != "err" else np.zeros(B)
