@@ -8,7 +8,8 @@ its module path (``netsense.benchmark.backends.run_job``).
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import asdict
 
 import numpy as np
@@ -175,8 +176,8 @@ def execute(jobs: Sequence[Job], *, backend: str = "batched", workers: int | Non
 
             n = workers or min(len(jobs), os.cpu_count() or 1)
             ctx = mp.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=max(n, 1), mp_context=ctx,
-                                     initializer=_worker_init) as pool:
+            with _one_thread_per_worker(), ProcessPoolExecutor(
+                    max_workers=max(n, 1), mp_context=ctx) as pool:
                 futs = {pool.submit(runner, job): i for i, job in enumerate(jobs)}
                 for fut in as_completed(futs):
                     results[futs[fut]] = fut.result()
@@ -200,6 +201,25 @@ def execute(jobs: Sequence[Job], *, backend: str = "batched", workers: int | Non
     return [r for r in results if r is not None]
 
 
-def _worker_init() -> None:
-    # one thread per worker (numpy BLAS, torch if a learned policy loads it later)
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+#: Thread-count variables set to 1 for the process backend's workers (unless the user set
+#: them): BLAS, OpenMP (torch too) and numba read them when they load.
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                "NUMBA_NUM_THREADS")
+
+
+@contextmanager
+def _one_thread_per_worker() -> Iterator[None]:
+    """One thread per worker process: the variables are set in this process while the
+    pool spawns its workers (which inherit them; a worker's initializer would run after
+    it has imported numpy and numba), then restored."""
+    old = {k: os.environ.get(k) for k in _THREAD_VARS}
+    for k in _THREAD_VARS:
+        os.environ.setdefault(k, "1")
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
