@@ -12,7 +12,7 @@ line. Run it once per checkout, alternating, e.g.::
 
 ``--replay``: the table's setting instead (``netsense.speed.runners``: the benchmark model in
 the sources form, freshness-policy actions recorded on a twin core and replayed, best of 4
-blocks of 128 steps from a reset; needs a checkout that has ``netsense.speed``).
+blocks of 128 steps from a reset; needs a checkout with ``netsense.speed.runners``).
 
 Results: ``results/bench_batched_ab.txt`` (paper form) and
 ``results/bench_batched_ab_replay.txt`` (``--replay``).
@@ -31,6 +31,10 @@ from netsense.policies import FreshnessPolicy
 from netsense.scenarios import build_model, load, with_overrides
 
 SHAPES = ((1024, 10, 10), (1024, 30, 20), (64, 100, 20))
+
+# model() and kernel_ms() restate netsense.speed's bench_model(substates="all") and
+# kernel runner on purpose: the paper-form A/B must also run on checkouts that predate
+# netsense.speed (e.g. 4ee9591).
 
 
 def model(N: int, n: int):
@@ -78,16 +82,7 @@ def replay_ms(B: int, N: int, n: int, steps: int = 128, repeats: int = 4) -> flo
     from netsense.speed.runners import _ReplayRunner, bench_model
 
     rep = _ReplayRunner(bench_model(N, n), B, steps, 0)
-    acts = [a.astype(np.int64) for a in rep.actions]
-    core = BatchedCore(rep.core.model, B)
-    best = float("inf")
-    for _ in range(repeats):
-        core.reset(0)
-        t0 = time.perf_counter()
-        for a in acts:
-            core.step(a)
-        best = min(best, (time.perf_counter() - t0) / steps * 1e3)
-    return best
+    return min(rep.block() for _ in range(repeats)) / steps * 1e3
 
 
 def main() -> None:

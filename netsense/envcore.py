@@ -73,7 +73,7 @@ import numpy as np
 from netsense import drivers, kernels, observation, rewards
 from netsense.coremodel import SUBSTATES, CoreModel, ObsLayout, RewardConfig, symlog
 from netsense.graphs import slot_adjacency
-from netsense.observers.source import LuenbergerSource, SourceEstimator
+from netsense.observers.source import LuenbergerSource
 from netsense.sensing.arrivals import AlwaysArrive
 from netsense.sensing.noise import NoNoise
 
@@ -179,7 +179,6 @@ class BatchedCore:
         self._band = kernels.diag_band(self.A_diag)
         self._TT = np.ascontiguousarray(dec.T)
         self._A_T = np.ascontiguousarray(plant.A.T)
-        self.own_block = SourceEstimator.own_block_mask(design)
         self.C_padded = plant.C_padded
         self._C_flat_T = self.C_padded.reshape(-1, self.n).T.copy()  # y = C x, eq. (2)
         self.output_mask = plant.output_mask
@@ -213,7 +212,6 @@ class BatchedCore:
         self._has_mnoise = not isinstance(plant.measurement_noise, NoNoise)
         self._meas_always = isinstance(model.measurement_arrivals, AlwaysArrive)
         self._msg_always = isinstance(model.message_arrivals, AlwaysArrive)
-        self._arangeN = np.arange(self.N)
         B, N, D = self.B, self.N, self.D
         self._slot_dtype = np.int16 if N < 2**15 else np.int64
         per_step = (N * D * np.dtype(self._slot_dtype).itemsize

@@ -74,6 +74,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from netsense.benchmark.rollouts import SCRIPTED_POLICIES
 from netsense.env import FlatMaskMultiDiscrete
 from netsense.envcore import BatchedCore, CoreModel
 
@@ -365,8 +366,7 @@ class AgentVectorEnv(VectorEnv):
 #: (``random`` with one generator per member) and the centralized KF oracle. Learned
 #: policies act through the PettingZoo env episode by episode (:func:`netsense.benchmark.
 #: rollout`).
-BATCHABLE_POLICIES = ("freshness", "uniform_consensus", "tree_consensus", "open_loop",
-                      "random", "kf_oracle")
+BATCHABLE_POLICIES = SCRIPTED_POLICIES + ("kf_oracle",)
 
 
 def rollout_seeds(scenario: str | CoreModel, policy: str, seeds: Sequence[int],

@@ -54,20 +54,15 @@ class _CoreRunner:
         self.core = BatchedCore(model, B)
         self.policy = FreshnessPolicy(self.core.layout)
         self.obs, self.mask = self.core.reset(seed)
-        self.policy_time = 0.0
-        self.policy_steps = 0
 
     def block(self, steps: int) -> float:
         core, pol = self.core, self.policy
         total = 0.0
         for _ in range(steps):
-            t0 = time.perf_counter()
             act = pol.act(self.obs, self.mask)
-            t1 = time.perf_counter()
+            t0 = time.perf_counter()
             out = core.step(act)
-            total += time.perf_counter() - t1
-            self.policy_time += t1 - t0
-            self.policy_steps += 1
+            total += time.perf_counter() - t0
             self.obs, self.mask = out.obs, out.action_mask
             if out.truncated.any():  # stay inside the horizon (reset is not timed)
                 self.obs, self.mask = core.reset(int(core.k.sum()))
@@ -153,10 +148,9 @@ class _VmasRunner:
             import numba
 
             threads = numba.get_num_threads()
-        if threads is not None:
-            # like the numpy core (one thread); on a loaded machine torch's default
-            # thread pool is much slower and erratic (oversubscription)
-            torch.set_num_threads(int(threads))
+        # as many threads as the core's numba threads; on a loaded machine torch's
+        # default thread pool is much slower and erratic (oversubscription)
+        torch.set_num_threads(int(threads))
         self.env = vmas.make_env("simple_spread", num_envs=B, device="cpu",
                                  continuous_actions=True, seed=seed, n_agents=N)
         self.env.reset()
