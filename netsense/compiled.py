@@ -9,10 +9,11 @@ thread pool (``NUMBA_NUM_THREADS``, default one thread per core). Every member i
 by the same row functions, independently, so both builds give bit-identical results
 (``tests/test_kernels_compiled.py``).
 
-Threads: numba's threading layer is left as the user configures it (``NUMBA_THREADING_LAYER``;
-numba's default is OpenMP when present, whose workers spin after every call: fastest on free
-cores, but on cores busy with other work every threaded call waits for a time slice — see
-the README's batched section for measurements and ``workqueue`` as the remedy). Threaded
+Threads: numba's threading layer is left as the user configures it
+(``NUMBA_THREADING_LAYER``; numba's default tries TBB, then OpenMP, which is what runs
+here). OpenMP's workers spin after every call: fastest on free cores, but on cores busy
+with other work every threaded call waits for a time slice (see the README's batched
+section for measurements and ``workqueue`` as the remedy). Threaded
 calls are serialised by a lock, so several Python threads may step their own batches under
 any layer.
 

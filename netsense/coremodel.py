@@ -38,8 +38,10 @@ class RewardConfig:
               \\qquad e_i = \\min\\Big(\\frac{\\|\\hat x_i[k+1] - x[k+1]\\|}
               {\\max(\\|x[k+1]\\|, f)}, e_{\\max}\\Big),
 
-    with ``\\bar e`` the mean of ``e_i`` over agents and ``t_i`` the transmit bit chosen at
-    this step.
+    with ``\\bar e`` the mean of ``e_i`` over the agents whose errors count (crashed
+    agents and liars excluded; those get only ``-c t_i``) and ``t_i`` the transmit bit
+    chosen at this step. A non-finite error is clipped to ``e_max``
+    (:mod:`netsense.rewards`).
 
     Attributes
     ----------

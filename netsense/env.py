@@ -151,7 +151,8 @@ Version History
   keep ``"all"`` and their spaces.
 * The update rules run compiled (numba) since issue 8: every scenario keeps its graphs,
   noise, drops and decisions; estimates differ from earlier versions in the last bits
-  (the products' summation order changed).
+  (the products' summation order changed), and so do rewards (the norm and the team mean
+  are summed in order since the reward pass was compiled).
 """
 
 from __future__ import annotations

@@ -3,8 +3,10 @@
 :class:`BatchedCore` advances ``B`` independent copies of one scenario (own seeds, own
 graph, noise and drop realisations) with arrays shaped ``(B, N, ...)``. The PettingZoo
 environment (:class:`netsense.env.NetSenseEnv`) is the ``B = 1`` case of this class, and
-every update rule comes from :mod:`netsense.kernels` (freshness indices, gather, uniform
-mix, propagation) and the source estimator interface of
+every update rule comes from the row functions of :mod:`netsense.rules` (freshness
+indices, gather, uniform mix, propagation, outputs, messages; run through
+:func:`netsense.kernels.apply_actions` and :mod:`netsense.drivers`), the rewards of
+:mod:`netsense.rewards` and the source estimator interface of
 :mod:`netsense.observers.source` (eq. (7)): there is no second copy of any rule here.
 What the core simulates is a :class:`~netsense.coremodel.CoreModel` (the scenario compiled
 by :mod:`netsense.scenarios`); the model, its reward weights and the observation layout
@@ -50,7 +52,7 @@ Faults (``CoreModel.faults``, scenario ``[[faults]]``)
 A crashed agent's transmit bits are cleared from its crash step on; a stuck or stale
 sensor's ``y_i[k]`` is replaced before the observation and the source correction (eq. (7))
 use it; a liar's claimed indices replace its rows of ``tau`` in every agent's observation
-and in the index update (eqs. (9), (11), (14) via :func:`netsense.kernels.advance_indices`).
+and in the index update (eqs. (9), (11), (14); ``advance_row`` in the fused update).
 The rules are those of :mod:`netsense.faults` (``silenced``, ``apply``, ``reported``),
 evaluated at each member's own time; crashed agents and liars are excluded from the team
 error, from error rewards and from the divergence check (:attr:`BatchedCore.alive`).

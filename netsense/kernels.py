@@ -239,7 +239,7 @@ STATUS_FIELDS = ("range_b", "range_i", "range_j", "masked_b", "masked_i", "maske
 
 def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
                   masked: np.ndarray, own: np.ndarray | None = None) -> np.ndarray:
-    """Validate the environment's actions ``(B, N, N + 1)`` against the slot table.
+    """Validate the environment's actions ``(B, N, M + 1)`` against the slot table.
 
     Entry ``act[b, i, j]`` (``j < M`` substates) is ``0`` keep, ``1..D`` adopt slot
     ``d - 1``, ``D + 1`` average; ``act[b, i, M]`` is the transmit bit. A choice is

@@ -30,11 +30,12 @@ from numba import njit
 OMEGA = -1
 
 
-# One agent's row of each rule. The public kernels above and apply_actions loop over
-# (b, i) and call these, so there is one implementation of every rule. No fastmath: the
+# One agent's row of each rule. The drivers of netsense.drivers loop over (b, i) and call
+# these (for the public kernels of netsense.kernels, apply_actions and the environment's
+# other passes), so there is one implementation of every rule. No fastmath: the
 # arithmetic is IEEE in program order, hence identical wherever a row function runs.
-# Rows are addressed as (array, b, i) rather than passed as slices: a slice is a new
-# array object with a reference count, which at N = 30 cost as much as the rule itself.
+# Rows are addressed as (array, b, i) rather than passed as slices (a slice is a new array
+# object per call; with reference counting, at N = 30, it cost as much as the rule).
 @njit(cache=True, inline="always")
 def advance_row(tau, b, i, own, src, sb, si, out, ob, oi):  # eqs. (9), (11), (14)
     for j in range(out.shape[2]):
@@ -84,7 +85,7 @@ def gather_row(Z, b, src, sb, si, block_of, out, ob, oi):
 
 @njit(cache=True, inline="always")
 def propagate_row(Z_sel, sb, si, Z, b, i, dq, dc, dv, ALT, out, ob, oi):
-    """Row of eqs. (7), (10), (12) (see :func:`propagate`)."""
+    """Row of eqs. (7), (10), (12) (see :func:`netsense.kernels.propagate`)."""
     n = Z.shape[2]
     o, z, zs = out[ob, oi], Z[b, i], Z_sel[sb, si]  # n^2 work: three views pay off
     for c in range(n):
@@ -139,8 +140,8 @@ def vecmat_row(x, b, M, out, ob):  # out[ob] = x[b] @ M, q-major (eqs. (1), (2))
 
 @njit(cache=True, inline="always")
 def check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
-    """Validate agent ``i``'s actions (see :func:`check_actions`); ``okt`` is a scratch
-    of ``D + 2`` with ``okt[0] = okt[D + 1] = True``."""
+    """Validate agent ``i``'s actions (see :func:`netsense.kernels.check_actions`);
+    ``okt`` is a scratch of ``D + 2`` with ``okt[0] = okt[D + 1] = True``."""
     D = msg.shape[2]
     M = masked.shape[2]
     for d in range(D):
