@@ -297,7 +297,6 @@ class BatchedCore:
         self._stuck_memory = [f.new_state(B, r) for f in self._stuck]
         # largest index a liar injects (indices are <= k + claim: exact in float32 below)
         self._claim = 0 if self._liar is None else int(self._liar.claim)
-        self._gain_rows = None  # kernels.gain_rows of a LuenbergerSource, once
         self._no_v = np.zeros((1, 1, 1))  # stand-ins for absent buffers (never read)
         self._no_link = np.ones((1, 1, 1, 1), dtype=bool)
 
@@ -462,10 +461,8 @@ class BatchedCore:
         # estimator (KFIO, RSEIO, equalized, ...) returns its correction here, after the
         # actions were validated (a stateful source's correction is a state change)
         if type(self.source) is LuenbergerSource:
-            if self._gain_rows is None:  # the source's gains are fixed after reset
-                self._gain_rows = kernels.gain_rows(self.source.L_pad)
             src_kw = {"luenberger": (self.y, self.y_arrived, self.source.C_bar_pad,
-                                     self.source.L_pad, self._gain_rows)}
+                                     self.source.L_pad, self.source.gain_rows)}
         else:
             choice = np.empty((B, self.N, self.M), dtype=np.int64)
             self._refuse(kernels.check_actions(a, self.msg, choice,

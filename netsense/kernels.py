@@ -175,7 +175,8 @@ def diag_band(A_diag: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | None,
-                          C_bar_pad: np.ndarray, L_pad: np.ndarray) -> np.ndarray:
+                          C_bar_pad: np.ndarray, L_pad: np.ndarray,
+                          rows: np.ndarray | None = None) -> np.ndarray:
     """Output injection of eq. (7) for every source, ``L_j (y_j - C_bar_j z_j)``.
 
     Parameters
@@ -189,6 +190,9 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
         ``C_i T`` per agent, zero-padded rows.
     L_pad : (N, n, r_max) or (B, N, n, r_max)
         Gains in the rows of each agent's own block (``ObserverDesign.gain_padded``).
+    rows : (N, 2) int, optional
+        :func:`gain_rows` of ``L_pad`` (computed when not given; fixed gains can pass it
+        once computed).
     """
     Z = np.asarray(Z, dtype=float)
     B, N, n = Z.shape
@@ -200,7 +204,8 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
     arr = np.ones((B, N), bool) if arrived is None else np.asarray(arrived, dtype=bool)
     out = np.empty(Z.shape)
     C = np.asarray(C_bar_pad, dtype=float)
-    drivers.innovation_all.at(Z.size)(Z, y, arr, C, L, gain_rows(L), out, np.empty((B, C.shape[1])))
+    rows = gain_rows(L) if rows is None else np.asarray(rows, dtype=np.int64)
+    drivers.innovation_all.at(Z.size)(Z, y, arr, C, L, rows, out, np.empty((B, C.shape[1])))
     return out
 
 

@@ -29,7 +29,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from netsense.design import ObserverDesign
-from netsense.kernels import innovation_correction
+from netsense.kernels import gain_rows, innovation_correction
 
 #: One generator for the whole batch, one per member, or None (a fixed default).
 Rngs = np.random.Generator | Sequence[np.random.Generator] | None
@@ -107,7 +107,10 @@ class LuenbergerSource(SourceEstimator):
         for i, Cb in enumerate(d.C_bar):
             self.C_bar_pad[i, : Cb.shape[0]] = Cb
         self.L_pad = design.gain_padded(r_max)
+        #: ``(N, 2)`` rows that hold each agent's gain (:func:`netsense.kernels.gain_rows`)
+        self.gain_rows = gain_rows(self.L_pad)
 
     def correction(self, k: int | np.ndarray, Z: np.ndarray, y: np.ndarray,
                    arrived: np.ndarray | None) -> np.ndarray:
-        return innovation_correction(Z, y, arrived, self.C_bar_pad, self.L_pad)
+        return innovation_correction(Z, y, arrived, self.C_bar_pad, self.L_pad,
+                                     self.gain_rows)
