@@ -49,8 +49,7 @@ def neighbor_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     """
     B, N, D = nbr.shape
     M = tau.shape[-1]
-    usable = valid if transmit is None else valid & transmit[
-        np.arange(B)[:, None, None], np.where(valid, nbr, 0)]
+    usable = usable_slots(nbr, valid, transmit)
     # one row gather from a flat (B N + 1, M) table whose last row is all omega: unusable
     # slots point at that row, so no masking pass over the (B, N, D, N) result is needed
     table = np.empty((B * N + 1, M), dtype=tau.dtype)
@@ -119,7 +118,7 @@ def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     tau = np.asarray(tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
     drivers.average_all.at(tau.size)(tau, _own(own, tau), np.asarray(nbr),
-                              _usable(nbr, valid, transmit), out)
+                              usable_slots(nbr, valid, transmit), out)
     return out
 
 
@@ -139,7 +138,7 @@ def uniform_mix(Z: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     """
     Z = np.asarray(Z, dtype=float)
     out = np.empty(Z.shape)
-    drivers.mix_all.at(Z.size)(Z, np.asarray(nbr), _usable(nbr, valid, transmit), out)
+    drivers.mix_all.at(Z.size)(Z, np.asarray(nbr), usable_slots(nbr, valid, transmit), out)
     return out
 
 
@@ -356,14 +355,20 @@ def _t(A: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(A, dtype=float).T)
 
 
-def _usable(nbr: np.ndarray, valid: np.ndarray, transmit: np.ndarray | None) -> np.ndarray:
-    """Slots whose neighbour is present and (if given) transmitted, ``(B, N, D)``."""
+def usable_slots(nbr: np.ndarray, valid: np.ndarray,
+                 transmit: np.ndarray | None = None) -> np.ndarray:
+    """Slots whose neighbour is present and (if given) transmitted, ``(B, N, D)`` bool.
+
+    The message rule of :func:`netsense.rules.message_row` (without link drops) on the
+    slots ``valid`` marks; ``transmit`` is ``(B, N)``.
+    """
     valid = np.asarray(valid, dtype=bool)
     if transmit is None:
         return valid
-    B = valid.shape[0]
-    return valid & np.asarray(transmit, bool)[np.arange(B)[:, None, None],
-                                              np.where(valid, nbr, 0)]
+    out = np.empty(valid.shape, dtype=bool)
+    drivers.messages_all.at(out.size)(np.where(valid, nbr, -1), np.asarray(transmit, bool),
+                                      np.ones((1, 1, 1, 1), bool), False, out)
+    return out
 
 
 def keep_own_blocks(Z_sel: np.ndarray, Z: np.ndarray, own_block: np.ndarray) -> np.ndarray:

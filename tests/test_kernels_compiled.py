@@ -482,3 +482,16 @@ def test_observation_log1p_is_log1p_to_a_few_ulps():
     np.testing.assert_allclose(got, ref, rtol=6 * np.finfo(float).eps, atol=0)
     assert np.mean(got.astype(np.float32) != ref.astype(np.float32)) < 1e-5
     assert _log1p(np.inf) == np.inf and np.isnan(_log1p(np.nan))
+
+
+def test_usable_slots_are_present_neighbours_that_transmitted():
+    rng = np.random.default_rng(5)
+    B, N, D = 6, 7, 3
+    nbr = rng.integers(0, N, size=(B, N, D))
+    valid = rng.random((B, N, D)) < 0.7
+    transmit = rng.random((B, N)) < 0.5
+    got = kernels.usable_slots(np.where(valid, nbr, 99), valid, transmit)  # junk in holes
+    want = np.array([[[valid[b, i, d] and transmit[b, nbr[b, i, d]] for d in range(D)]
+                      for i in range(N)] for b in range(B)])
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(kernels.usable_slots(nbr, valid), valid)

@@ -79,8 +79,7 @@ class ConsensusObserver(DistributedObserver):
         B, N = Z.shape[:2]
         if self.weights == "tree":
             adj = np.zeros((B, N, N), dtype=bool)
-            usable = valid if tx is None else valid & np.take_along_axis(
-                tx[:, None, :].repeat(N, 1), np.where(valid, nbr, 0), axis=2)
+            usable = kernels.usable_slots(nbr, valid, tx)
             b, i, d = np.nonzero(usable)
             adj[b, i, nbr[b, i, d]] = True
             src = tree_parents(adj, nbr, usable)
