@@ -22,10 +22,8 @@ from netsense.compiled import Driver, bit_generator, bit_streams
 class NoiseModel:
     """Base class: zero-mean additive noise with a documented bound or covariance."""
 
-    def sample(self, rng: np.random.Generator, shape: tuple[int, ...],
-               out: np.ndarray | None = None) -> np.ndarray:
-        """Draw noise of ``shape``; with ``out`` (float64, C-contiguous, that shape) write
-        it there and return ``out`` (the same numbers as without)."""
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        """Draw noise of ``shape``."""
         raise NotImplementedError
 
     def sample_many(self, rngs: Sequence[np.random.Generator], shape: tuple[int, ...],
@@ -35,7 +33,7 @@ class NoiseModel:
         as by its own ``sample`` call."""
         _check_many(out, len(rngs), shape)
         for m, rng in enumerate(rngs):
-            self.sample(rng, shape, out=out[m])
+            out[m] = self.sample(rng, shape)
         return out
 
     @property
@@ -51,12 +49,8 @@ class NoiseModel:
 class NoNoise(NoiseModel):
     """No noise: every draw is exactly zero."""
 
-    def sample(self, rng: np.random.Generator, shape: tuple[int, ...],
-               out: np.ndarray | None = None) -> np.ndarray:
-        if out is None:
-            return np.zeros(shape)
-        out[...] = 0.0
-        return out
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        return np.zeros(shape)
 
     @property
     def bound(self) -> float:
@@ -76,13 +70,8 @@ class GaussianNoise(NoiseModel):
         if not np.isfinite(self.std) or self.std < 0:
             raise ValueError(f"GaussianNoise.std must be a finite number >= 0, got {self.std!r}")
 
-    def sample(self, rng: np.random.Generator, shape: tuple[int, ...],
-               out: np.ndarray | None = None) -> np.ndarray:
-        if out is None:
-            return self.std * rng.standard_normal(shape)
-        rng.standard_normal(out=out)  # the same stream, written in place
-        out *= self.std
-        return out
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        return self.std * rng.standard_normal(shape)
 
     def sample_many(self, rngs: Sequence[np.random.Generator], shape: tuple[int, ...],
                     out: np.ndarray) -> np.ndarray:
@@ -117,13 +106,8 @@ class UniformNoise(NoiseModel):
                 f"UniformNoise.half_width must be a finite number >= 0, got {self.half_width!r}"
             )
 
-    def sample(self, rng: np.random.Generator, shape: tuple[int, ...],
-               out: np.ndarray | None = None) -> np.ndarray:
-        draw = rng.uniform(-self.half_width, self.half_width, size=shape)
-        if out is None:
-            return draw
-        out[...] = draw
-        return out
+    def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+        return rng.uniform(-self.half_width, self.half_width, size=shape)
 
     @property
     def bound(self) -> float:
