@@ -363,11 +363,12 @@ class MarkovLinkFailures(GraphProcess):
         return int(self.base.sum(-1).max())
 
     def slot_sample_bytes(self, num_steps):
-        # draws = "base": the link states and slot counters of a run (its uniforms are
-        # drawn inside the compiled pass); "all": the (K, E) uniforms and (K, N, N) draw
-        if self.draws == "base":
-            return self._edges[0].size + 8 * self.num_nodes
-        return int(num_steps) * (self._edges[0].size * 8 + self.num_nodes ** 2 * 8)
+        # per run: its stacked and returned N x N link states, its E link states and slot
+        # counters, and with draws = "all" its (K, E) uniforms (the (K, N, N) draw they
+        # are taken from is freed run by run; "base" draws inside the compiled pass)
+        N, E = self.num_nodes, self._edges[0].size
+        per_run = 2 * N * N + E + 8 * N
+        return per_run if self.draws == "base" else per_run + int(num_steps) * E * 8
 
     def _edge_uniforms(self, rng, shape) -> np.ndarray:
         """Uniforms of the base edges, ``shape + (E,)``: ``draws = "all"`` draws one per
