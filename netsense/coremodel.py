@@ -64,6 +64,11 @@ class RewardConfig:
     error_clip: float = 10.0
 
     def __post_init__(self) -> None:
+        for name in ("error_weight", "team_weight", "message_cost", "error_floor",
+                     "error_clip"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+                raise ValueError(f"reward.{name} must be a finite number, got {v!r}")
         if not 0.0 <= self.team_weight <= 1.0:
             raise ValueError(f"reward.team_weight must be in [0, 1], got {self.team_weight}")
         if self.error_floor <= 0:
@@ -147,15 +152,24 @@ class CoreModel:
                              "per agent and substate)")
         if sum(isinstance(f, LyingAgent) for f in self.faults) > 1:
             raise ValueError("faults may hold at most one LyingAgent (list all liars in it)")
-        if self.horizon < 1:
-            raise ValueError(f"horizon must be >= 1, got {self.horizon}")
+        if (not isinstance(self.horizon, (int, np.integer)) or isinstance(self.horizon, bool)
+                or self.horizon < 1):
+            raise ValueError(f"horizon must be an integer >= 1, got {self.horizon!r}")
         if self.graphs.num_nodes != self.plant.num_agents:
             raise ValueError(f"graph process has {self.graphs.num_nodes} nodes but the plant "
                              f"has {self.plant.num_agents} agents")
         if self.design.num_agents != self.plant.num_agents:
             raise ValueError("design and plant disagree on the number of agents")
-        if self.x0_std < 0:
-            raise ValueError(f"x0_std must be >= 0, got {self.x0_std}")
+        if not np.isfinite(self.x0_std) or self.x0_std < 0:
+            raise ValueError(f"x0_std must be a finite number >= 0, got {self.x0_std!r}")
+        lim = self.divergence_limit
+        if lim is not None and (np.isnan(lim) or lim <= 0):
+            raise ValueError(f"divergence_limit must be None or > 0, got {lim!r}")
+
+
+#: Fields of the per-agent observation, in their order in the flat vector.
+OBS_FIELDS = ("time", "y", "y_arrived", "own_omega", "own_age", "z_dir", "z_lognorm",
+              "slot_arrived", "slot_id", "slot_omega", "slot_age")
 
 
 @dataclass(frozen=True)
@@ -193,11 +207,9 @@ class ObsLayout:
               sources: Sequence[int] | None = None) -> ObsLayout:
         src = tuple(range(N)) if sources is None else tuple(int(v) for v in sources)
         M = len(src)
-        sizes = [("time", 1), ("y", r), ("y_arrived", 1), ("own_omega", M), ("own_age", M),
-                 ("z_dir", n), ("z_lognorm", 1), ("slot_arrived", D), ("slot_id", D),
-                 ("slot_omega", D * M), ("slot_age", D * M)]
+        sizes = (1, r, 1, M, M, n, 1, D, D, D * M, D * M)
         out, o = {}, 0
-        for name, s in sizes:
+        for name, s in zip(OBS_FIELDS, sizes, strict=True):
             out[name] = slice(o, o + s)
             o += s
         return cls(N=N, n=n, r=r, D=D, M=M, sources=src, size=o, **out)
@@ -210,10 +222,9 @@ class ObsLayout:
         return out
 
     def table(self) -> list[tuple[str, int, int]]:
-        """``(field, start, stop)`` rows, for documentation and rendering."""
-        names = ["time", "y", "y_arrived", "own_omega", "own_age", "z_dir", "z_lognorm",
-                 "slot_arrived", "slot_id", "slot_omega", "slot_age"]
-        return [(nm, getattr(self, nm).start, getattr(self, nm).stop) for nm in names]
+        """``(field, start, stop)`` rows in :data:`OBS_FIELDS` order (the documentation
+        table, and the offsets the compiled observation pass writes at)."""
+        return [(nm, getattr(self, nm).start, getattr(self, nm).stop) for nm in OBS_FIELDS]
 
 
 def symlog(v: np.ndarray) -> np.ndarray:

@@ -381,3 +381,15 @@ def test_partial_reset_of_scattered_members_with_short_chunks():
             ref_obs[2] = ref[2].reset(seed=43)[0]
             assert core.ptr.tolist() == [0, 1, 0, 1]
         obs, mask = _step_both(core, pol, obs, mask, ref, ref_obs)
+
+
+@pytest.mark.parametrize("change", [{"horizon": 2.5}, {"horizon": True}, {"horizon": 0},
+                                    {"x0_std": float("nan")},
+                                    {"divergence_limit": float("nan")},
+                                    {"divergence_limit": 0.0}])
+def test_core_model_rejects_bad_horizon_start_and_limit(change):
+    import dataclasses
+
+    name = next(iter(change))
+    with pytest.raises(ValueError, match=name):
+        dataclasses.replace(model_of("message_cost-v0"), **change)

@@ -78,3 +78,11 @@ def test_finish_step_names_a_misshapen_array_and_writes_nothing(which):
         finish_step(args["x"], args["err"], args["act"], M, args["silenced"], args["alive"],
                     RewardConfig(), None, args["k"], 5, args["sent"])
     np.testing.assert_array_equal(args["sent"], sent[:len(args["sent"])])
+
+
+@pytest.mark.parametrize("field", ["error_weight", "team_weight", "message_cost",
+                                   "error_floor", "error_clip"])
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), "1"])
+def test_reward_config_rejects_non_numbers(field, value):
+    with pytest.raises(ValueError, match=f"reward.{field}"):
+        RewardConfig(**{field: value})
