@@ -95,7 +95,8 @@ def main(argv: list[str] | None = None) -> str:
         numba.set_num_threads(int(nt) if nt else threads)
         try:
             t0 = time.perf_counter()
-            res = execute(jobs, backend=backend, workers=args.workers, progress=False)
+            res = execute(jobs, backend=backend, progress=False,
+                          workers=args.workers if backend == "process" else None)
             times[label] = time.perf_counter() - t0
         finally:
             numba.set_num_threads(threads)

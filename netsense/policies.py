@@ -173,16 +173,19 @@ class RandomPolicy(Policy):
     def __init__(self, layout: ObsLayout, seed: int | Sequence[int] | None = None,
                  p_transmit: float = 0.5) -> None:
         super().__init__(layout)
+        p = float(p_transmit)
+        if not 0.0 <= p <= 1.0:  # (nan fails too)
+            raise ValueError(f"p_transmit must be a probability in [0, 1], got {p_transmit!r}")
         if seed is None or np.ndim(seed) == 0:
-            self.rng = np.random.default_rng(seed)
+            self.rng = np.random.default_rng(None if seed is None else _seed(seed))
             self.member_rngs = None
         else:
-            seeds = [int(s) for s in seed]
+            seeds = [_seed(s) for s in seed]
             if not seeds:
                 raise ValueError("seed must be an int, None or a non-empty sequence of ints")
             self.rng = None
             self.member_rngs = [np.random.default_rng(s) for s in seeds]
-        self.p_transmit = p_transmit
+        self.p_transmit = p
 
     def act(self, obs, mask):
         N, D, M = self.N, self.D, self.M
@@ -204,6 +207,16 @@ class RandomPolicy(Policy):
         out[..., :M] = np.argmax(u, axis=-1)
         out[..., M] = t < self.p_transmit
         return out
+
+
+def _seed(s) -> int:
+    """``s`` as a non-negative int seed; a float, bool or negative seed is an error (a
+    float seed is never truncated into some other episode's seed)."""
+    if isinstance(s, (bool, np.bool_)) or not isinstance(s, (int, np.integer)):
+        raise ValueError(f"seeds must be non-negative integers, got {s!r}")
+    if s < 0:
+        raise ValueError(f"seeds must be non-negative integers, got {s}")
+    return int(s)
 
 
 POLICIES = ("freshness", "uniform", "tree", "open_loop", "random")

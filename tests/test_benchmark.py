@@ -81,6 +81,28 @@ def test_make_jobs_validates_and_expands_learned_paths():
         bm.execute([], backend="threads")
 
 
+@pytest.mark.parametrize("backend, workers, msg", [
+    ("batched", 2, "does not take it"), ("serial", 1, "does not take it"),
+    ("process", 0, "workers must be >= 1"), ("process", -2, "workers must be >= 1"),
+    ("process", 2.0, "positive integer"), ("process", True, "positive integer")])
+def test_execute_refuses_workers_it_would_ignore_or_misread(backend, workers, msg):
+    ran = []
+    jobs = bm.make_jobs(["fig1_scalar-v0"], ["freshness"], [0])
+    with pytest.raises(ValueError, match=msg):
+        bm.execute(jobs, backend=backend, workers=workers, progress=False,
+                   runner=lambda job: ran.append(job))
+    assert ran == []  # refused before any job ran
+
+
+def test_benchmark_command_refuses_workers_without_the_process_backend(tmp_path):
+    from netsense.cli import main
+
+    with pytest.raises(SystemExit, match="needs --backend process"):
+        main(["benchmark", "fig1_scalar-v0", "--out", str(tmp_path / "o"),
+              "--workers", "2", "--no-progress"])
+    assert not (tmp_path / "o").exists()
+
+
 def test_markdown_table_shows_mean_std_and_reach_counts():
     results = [{"job": {"scenario": "s", "policy": "p", "seed": k},
                 "metrics": {**dict.fromkeys(bm.METRICS, 1.0 + k),

@@ -95,3 +95,26 @@ def test_freshness_policy_uses_only_observations():
     o[..., L.slot_omega] = 1.0
     a = pol.act(o, mask)
     assert (a[..., : core.N] == 0).all()  # nothing fresher to adopt: keep
+
+
+@pytest.mark.parametrize("seed, what", [(2.7, "2.7"), ([3, 4.5], "4.5"), (-1, "-1"),
+                                        (True, "True"), ([1, "2"], "'2'")])
+def test_random_policy_rejects_seeds_it_would_have_to_truncate(seed, what):
+    core = BatchedCore(build_model(load("fig1_scalar-v0")), 2)
+    with pytest.raises(ValueError, match=f"seeds must be non-negative integers, got {what}"):
+        make_policy("random", core, seed=seed)
+
+
+@pytest.mark.parametrize("p", [-0.1, 1.5, float("nan")])
+def test_random_policy_rejects_a_transmit_probability_outside_0_1(p):
+    core = BatchedCore(build_model(load("fig1_scalar-v0")), 1)
+    with pytest.raises(ValueError, match="p_transmit must be a probability"):
+        make_policy("random", core, p_transmit=p)
+
+
+def test_random_policy_takes_numpy_integer_seeds_as_their_int():
+    core = BatchedCore(build_model(load("fig1_scalar-v0")), 2)
+    obs, mask = core.reset(0)
+    a = make_policy("random", core, seed=[np.int64(5), np.uint8(6)]).act(obs, mask)
+    b = make_policy("random", core, seed=[5, 6]).act(obs, mask)
+    np.testing.assert_array_equal(a, b)

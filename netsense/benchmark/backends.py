@@ -7,6 +7,7 @@ its module path (``netsense.benchmark.backends.run_job``).
 
 from __future__ import annotations
 
+import numbers
 import os
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -141,8 +142,9 @@ def execute(jobs: Sequence[Job], *, backend: str = "batched", workers: int | Non
         job in this process; ``ray``: one episode per job as Ray tasks. All return the
         same results (batched: estimates up to the last bits of the matrix products).
     workers : int, optional
-        Process count of ``process`` (default ``min(len(jobs), os.cpu_count())``); the
-        other backends ignore it.
+        Process count of ``process`` (default ``min(len(jobs), os.cpu_count())``; 1 runs
+        the jobs in this process). Only ``process`` takes it: the other backends raise a
+        ValueError when it is given rather than ignore it.
     ray_address : str, optional
         ``ray.init(address=...)`` (e.g. ``"auto"`` or ``"ray://head:10001"``); default a
         local Ray instance.
@@ -160,13 +162,21 @@ def execute(jobs: Sequence[Job], *, backend: str = "batched", workers: int | Non
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, "
                          f"got {backend!r}")
+    if workers is not None:
+        if isinstance(workers, bool) or not isinstance(workers, numbers.Integral):
+            raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        if workers < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        if backend != "process":
+            raise ValueError(f"workers sets the process count of backend='process'; "
+                             f"backend {backend!r} does not take it (got workers={workers})")
     jobs = list(jobs)
     results: list[dict | None] = [None] * len(jobs)
     bar = _progress(len(jobs), f"benchmark ({backend})", progress)
     try:
         if backend == "batched":
             results = run_batched(jobs, runner=runner, on_done=bar.update)
-        elif backend == "serial" or (backend == "process" and (workers or 2) <= 1):
+        elif backend == "serial" or (backend == "process" and workers == 1):
             for i, job in enumerate(jobs):
                 results[i] = runner(job)
                 bar.update()

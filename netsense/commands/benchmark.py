@@ -48,6 +48,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seeds < 1:
         raise SystemExit("--seeds must be >= 1")
+    if args.workers is not None and (args.workers < 1 or args.backend != "process"):
+        raise SystemExit(f"--workers must be >= 1 and needs --backend process "
+                         f"(got --workers {args.workers} with --backend {args.backend})")
     seeds = range(args.seed0, args.seed0 + args.seeds)
     _, rows = run_benchmark(args.scenarios, args.policies, seeds, out=args.out,
                             overrides=parse_overrides(args.override), eps=args.eps,
