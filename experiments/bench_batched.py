@@ -38,18 +38,6 @@ from netsense import speed
 RESULTS = Path(__file__).parent / "results"
 
 
-def _commit(path: str) -> str:
-    """Short hash of the last commit touching ``path`` (``?`` outside a git checkout)."""
-    import subprocess
-
-    try:
-        return subprocess.run(["git", "log", "-1", "--format=%h", "--", path],
-                              cwd=Path(__file__).parents[1], capture_output=True,
-                              text=True, check=True).stdout.strip() or "?"
-    except (OSError, subprocess.CalledProcessError):
-        return "?"
-
-
 def _plt():
     import matplotlib
 
@@ -221,7 +209,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                  "largest growth by source line (first sample -> end):"] + diff
         print("\n".join(lines))
         sections["growth"] = lines
-    head = [f"netsense {_commit('.')}, envcore.py at {_commit('netsense/envcore.py')}, "
+    rev = speed.source_revision
+    head = [f"netsense {rev()}, envcore.py at {rev('netsense/envcore.py')}, "
             f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"]
     for name, lines in sections.items():
         (out / f"{stem}_{name}.txt").write_text("\n".join(head + lines) + "\n")

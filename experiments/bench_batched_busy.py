@@ -32,6 +32,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from netsense.speed import source_revision
+
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 SHAPES = ((1024, 10, 10), (64, 100, 20))
@@ -46,15 +48,6 @@ row = measure_shape(B, N, n, steps=64, repeats=3, vmas=False)
 print(json.dumps({"core_s": row["core_s"], "kernel_s": row["kernel_s"],
                   "layer": numba.threading_layer(), "threads": numba.get_num_threads()}))
 """
-
-
-def _head() -> str:
-    """Short hash of the checkout measured (``?`` outside git)."""
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE.parent,
-                              capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "?"
 
 
 def _spin(stop) -> None:  # a process that keeps one core busy
@@ -105,7 +98,7 @@ def main(argv=None) -> int:
         free = next(x for x in rows if x["condition"] == "free" and x["mode"] == row["mode"]
                     and (x["B"], x["N"], x["n"]) == (row["B"], row["N"], row["n"]))
         row["busy_slowdown"] = row["core_ms"] / free["core_ms"]
-    lines = [f"netsense {_head()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
+    lines = [f"netsense {source_revision()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
              f"busy = {args.busy_procs} busy-looping process(es) on {os.cpu_count()} cores",
              "| condition | B, N, n | mode (layer, threads) | core ms/step | kernel ms/step "
              "| core/kernel | core time vs free |", "|---|---|---|---|---|---|---|"]

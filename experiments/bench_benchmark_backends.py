@@ -25,7 +25,6 @@ import argparse
 import math
 import os
 import platform
-import subprocess
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -33,6 +32,7 @@ from pathlib import Path
 import numba
 
 from netsense.benchmark import DEFAULT_POLICIES, execute, make_jobs
+from netsense.speed import source_revision
 
 SCENARIOS = ("fig1_scalar-v0", "message_cost-v0")
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -49,14 +49,6 @@ def _same(a: list[dict], b: list[dict]) -> bool:
                     or (math.isnan(v) and math.isnan(w))):
                 return False
     return True
-
-
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True, cwd=RESULTS.parent).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def _layer() -> str:
@@ -107,7 +99,7 @@ def main(argv: list[str] | None = None) -> str:
     base = times[args.backends[0]]
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
-        f"netsense benchmark wall time per backend, {stamp}, commit {_commit()}, "
+        f"netsense benchmark wall time per backend, {stamp}, commit {source_revision()}, "
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared)",
         f"command: python experiments/bench_benchmark_backends.py --seeds {args.seeds}"
         + (f" --horizon {args.horizon}" if args.horizon else "")

@@ -60,6 +60,7 @@ from netsense.speed.report import (
     format_table,
     main,
     run,
+    source_revision,
     verdicts,
     write_csv,
 )
@@ -68,5 +69,6 @@ from netsense.speed.runners import bench_model, vmas_available
 __all__ = ["HELP", "SHAPES", "TARGET_VS_KERNEL", "TARGET_VS_VMAS", "add_arguments",
            "allocation_growth", "bench_model", "core_state_bytes", "format_table",
            "loglog_slope", "main", "measure", "measure_shape", "memory_footprint",
-           "observation_cost", "profile_core", "run", "scaling", "verdicts",
+           "observation_cost", "profile_core", "run", "scaling", "source_revision",
+           "verdicts",
            "vmas_available", "write_csv"]

@@ -12,6 +12,21 @@ from pathlib import Path
 from netsense.speed.measure import SHAPES, measure, profile_core
 from netsense.speed.memory import memory_footprint
 
+
+def source_revision(path: str = ".") -> str:
+    """Short hash of the last commit touching ``path`` (relative to the netsense checkout;
+    ``"."``: the checkout's HEAD) for stamping measured results; ``"?"`` outside a git
+    checkout (an installed package)."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    try:
+        return subprocess.run(["git", "log", "-1", "--format=%h", "--", path], cwd=root,
+                              capture_output=True, text=True, check=True).stdout.strip() or "?"
+    except (OSError, subprocess.CalledProcessError):
+        return "?"
+
+
 #: Targets of issue 8.
 TARGET_VS_VMAS = 10.0
 TARGET_VS_KERNEL = 0.5
