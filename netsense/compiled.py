@@ -61,16 +61,24 @@ _PARALLEL_LOCK = threading.Lock()
 
 
 class Driver:
-    """A driver compiled twice from one source: ``serial`` and ``parallel``."""
+    """A driver compiled twice from one source: ``serial`` and ``parallel``.
 
-    def __init__(self, fn) -> None:
+    ``min_runs``: fewest members (the ``prange`` axis) for which the threaded build is
+    worth it whatever the work, for drivers whose threaded build is erratic on few long
+    members (measured for the Markov slot pass, :data:`netsense.graphs.MARKOV_THREADED_RUNS`).
+    """
+
+    def __init__(self, fn, *, min_runs: int = 1) -> None:
         self.serial = njit(cache=True, _nrt=False)(_renamed(fn, "serial"))
         self.parallel = njit(cache=True, parallel=True, _nrt=False)(_renamed(fn, "parallel"))
+        self.min_runs = int(min_runs)
 
-    def at(self, work: int):
-        """The build for a call that touches ``work`` array elements (the threaded one
-        holds a process-wide lock while it runs)."""
-        return self._threaded if work >= PARALLEL_WORK else self.serial
+    def at(self, work: int, runs: int | None = None):
+        """The build for a call that touches ``work`` array elements over ``runs``
+        members (the threaded one holds a process-wide lock while it runs)."""
+        if work < PARALLEL_WORK or (runs is not None and runs < self.min_runs):
+            return self.serial
+        return self._threaded
 
     def _threaded(self, *args):
         with _PARALLEL_LOCK:

@@ -324,7 +324,7 @@ class RandomJointlyConnected(GraphProcess):
 
 
 #: Fewest runs for which :meth:`MarkovLinkFailures.sample_slots_many` runs its pass
-#: threaded (see the measurements there).
+#: threaded (``Driver(min_runs=...)``; see the measurements there).
 MARKOV_THREADED_RUNS = 256
 
 
@@ -439,9 +439,8 @@ class MarkovLinkFailures(GraphProcess):
         # 30 edges and 12.5 vs 27 ms at 1,024 x 90, but at 64 runs x 300 edges it took
         # either 3.2 ms or, in about half of the processes (under numba's OpenMP layer,
         # for every chunk of that process), 16-20 ms against a steady 5.4 ms serial
-        run = (_markov_slots.at(M * K * E) if M >= MARKOV_THREADED_RUNS
-               else _markov_slots.serial)
-        run(ue, fns, addr, streams is not None, up, ei, el, float(self.p_fail),
+        _markov_slots.at(M * K * E, runs=M)(
+            ue, fns, addr, streams is not None, up, ei, el, float(self.p_fail),
             float(self.p_recover), nbr, np.empty((M, N), dtype=np.int64))
         new = np.zeros((M, N, N), dtype=bool)
         new[:, ei, el] = up
@@ -649,4 +648,4 @@ def _markov_slots(u, fns, states, drawn, up, ei, el, p_fail, p_recover, nbr, pos
                 up[m, e] = v >= p_fail if up[m, e] else v < p_recover
 
 
-_markov_slots = Driver(_markov_slots)
+_markov_slots = Driver(_markov_slots, min_runs=MARKOV_THREADED_RUNS)

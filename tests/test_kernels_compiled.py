@@ -124,6 +124,22 @@ def test_serial_and_threaded_drivers_agree(monkeypatch):
         np.testing.assert_array_equal(a, b)
 
 
+def test_driver_threads_only_from_its_work_and_member_thresholds():
+    from netsense.graphs import MARKOV_THREADED_RUNS, _markov_slots
+
+    d = compiled.Driver(lambda x: None, min_runs=4)
+    big = compiled.PARALLEL_WORK
+    assert d.at(big - 1) is d.serial
+    assert d.at(big, runs=3) is d.serial  # enough work, too few members
+    assert d.at(big, runs=4) == d._threaded
+    assert d.at(big) == d._threaded  # no member count given: the work decides
+    e = compiled.Driver(lambda x: None)  # default: one member is enough
+    assert e.at(big, runs=1) == e._threaded
+    # the Markov slot pass: serial below its member threshold at any work
+    assert _markov_slots.at(1 << 40, runs=MARKOV_THREADED_RUNS - 1) is _markov_slots.serial
+    assert _markov_slots.at(1 << 40, runs=MARKOV_THREADED_RUNS) == _markov_slots._threaded
+
+
 def test_every_member_equals_a_single_member_call():
     s = _random_step(5, B=5)
     kw = {"luenberger": (s["y"], s["arrived"], s["C"], s["L"])}
