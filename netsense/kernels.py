@@ -30,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 
 from netsense import drivers
+from netsense.observation import slot_messages
 from netsense.rules import OMEGA
 
 _BIG = np.iinfo(np.int64).max // 4
@@ -365,10 +366,7 @@ def usable_slots(nbr: np.ndarray, valid: np.ndarray,
     valid = np.asarray(valid, dtype=bool)
     if transmit is None:
         return valid
-    out = np.empty(valid.shape, dtype=bool)
-    drivers.messages_all.at(out.size)(np.where(valid, nbr, -1), np.asarray(transmit, bool),
-                                      np.ones((1, 1, 1, 1), bool), False, out)
-    return out
+    return slot_messages(np.where(valid, nbr, -1), np.asarray(transmit, bool))
 
 
 def keep_own_blocks(Z_sel: np.ndarray, Z: np.ndarray, own_block: np.ndarray) -> np.ndarray:

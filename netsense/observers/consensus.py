@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from netsense import kernels
+from netsense.graphs import slot_adjacency
 from netsense.observers.base import DistributedObserver
 
 
@@ -76,12 +77,10 @@ class ConsensusObserver(DistributedObserver):
         super().__init__(design, **kwargs)
 
     def _select(self, Z, tau, nbr, valid, tx):
-        B, N = Z.shape[:2]
+        N = Z.shape[1]
         if self.weights == "tree":
-            adj = np.zeros((B, N, N), dtype=bool)
             usable = kernels.usable_slots(nbr, valid, tx)
-            b, i, d = np.nonzero(usable)
-            adj[b, i, nbr[b, i, d]] = True
+            adj = slot_adjacency(np.where(usable, nbr, -1), N)  # the graph of usable links
             src = tree_parents(adj, nbr, usable)
             Z_sel = kernels.gather_substates(Z, src, self.block_of)
             tau_next = kernels.advance_indices(tau, src)
