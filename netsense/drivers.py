@@ -20,6 +20,7 @@ from netsense.rules import (
     advance_row,
     average_row,
     check_row,
+    freshness_row,
     gather_row,
     innovation_row,
     message_row,
@@ -98,6 +99,49 @@ def load_all(buf_nbr, ptr, x, C_T, has_v, buf_v, transmit, has_link, buf_msg, nb
             message_row(nbr, b, i, transmit, buf_msg, b, p, has_link, msg, b, i)
 
 
+def freshness_all(tau, nbr, use, keys, slot, src):
+    """:func:`netsense.rules.freshness_row` on the indices: ``use`` the usable slots;
+    writes the chosen slot (``-1``: keep) and the agent adopted from (``i`` itself)."""
+    B, N, M = tau.shape
+    D = nbr.shape[2]
+    for b in prange(B):
+        for i in range(N):
+            for j in range(M):
+                t = tau[b, i, j]
+                keys[b, 0, j] = np.inf if t < 0 else np.float64(t)
+            for d in range(D):
+                ok, l = use[b, i, d], nbr[b, i, d]
+                for j in range(M):
+                    t = tau[b, l, j] if ok else -1
+                    keys[b, 1 + d, j] = np.inf if t < 0 else np.float64(t)
+            freshness_row(keys, b, slot, b, i)
+            for j in range(M):
+                d = slot[b, i, j]
+                src[b, i, j] = nbr[b, i, d] if d >= 0 else i
+
+
+def freshness_obs_all(obs, o_om, o_age, o_sarr, o_som, o_sage, keys, act):
+    """:func:`netsense.rules.freshness_row` on observations (the layout's field offsets):
+    an index is omega when its flag is set (> 0.5), a slot usable when its message
+    arrived; ``act[b, i, j]`` = chosen slot + 1 (0 = keep), then the transmit bit 1."""
+    B, N = obs.shape[0], obs.shape[1]
+    D, M = keys.shape[1] - 1, keys.shape[2]
+    for b in prange(B):
+        for i in range(N):
+            for j in range(M):
+                keys[b, 0, j] = np.inf if obs[b, i, o_om + j] > 0.5 else obs[b, i, o_age + j]
+            for d in range(D):
+                got = obs[b, i, o_sarr + d] > 0.5
+                for j in range(M):
+                    e = d * M + j
+                    keys[b, 1 + d, j] = (obs[b, i, o_sage + e]
+                                         if got and not obs[b, i, o_som + e] > 0.5 else np.inf)
+            freshness_row(keys, b, act, b, i)
+            for j in range(M):
+                act[b, i, j] += 1
+            act[b, i, M] = 1
+
+
 def check_actions(act, msg, own, choice, masked, first, okt):
     B, N, D = msg.shape
     for b in prange(B):
@@ -167,6 +211,6 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused
 
 for _name in ("advance_all", "average_all", "gather_all", "mix_all", "propagate_all",
               "innovation_all", "vecmat_all", "messages_all", "load_all",
-              "check_actions", "apply_all"):
+              "check_actions", "apply_all", "freshness_all", "freshness_obs_all"):
     globals()[_name] = Driver(globals()[_name])
 del _name

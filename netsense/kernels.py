@@ -33,13 +33,6 @@ from netsense import drivers
 from netsense.observation import slot_messages
 from netsense.rules import OMEGA
 
-_BIG = np.iinfo(np.int64).max // 4
-
-
-def _key(tau: np.ndarray) -> np.ndarray:
-    """Sort key of freshness indices: omega is larger than every finite index."""
-    return np.where(tau < 0, _BIG, tau)
-
 
 def neighbor_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
                      transmit: np.ndarray | None = None) -> np.ndarray:
@@ -79,17 +72,15 @@ def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     slot : (B, N, N) int
         Chosen slot ``d`` (``-1`` when keeping the own estimate).
     """
-    seen = _key(neighbor_indices(tau, nbr, valid, transmit))  # (B, N, D, N)
-    if seen.shape[2] == 0:
-        B, N = tau.shape[:2]
-        return np.broadcast_to(np.arange(N)[None, :, None], tau.shape).copy(), \
-            np.full(tau.shape, -1)
-    best_slot = np.argmin(seen, axis=2)  # (B, N, N)
-    best_key = np.take_along_axis(seen, best_slot[:, :, None, :], axis=2)[:, :, 0, :]
-    adopt = best_key < _key(tau)  # finite < omega covers Case 1; strict < is eq. (13)
-    chosen = np.take_along_axis(nbr, best_slot, axis=2)  # (B, N, N) node of best slot
-    own = np.broadcast_to(np.arange(tau.shape[1])[None, :, None], tau.shape)
-    return np.where(adopt, chosen, own), np.where(adopt, best_slot, -1)
+    tau = np.asarray(tau)
+    nbr = np.asarray(nbr)
+    B, N, M = tau.shape
+    D = nbr.shape[2]
+    slot = np.empty((B, N, M), dtype=np.int64)
+    src = np.empty((B, N, M), dtype=np.int64)
+    drivers.freshness_all.at(B * N * M * (D + 1))(
+        tau, nbr, usable_slots(nbr, valid, transmit), np.empty((B, D + 1, M)), slot, src)
+    return src, slot
 
 
 def advance_indices(tau: np.ndarray, src: np.ndarray, own: np.ndarray | None = None

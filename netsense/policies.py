@@ -27,6 +27,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from netsense import drivers
 from netsense.coremodel import ObsLayout
 
 
@@ -75,20 +76,18 @@ class FreshnessPolicy(Policy):
     name = "freshness"
 
     def act(self, obs, mask):
-        L, N, D, M = self.layout, self.N, self.D, self.M
-        out = self._base(obs, 1)
-        if D == 0:
-            return out
-        B = obs.shape[0]
-        own_key = np.where(obs[..., L.own_omega] > 0.5, np.inf, obs[..., L.own_age])
-        s_om = obs[..., L.slot_omega].reshape(B, N, D, M) > 0.5
-        s_age = obs[..., L.slot_age].reshape(B, N, D, M)
-        arrived = obs[..., L.slot_arrived] > 0.5  # (B, N, D)
-        key = np.where(s_om | ~arrived[..., None], np.inf, s_age)
-        best = np.argmin(key, axis=2)  # first = smallest slot = smallest node id
-        best_key = np.take_along_axis(key, best[:, :, None, :], axis=2)[:, :, 0, :]
-        adopt = best_key < own_key  # finite < inf: Case 1; strict <: eq. (13)
-        out[..., :M] = np.where(adopt, best + 1, 0)
+        # one compiled pass: the rule of netsense.rules.freshness_row, with the indices
+        # read from the observation (omega flags and ages, slot_arrived)
+        L, M = self.layout, self.M
+        obs = np.asarray(obs)
+        if obs.ndim != 3 or obs.shape[1:] != (self.N, L.size) or obs.dtype.kind != "f":
+            raise ValueError(f"obs must be a float array of shape (B, {self.N}, {L.size}), "
+                             f"got {obs.dtype} {obs.shape}")
+        B, N = obs.shape[:2]
+        out = np.empty((B, N, M + 1), dtype=np.int64)
+        drivers.freshness_obs_all.at(obs.size)(
+            obs, L.own_omega.start, L.own_age.start, L.slot_arrived.start,
+            L.slot_omega.start, L.slot_age.start, np.empty((B, self.D + 1, M)), out)
         return out
 
 

@@ -19,6 +19,7 @@ row function       rule
 ``vecmat_row``     ``x[b] @ M`` in a fixed order (plant eq. (1), outputs eq. (2))
 ``check_row``      the action rule: range, message present, own substate only keep
 ``message_row``    which slots hold a message (neighbour present, sent, delivered)
+``freshness_row``  whom to adopt each substate from: the freshest slot, eqs. (8)-(13)
 =================  ==============================================================
 """
 
@@ -186,3 +187,27 @@ def message_row(nbr, b, i, transmit, link, lb, lp, has_link, out, ob, oi):
             if ok and has_link:
                 ok = link[lb, lp, i, v]
         out[ob, oi, d] = ok
+
+
+@njit(cache=True, inline="always")
+def freshness_row(keys, kb, out, ob, oi):  # eqs. (8)-(13)
+    """The freshness choice of one agent: ``out[ob, oi, j]`` is the slot to adopt
+    substate ``j`` from, ``-1`` to keep the own estimate.
+
+    ``keys[kb, 0, j]`` is the agent's own index ``tau_i^{(j)}`` and ``keys[kb, 1 + d, j]``
+    the index its slot ``d`` offers, as float64 with ``+inf`` for omega and for a slot that
+    holds no message (so such slots never win: the set ``M_i^{(j)}[k]`` of eq. (8)). The
+    slot with the smallest key is adopted iff that key is strictly smaller than the own
+    key (eq. (13); an own omega is beaten by any finite index, Case 1); among equal keys
+    the first slot wins (slots are in ascending node order: smallest node id). Callers
+    fill ``keys`` from the indices (:func:`netsense.kernels.freshness_choice`) or from an
+    observation (:class:`netsense.policies.FreshnessPolicy`).
+    """
+    for j in range(keys.shape[2]):
+        best = -1
+        bk = keys[kb, 0, j]
+        for d in range(keys.shape[1] - 1):
+            v = keys[kb, 1 + d, j]
+            if v < bk:  # strictly: the first of equal keys stays, ties to the own index keep
+                best, bk = d, v
+        out[ob, oi, j] = best

@@ -511,3 +511,40 @@ def test_usable_slots_are_present_neighbours_that_transmitted():
                       for i in range(N)] for b in range(B)])
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(kernels.usable_slots(nbr, valid), valid)
+
+
+def _freshness_oracle(tau, nbr, use):
+    """Eqs. (8)-(13) written out per agent and substate: among the usable slots whose
+    neighbour's index is not omega, the freshest (first slot on ties); adopted iff the
+    own index is omega or strictly staler."""
+    B, N, M = tau.shape
+    slot = np.full((B, N, M), -1)
+    src = np.broadcast_to(np.arange(N)[None, :, None], (B, N, M)).copy()
+    for b in range(B):
+        for i in range(N):
+            for j in range(M):
+                cand = [(tau[b, nbr[b, i, d], j], d) for d in range(nbr.shape[2])
+                        if use[b, i, d] and tau[b, nbr[b, i, d], j] != OMEGA]
+                if not cand:
+                    continue
+                t, d = min(cand)  # smallest index, then smallest slot
+                if tau[b, i, j] == OMEGA or t < tau[b, i, j]:
+                    slot[b, i, j], src[b, i, j] = d, nbr[b, i, d]
+    return src, slot
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_freshness_choice_equals_the_rule_written_out(seed, monkeypatch):
+    s = _random_step(seed, B=6)
+    rng = np.random.default_rng(seed)
+    tau = rng.integers(-1, 3, size=s["tau"].shape)  # few values: many ties and omegas
+    nbr = s["nbr"]
+    transmit = rng.random(tau.shape[:2]) < 0.7
+    use = kernels.usable_slots(nbr, nbr >= 0, transmit)
+    src_ref, slot_ref = _freshness_oracle(tau, nbr, use)
+    assert (slot_ref >= 0).any() and (slot_ref > 0).any()  # adoptions from later slots too
+    for work in (1 << 62, 0):  # serial, then threaded
+        monkeypatch.setattr(compiled, "PARALLEL_WORK", work)
+        src, slot = kernels.freshness_choice(tau, nbr, nbr >= 0, transmit)
+        np.testing.assert_array_equal(slot, slot_ref)
+        np.testing.assert_array_equal(src, src_ref)

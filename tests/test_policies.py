@@ -118,3 +118,37 @@ def test_random_policy_takes_numpy_integer_seeds_as_their_int():
     a = make_policy("random", core, seed=[np.int64(5), np.uint8(6)]).act(obs, mask)
     b = make_policy("random", core, seed=[5, 6]).act(obs, mask)
     np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_freshness_policy_equals_the_rule_on_the_indices(seed):
+    """Read from the observation, the policy chooses what ``kernels.freshness_choice``
+    chooses on the indices and messages behind that observation (mid-run, with link
+    failures: slots without messages, omega indices and ties)."""
+    from netsense import kernels
+
+    model = build_model(with_overrides(load("link_failures-v0"), horizon=40))
+    core = BatchedCore(model, 4)
+    pol = make_policy("freshness", core)
+    obs, mask = core.reset(seed)
+    adopted = 0
+    for _ in range(12):
+        act = pol.act(obs, mask)
+        _, ref = kernels.freshness_choice(core.tau, core.nbr, core.msg)  # slots with a message
+        np.testing.assert_array_equal(act[..., :core.M], ref + 1)
+        assert (act[..., core.M] == 1).all()
+        adopted += int((ref >= 0).sum())
+        out = core.step(act)
+        obs, mask = out.obs, out.action_mask
+    assert adopted > 0
+
+
+@pytest.mark.parametrize("shape, dtype", [((4, 7), np.float32), ("last+1", np.float32),
+                                          ("ok", np.int64)])
+def test_freshness_policy_rejects_observations_of_another_shape(shape, dtype):
+    core = BatchedCore(build_model(load("fig1_scalar-v0")), 1)
+    pol = make_policy("freshness", core)
+    size = core.layout.size
+    shape = {"last+1": (1, core.N, size + 1), "ok": (1, core.N, size)}.get(shape, shape)
+    with pytest.raises(ValueError, match="obs must be a float array of shape"):
+        pol.act(np.zeros(shape, dtype), None)
