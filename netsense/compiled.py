@@ -17,6 +17,11 @@ section for measurements and ``workqueue`` as the remedy). Threaded
 calls are serialised by a lock, so several Python threads may step their own batches under
 any layer.
 
+Drivers are cached on disk by numba (``cache=True``) under names that end with a digest of
+the modules they inline (:func:`inlined_digest`): numba checks only the defining file's
+timestamp, so an edit of :mod:`netsense.rules` alone would otherwise leave every driver
+running its old machine code.
+
 Drivers are compiled without numba's reference counting (``_nrt=False``): they allocate
 nothing (outputs and scratch rows come from the Python wrapper), so no array needs a
 reference count, and the row functions they inline run without the atomic
@@ -38,9 +43,11 @@ numpy's, so a change of that model in a future numba fails there, not silently.
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import threading
 import types
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 from numba import njit
@@ -85,11 +92,37 @@ class Driver:
             return self.parallel(*args)
 
 
+#: Modules whose compiled functions every driver may inline or call: the row functions
+#: and numba's view of numpy's bit generators.
+INLINED_SOURCES = ("rules.py", "compiled.py")
+
+
+def inlined_digest() -> str:
+    """Digest of :data:`INLINED_SOURCES` (their bytes), part of every driver's cache key.
+
+    numba's on-disk cache checks only the timestamp of the file that defines a function,
+    not of the functions it inlines: after an edit of a row function in
+    :mod:`netsense.rules` alone, every driver would load its stale machine code from the
+    cache and run the old rule. With this digest in the drivers' names, such an edit gives
+    new names, hence a fresh compilation.
+    """
+    h = hashlib.sha256()
+    here = Path(__file__).parent
+    for name in INLINED_SOURCES:
+        h.update((here / name).read_bytes())
+    return h.hexdigest()[:12]
+
+
+_DIGEST = inlined_digest()
+
+
 def _renamed(fn, tag: str):
-    """A copy of ``fn`` under its own qualified name (numba caches per name)."""
-    out = types.FunctionType(fn.__code__, fn.__globals__, f"{fn.__name__}_{tag}",
-                             fn.__defaults__, fn.__closure__)
-    out.__qualname__ = f"{fn.__qualname__}_{tag}"
+    """A copy of ``fn`` under its own qualified name (numba caches per name), which ends
+    with :func:`inlined_digest`."""
+    name = f"{fn.__name__}_{tag}_{_DIGEST}"
+    out = types.FunctionType(fn.__code__, fn.__globals__, name, fn.__defaults__,
+                             fn.__closure__)
+    out.__qualname__ = f"{fn.__qualname__}_{tag}_{_DIGEST}"
     out.__module__ = fn.__module__
     return out
 

@@ -548,3 +548,22 @@ def test_freshness_choice_equals_the_rule_written_out(seed, monkeypatch):
         src, slot = kernels.freshness_choice(tau, nbr, nbr >= 0, transmit)
         np.testing.assert_array_equal(slot, slot_ref)
         np.testing.assert_array_equal(src, src_ref)
+
+
+def test_driver_cache_names_follow_the_rules_they_inline():
+    """numba's disk cache only checks the driver's own file: the drivers' names carry a
+    digest of the row functions' modules, so editing a rule recompiles every driver."""
+    import hashlib
+    from pathlib import Path
+
+    from netsense import drivers
+
+    here = Path(compiled.__file__).parent
+    h = hashlib.sha256()
+    for name in ("rules.py", "compiled.py"):
+        h.update((here / name).read_bytes())
+    digest = h.hexdigest()[:12]
+    assert compiled.inlined_digest() == digest
+    for d in (drivers.apply_all, observation._fill):
+        for build in (d.serial, d.parallel):
+            assert build.py_func.__qualname__.endswith(f"_{digest}")
