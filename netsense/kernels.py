@@ -72,14 +72,24 @@ def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     slot : (B, N, N) int
         Chosen slot ``d`` (``-1`` when keeping the own estimate).
     """
-    tau = np.asarray(tau)
-    nbr = np.asarray(nbr)
+    tau, nbr = np.asarray(tau), np.asarray(nbr)
+    if tau.ndim != 3 or nbr.ndim != 3 or nbr.shape[:2] != tau.shape[:2]:
+        raise ValueError(f"tau must be (B, N, M) and nbr (B, N, D) with the same B, N; got "
+                         f"{tau.shape} and {nbr.shape}")
+    if np.shape(valid) != nbr.shape:
+        raise ValueError(f"valid must have the shape of nbr {nbr.shape}, got "
+                         f"{np.shape(valid)}")
+    if transmit is not None and np.shape(transmit) != tau.shape[:2]:
+        raise ValueError(f"transmit must have shape {tau.shape[:2]}, got {np.shape(transmit)}")
+    use = usable_slots(nbr, valid, transmit)
     B, N, M = tau.shape
+    if use.any() and not (0 <= nbr[use].min() and nbr[use].max() < N):
+        raise ValueError(f"a usable slot names no agent 0..{N - 1}")
     D = nbr.shape[2]
     slot = np.empty((B, N, M), dtype=np.int64)
     src = np.empty((B, N, M), dtype=np.int64)
     drivers.freshness_all.at(B * N * M * (D + 1))(
-        tau, nbr, usable_slots(nbr, valid, transmit), np.empty((B, D + 1, M)), slot, src)
+        tau, nbr, use, np.empty((B, D + 1, M)), slot, src)
     return src, slot
 
 

@@ -567,3 +567,23 @@ def test_driver_cache_names_follow_the_rules_they_inline():
     for d in (drivers.apply_all, observation._fill):
         for build in (d.serial, d.parallel):
             assert build.py_func.__qualname__.endswith(f"_{digest}")
+
+
+@pytest.mark.parametrize("what", ["batch", "valid", "transmit", "node"])
+def test_freshness_choice_rejects_slots_that_do_not_fit(what):
+    s = _random_step(0, B=2)
+    tau, nbr = s["tau"], s["nbr"].copy()
+    valid = nbr >= 0
+    transmit = None
+    if what == "batch":
+        nbr, valid = nbr[:1], valid[:1]
+    elif what == "valid":
+        valid = valid[..., :1]
+    elif what == "transmit":
+        transmit = np.ones((2, 1), bool)
+    else:
+        nbr[valid] = tau.shape[1]  # one past the last agent
+    match = {"batch": "same B, N", "valid": "shape of nbr", "transmit": "transmit must",
+             "node": "names no agent"}[what]
+    with pytest.raises(ValueError, match=match):
+        kernels.freshness_choice(tau, nbr, valid, transmit)
