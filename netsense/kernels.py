@@ -31,26 +31,7 @@ import numpy as np
 
 from netsense import drivers
 from netsense.observation import slot_messages
-from netsense.rules import OMEGA
-
-
-def neighbor_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
-                     transmit: np.ndarray | None = None) -> np.ndarray:
-    """Freshness indices a node can see in its slots, ``(B, N, D, N)``.
-
-    Entry ``[b, i, d, j]`` is ``tau_l^{(j)}`` for the neighbour ``l`` in slot ``d`` of
-    ``i``, or ``OMEGA`` when the slot is empty or ``l`` did not transmit.
-    """
-    B, N, D = nbr.shape
-    M = tau.shape[-1]
-    usable = usable_slots(nbr, valid, transmit)
-    # one row gather from a flat (B N + 1, M) table whose last row is all omega: unusable
-    # slots point at that row, so no masking pass over the (B, N, D, N) result is needed
-    table = np.empty((B * N + 1, M), dtype=tau.dtype)
-    table[:-1] = tau.reshape(B * N, M)
-    table[-1] = OMEGA
-    rows = np.where(usable, nbr + (np.arange(B) * N)[:, None, None], B * N)
-    return np.take(table, rows, axis=0)
+from netsense.rules import OMEGA  # noqa: F401  (re-exported: kernels.OMEGA)
 
 
 def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
