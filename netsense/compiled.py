@@ -92,9 +92,9 @@ class Driver:
             return self.parallel(*args)
 
 
-#: Modules whose compiled functions every driver may inline or call: the row functions
-#: and numba's view of numpy's bit generators.
-INLINED_SOURCES = ("rules.py", "compiled.py")
+#: Modules whose compiled functions every driver may inline or call: the row functions,
+#: numba's view of numpy's bit generators and the explicit vector code.
+INLINED_SOURCES = ("rules.py", "compiled.py", "lanes.py")
 
 
 def inlined_digest() -> str:
@@ -201,3 +201,4 @@ _FNS: dict[type, np.ndarray] = {}  # bit-generator class -> its C draw functions
 
 #: ``fns`` for drivers called without streams (never called).
 NO_STREAMS = np.zeros(3, dtype=np.uintp)
+

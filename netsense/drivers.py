@@ -54,10 +54,10 @@ def mix_all(Z, nbr, use, out):
             mix_row(Z, b, i, nbr, use, out, b, i)
 
 
-def propagate_all(Z_sel, Z, dq, dc, dv, ALT, out):
+def propagate_all(Z_sel, Z, ADT, ALT, out):
     for b in prange(Z.shape[0]):
         for i in range(Z.shape[1]):
-            propagate_row(Z_sel, b, i, Z, b, i, dq, dc, dv, ALT, out, b, i)
+            propagate_row(Z_sel, b, i, Z, b, i, ADT, ALT, out, b, i)
 
 
 def innovation_all(Z, y, arrived, C, L, rows, out, scratch):
@@ -150,7 +150,7 @@ def check_actions(act, msg, own, choice, masked, first, okt):
             check_row(act, b, i, msg, own, okb, choice, b, i, masked, first)
 
 
-def apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused, y,
+def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
                arrived, C, L, rows, x, A_T, w, W_T, has_w, TT, Z_next, tau_next, err,
                x_next, masked, first, ch, src, zsel, mix, avg_tau, ext, okt, cor, innov, zt,
                wt):
@@ -193,7 +193,7 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, dq, dc, dv, ALT, corr, fused
                 for c in range(n):
                     if ch[b, 0, block_of[c]] == D + 1:
                         zsel[b, 0, c] = mix[b, 0, c]
-            propagate_row(zsel, b, 0, Z, b, i, dq, dc, dv, ALT, Z_next, b, i)
+            propagate_row(zsel, b, 0, Z, b, i, ADT, ALT, Z_next, b, i)
             if fused:  # the fixed-gain source update, eq. (7), on the same row
                 innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], inb,
                                 cor, b, 0)

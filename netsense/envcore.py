@@ -178,7 +178,7 @@ class BatchedCore:
         self.block_of = dec.block_of
         self.A_diag, self.A_lower = dec.A_diag, dec.A_lower
         self._ALT = np.ascontiguousarray(self.A_lower.T)
-        self._band = kernels.diag_band(self.A_diag)
+        self._ADT = np.ascontiguousarray(self.A_diag.T)
         self._TT = np.ascontiguousarray(dec.T)
         self._A_T = np.ascontiguousarray(plant.A.T)
         self.C_padded = plant.C_padded
@@ -477,7 +477,7 @@ class BatchedCore:
         # computed alone, exactly as in a B = 1 run. (kernels.keep_own_blocks is not
         # needed: validation leaves every own substate at 0 = keep.)
         out = kernels.apply_actions(
-            Z, tau, a, self.nbr, self.msg, self._block_of, self._ALT, self._band, x=self.x,
+            Z, tau, a, self.nbr, self.msg, self._block_of, self._ALT, self._ADT, x=self.x,
             A_T=self._A_T, T=self._TT, w=w, W_T=self._W_T, own=self.own, **src_kw)
         self._refuse(out.status, a)  # nothing committed yet
         self.last_invalid = out.masked

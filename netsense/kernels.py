@@ -126,34 +126,27 @@ def uniform_mix(Z: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
 
 
 def propagate(Z_sel: np.ndarray, Z: np.ndarray, A_diag: np.ndarray,
-              A_lower: np.ndarray,
-              band: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+              A_lower: np.ndarray) -> np.ndarray:
     """Open-loop part of eqs. (7), (10), (12): ``A_jj z_sel^{(j)} + sum_{q<j} A_jq z_i^{(q)}``.
 
     ``Z_sel`` holds, per substate, the estimate the agent decided to propagate (its own,
     an adopted one, or a consensus mix); the couplings ``A_jq`` always act on the agent's
     own estimates of the other substates. ``A_lower`` may carry the decomposition's
-    rounding-level entries above the diagonal, so the model is exact. ``band`` is
-    :func:`diag_band` of ``A_diag`` (computed when not given): the multiply by the
-    block-diagonal part visits only its non-zeros.
+    rounding-level entries above the diagonal, so the model is exact. The block-diagonal
+    part visits only the non-zeros of ``A_diag`` (the order of the sums is that of
+    :func:`netsense.lanes.block_triangular_row`).
     """
-    Z_sel = np.asarray(Z_sel, dtype=float)
-    dq, dc, dv = diag_band(A_diag) if band is None else band
+    Z_sel = np.ascontiguousarray(Z_sel, dtype=float)
+    Z = np.ascontiguousarray(Z, dtype=float)
+    ADT, ALT = _t(A_diag), _t(A_lower)
+    n = Z.shape[-1] if Z.ndim == 3 else -1
+    if Z.ndim != 3 or Z_sel.shape != Z.shape or ADT.shape != (n, n) or ALT.shape != (n, n):
+        raise ValueError(f"propagate needs Z_sel and Z of one shape (B, N, n) and n x n "
+                         f"A_diag, A_lower; got {Z_sel.shape}, {Z.shape}, "
+                         f"{np.shape(A_diag)}, {np.shape(A_lower)}")
     out = np.empty(Z_sel.shape)
-    drivers.propagate_all.at(Z_sel.size * Z_sel.shape[-1])(
-        Z_sel, np.asarray(Z, dtype=float), dq, dc, dv, _t(A_lower), out)
+    drivers.propagate_all.at(Z_sel.size * Z_sel.shape[-1])(Z_sel, Z, ADT, ALT, out)
     return out
-
-
-def diag_band(A_diag: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The non-zeros ``A_diag[c, q] = v`` as ``(q, c, v)`` arrays, ``q`` major.
-
-    For the block-diagonal ``A_diag`` these are the ``sum_j n_j^2`` entries of the
-    diagonal blocks, so :func:`propagate` visits only them instead of ``n^2``.
-    """
-    AT = np.asarray(A_diag, dtype=float).T
-    q, c = np.nonzero(AT)
-    return q.astype(np.int64), c.astype(np.int64), AT[q, c].copy()
 
 
 def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | None,
@@ -256,7 +249,7 @@ class StepOut(NamedTuple):
 
 def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarray,
                   msg: np.ndarray, block_of: np.ndarray, A_lower_T: np.ndarray,
-                  band: tuple[np.ndarray, np.ndarray, np.ndarray], *, x: np.ndarray,
+                  A_diag_T: np.ndarray, *, x: np.ndarray,
                   A_T: np.ndarray, T: np.ndarray, w: np.ndarray | None = None,
                   W_T: np.ndarray | None = None, corr: np.ndarray | None = None,
                   luenberger: tuple | None = None, own: np.ndarray | None = None
@@ -282,8 +275,14 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     substates restricted to the sources (``tau (B, N, M)``), ``block_of`` maps every
     coordinate to its column ``0..M-1`` and ``own`` gives each agent's column.
     """
+    Z = np.ascontiguousarray(Z, dtype=float)
     B, N, n = Z.shape
     M = tau.shape[2]
+    A_diag_T = np.ascontiguousarray(A_diag_T, dtype=float)
+    A_lower_T = np.ascontiguousarray(A_lower_T, dtype=float)
+    if A_diag_T.shape != (n, n) or A_lower_T.shape != (n, n):
+        raise ValueError(f"A_diag_T and A_lower_T must be n x n = {(n, n)}, got "
+                         f"{A_diag_T.shape} and {A_lower_T.shape}")
     Z_next = np.empty(Z.shape)
     tau_next = np.empty(tau.shape, dtype=tau.dtype)
     err = np.empty((B, N))
@@ -310,9 +309,9 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
                np.empty((B, 1, n)), np.empty((B, C.shape[1])), np.empty((B, n)),
                np.empty((B, p)))
     drivers.apply_all.at(Z.size * n + tau.size)(
-        Z, tau, _own(own, tau), act, nbr, msg, block_of, band[0], band[1], band[2],
-        A_lower_T, corr, luenberger is not None, y, arrived, C, L, rows, x, A_T, w, W_T,
-        has_w, T, Z_next, tau_next, err, x_next, masked, first, *scratch)
+        Z, tau, _own(own, tau), act, nbr, msg, block_of, A_diag_T, A_lower_T, corr,
+        luenberger is not None, y, arrived, C, L, rows, x, A_T, w, W_T, has_w, T, Z_next,
+        tau_next, err, x_next, masked, first, *scratch)
     return StepOut(Z_next, tau_next, err, x_next, masked, _status(first))
 
 

@@ -29,6 +29,7 @@ from numba import njit, prange
 
 from netsense import drivers
 from netsense.compiled import Driver
+from netsense.lanes import copy_span
 
 __all__ = ["fill", "slot_messages"]
 
@@ -79,7 +80,7 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     _fill.at(work)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
                    bool(exact_f32), bool(observations), bool(masks),
                    np.asarray(own, dtype=np.int64), np.empty(shape, np.float32),
-                   np.empty(shape, np.float32))
+                   np.empty(shape, np.float32), np.empty(mask.shape[1:], np.int8))
 
 
 @njit(cache=True, inline="always")
@@ -109,7 +110,7 @@ def _finite_or_repair(v):
 
 
 def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do_obs, do_mask,
-          own, om_all, age_all):
+          own, om_all, age_all, own_rows):
     B, N, n = Z.shape
     r = y.shape[2]
     D = nbr.shape[2]
@@ -117,10 +118,13 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
     (o_time, o_y, o_yarr, o_om, o_age, o_zdir, o_zlog, o_sarr, o_sid, o_som,
      o_sage) = (starts[0], starts[1], starts[2], starts[3], starts[4], starts[5],
                 starts[6], starts[7], starts[8], starts[9], starts[10])
+    if do_mask:  # each agent's mask row when every message arrives (own substate: keep)
+        for i in range(N):
+            _own_row(own_rows[i], own[i], M, D)
     for b in prange(B):
         if do_mask:
             for i in range(N):
-                _mask_row(mask[b, i], msg[b, i], own[i], M, D)
+                _mask_row(mask[b, i], msg[b, i], own_rows[i], M, D)
         if not do_obs:
             continue
         # every agent's (omega, age) row once per member; own and slot fields copy rows
@@ -135,8 +139,8 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
                 v = y[b, i, q] if arr else 0.0
                 o[o_y + q] = _finite_or_repair(np.sign(v) * _log1p(np.abs(v)))
             o[o_yarr] = 1.0 if arr else 0.0
-            _copy(om_tab[i], o[o_om:o_om + M])
-            _copy(age_tab[i], o[o_age:o_age + M])
+            copy_span(o, o_om, om_tab[i], 0, M)
+            copy_span(o, o_age, age_tab[i], 0, M)
             z = Z[b, i]
             zz = 0.0
             for c in range(n):
@@ -158,8 +162,8 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
                 o[o_sarr + d] = 1.0 if got else 0.0
                 o[o_sid + d] = np.float32((l + 1) / N) if l >= 0 else 0.0
                 row = l if got else N  # row N: no message (omega 1, age 0)
-                _copy(om_tab[row], o[o_som + d * M:o_som + (d + 1) * M])
-                _copy(age_tab[row], o[o_sage + d * M:o_sage + (d + 1) * M])
+                copy_span(o, o_som + d * M, om_tab[row], 0, M)
+                copy_span(o, o_sage + d * M, age_tab[row], 0, M)
 
 
 @njit(cache=True, inline="always")
@@ -181,23 +185,23 @@ def _index_tables(tau_b, H, exact_f32, om_tab, age_tab):
 
 
 @njit(cache=True, inline="always")
-def _copy(src, dst):
-    for j in range(src.shape[0]):
-        dst[j] = src[j]
-
-
-@njit(cache=True, inline="always")
-def _mask_row(m, msg_row, o, M, D):
+def _own_row(m, o, M, D):
     W = D + 2
     for t in range(m.shape[0]):  # everything allowed, then clear what is not
         m[t] = 1
-    for d in range(D):
-        if not msg_row[d]:
-            for j in range(M):
-                m[j * W + 1 + d] = 0
     if o >= 0:  # the own substate allows only keep
         for w in range(1, W):
             m[o * W + w] = 0
+
+
+@njit(cache=True, inline="always")
+def _mask_row(m, msg_row, own_row, M, D):
+    copy_span(m, 0, own_row, 0, m.shape[0])
+    W = D + 2
+    for d in range(D):
+        if not msg_row[d]:  # a slot without a message cannot be adopted
+            for j in range(M):
+                m[j * W + 1 + d] = 0
 
 
 _fill = Driver(_fill)

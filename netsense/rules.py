@@ -27,6 +27,8 @@ from __future__ import annotations
 
 from numba import njit
 
+from netsense.lanes import block_triangular_row
+
 #: Encoding of the freshness index's dummy value omega (eq. (8)ff.).
 OMEGA = -1
 
@@ -85,28 +87,11 @@ def gather_row(Z, b, src, sb, si, block_of, out, ob, oi):
 
 
 @njit(cache=True, inline="always")
-def propagate_row(Z_sel, sb, si, Z, b, i, dq, dc, dv, ALT, out, ob, oi):
-    """Row of eqs. (7), (10), (12) (see :func:`netsense.kernels.propagate`)."""
-    n = Z.shape[2]
-    o, z, zs = out[ob, oi], Z[b, i], Z_sel[sb, si]  # n^2 work: three views pay off
-    for c in range(n):
-        o[c] = 0.0
-    for k in range(dv.shape[0]):  # block-diagonal part on the propagated estimate
-        o[dc[k]] += dv[k] * zs[dq[k]]
-    # couplings on the agent's own estimates, four columns of A_lower^T at a time (a
-    # fixed association order, so the result is the same wherever this row runs)
-    q = 0
-    while q + 4 <= n:
-        v0, v1, v2, v3 = z[q], z[q + 1], z[q + 2], z[q + 3]
-        a0, a1, a2, a3 = ALT[q], ALT[q + 1], ALT[q + 2], ALT[q + 3]
-        for c in range(n):
-            o[c] = o[c] + a0[c] * v0 + a1[c] * v1 + a2[c] * v2 + a3[c] * v3
-        q += 4
-    while q < n:
-        v0, a0 = z[q], ALT[q]
-        for c in range(n):
-            o[c] += a0[c] * v0
-        q += 1
+def propagate_row(Z_sel, sb, si, Z, b, i, ADT, ALT, out, ob, oi):
+    """Row of eqs. (7), (10), (12) (see :func:`netsense.kernels.propagate`):
+    ``A_diag z_sel + A_lower z`` with ``ADT = A_diag^T``, ``ALT = A_lower^T``, in the
+    fixed order of :func:`netsense.lanes.block_triangular_row`."""
+    block_triangular_row(out, ob, oi, Z_sel, sb, si, ADT, Z, b, i, ALT)
 
 
 @njit(cache=True, inline="always")

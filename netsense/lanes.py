@@ -1,0 +1,200 @@
+"""Explicit vector code for the rows of the compiled passes (numba intrinsics).
+
+numba hands its functions to LLVM with the loop vectoriser on and the SLP vectoriser off.
+Rows of the netsense passes are short (``n = 10`` coordinates, ``M = 5`` substates at the
+benchmark's smallest shape), and a short loop runs mostly in the scalar remainder the
+loop vectoriser leaves after its wide body. The helpers here write the vector code
+directly, with LLVM vector types, masked loads and masked stores (one vector register per
+:data:`VECTOR_BYTES`; LLVM splits them on narrower hardware), and keep the scalar
+semantics exactly: every output element is computed by the same IEEE operations in the
+same order as the scalar loop they replace, so results are bit-identical to it wherever
+a row runs (``tests/test_lanes.py`` holds them to scalar references).
+
+They are inlined into the drivers (:mod:`netsense.drivers`, :mod:`netsense.observation`)
+through the row functions of :mod:`netsense.rules`; this file is part of the drivers'
+cache key (:func:`netsense.compiled.inlined_digest`). There is no bounds check: the
+callers check the shapes.
+"""
+
+from __future__ import annotations
+
+from llvmlite import ir
+from numba import types as nbtypes
+from numba.core import cgutils
+from numba.core.extending import intrinsic
+
+__all__ = ["VECTOR_BYTES", "block_triangular_row", "copy_span"]
+
+#: Bytes of one vector (AVX-512: 8 float64 or 16 float32).
+VECTOR_BYTES = 64
+_F64_LANES = VECTOR_BYTES // 8
+_MAX_ACC = 4  # vector accumulators per pass over the columns of block_triangular_row
+
+_I32 = ir.IntType(32)
+
+
+def _c_array(t, ndim: int, dtype=None) -> bool:
+    return (isinstance(t, nbtypes.Array) and t.ndim == ndim and t.layout == "C"
+            and (dtype is None or t.dtype == dtype))
+
+
+def _pointer(context, builder, aryty, ary, index):
+    """Pointer to ``ary[index]`` (all axes indexed) and the array's shape."""
+    arr = context.make_array(aryty)(context, builder, ary)
+    shape = cgutils.unpack_tuple(builder, arr.shape)
+    strides = cgutils.unpack_tuple(builder, arr.strides)
+    return cgutils.get_item_pointer2(context, builder, arr.data, shape, strides,
+                                     aryty.layout, index, wraparound=False), shape
+
+
+def _splat(builder, value, lanes: int):
+    t = ir.VectorType(value.type, lanes)
+    u = builder.insert_element(ir.Constant(t, ir.Undefined), value, _I32(0))
+    return builder.shuffle_vector(u, ir.Constant(t, ir.Undefined),
+                                  ir.Constant(ir.VectorType(_I32, lanes), [0] * lanes))
+
+
+def _masked(builder, vec, ptr_type):
+    """``llvm.masked.load`` and ``llvm.masked.store`` for the vector type ``vec``."""
+    lanes, elem = vec.count, vec.element
+    bits = ir.VectorType(ir.IntType(1), lanes)
+    name = {"double": "f64", "float": "f32"}.get(str(elem), str(elem))  # i8, i16, ...
+    suffix = f"v{lanes}{name}.p0"
+    load = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(vec, [ptr_type, _I32, bits, vec]),
+        f"llvm.masked.load.{suffix}")
+    store = cgutils.get_or_insert_function(
+        builder.module, ir.FunctionType(ir.VoidType(), [vec, ptr_type, _I32, bits]),
+        f"llvm.masked.store.{suffix}")
+    return load, store
+
+
+def _first(builder, intp, lanes: int, count):
+    """The mask of the first ``count`` lanes (all of them when ``count >= lanes``)."""
+    lane = ir.Constant(ir.VectorType(intp, lanes), list(range(lanes)))
+    return builder.icmp_signed("<", lane, _splat(builder, count, lanes))
+
+
+@intrinsic
+def block_triangular_row(typingctx, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, i,
+                         A_lower_T):
+    """``out[ob, oi] = z_sel A_diag^T + z A_lower^T`` for the rows ``z_sel = Z_sel[sb, si]``
+    and ``z = Z[b, i]`` (eqs. (7), (10), (12)).
+
+    The order, the same for every output column ``c``: start from ``0.0``; add
+    ``A_diag_T[q, c] * z_sel[q]`` for ``q = 0 .. n-1`` where ``A_diag_T[q, c] != 0`` (the
+    block diagonal's non-zeros only, so a non-finite ``z_sel[q]`` outside ``c``'s block
+    does not reach ``c``); then add ``A_lower_T[q, c] * z[q]`` for ``q = 0 .. n-1``. Each
+    term is a multiply and then an add, never fused. That is the scalar loop
+    ``o[c] += a * v`` in the same order; the lanes only compute columns side by side.
+
+    The columns are taken in passes of up to ``4 x 8``, held in as few vector
+    accumulators as the pass needs; the row's end is handled by masked loads and stores.
+    All arrays are C-contiguous float64 with ``n = out.shape[2]`` columns, ``A_*_T`` of
+    shape ``(n, n)``.
+    """
+    f64 = nbtypes.float64
+    if not (_c_array(out, 3, f64) and _c_array(Z_sel, 3, f64) and _c_array(Z, 3, f64)
+            and _c_array(A_diag_T, 2, f64) and _c_array(A_lower_T, 2, f64)
+            and all(isinstance(t, nbtypes.Integer) for t in (ob, oi, sb, si, b, i))):
+        return None  # a typing error: C-contiguous float64 arrays, integer indices
+    sig = nbtypes.void(out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, i, A_lower_T)
+
+    def codegen(context, builder, signature, args):
+        ts = signature.args
+        intp = context.get_value_type(nbtypes.intp)
+        zero = intp(0)
+
+        def index(k):
+            return context.cast(builder, args[k], ts[k], nbtypes.intp)
+
+        o_ptr, o_shape = _pointer(context, builder, ts[0], args[0], [index(1), index(2), zero])
+        s_ptr, _ = _pointer(context, builder, ts[3], args[3], [index(4), index(5), zero])
+        d_ptr, _ = _pointer(context, builder, ts[6], args[6], [zero, zero])
+        z_ptr, _ = _pointer(context, builder, ts[7], args[7], [index(8), index(9), zero])
+        a_ptr, _ = _pointer(context, builder, ts[10], args[10], [zero, zero])
+        n, L = o_shape[2], _F64_LANES
+        vec = ir.VectorType(ir.DoubleType(), L)
+        load, store = _masked(builder, vec, o_ptr.type)
+        align, zeros = _I32(8), ir.Constant(vec, [0.0] * L)
+        acc = [cgutils.alloca_once(builder, vec) for _ in range(_MAX_ACC)]
+
+        def columns(s, H):  # one pass: the columns s .. s + H L - 1 that are < n
+            left = builder.sub(n, s)
+            masks = [_first(builder, intp, L, builder.sub(left, intp(L * h)))
+                     for h in range(H)]
+            cols = [builder.add(s, intp(L * h)) for h in range(H)]
+            for h in range(H):
+                builder.store(zeros, acc[h])
+            for v_ptr, m_ptr, diag in ((s_ptr, d_ptr, True), (z_ptr, a_ptr, False)):
+                with cgutils.for_range(builder, n, intp=intp) as loop:
+                    q = loop.index
+                    v = _splat(builder, builder.load(builder.gep(v_ptr, [q])), L)
+                    row = builder.mul(q, n)
+                    for h in range(H):
+                        a = builder.call(load, [builder.gep(m_ptr, [builder.add(row, cols[h])]),
+                                                align, masks[h], zeros])
+                        old = builder.load(acc[h])
+                        new = builder.fadd(old, builder.fmul(a, v))
+                        if diag:  # the block diagonal's non-zeros only
+                            new = builder.select(builder.fcmp_ordered("!=", a, zeros), new, old)
+                        builder.store(new, acc[h])
+            for h in range(H):
+                builder.call(store, [builder.load(acc[h]), builder.gep(o_ptr, [cols[h]]),
+                                     align, masks[h]])
+
+        with cgutils.for_range_slice(builder, zero, n, intp(_MAX_ACC * L),
+                                     intp=intp) as (s, _):
+            left = builder.sub(n, s)
+
+            def fewest(H):  # as few accumulators as the remaining columns need
+                if H == _MAX_ACC:
+                    columns(s, H)
+                    return
+                with builder.if_else(builder.icmp_signed("<=", left, intp(H * L))) as (
+                        then, other):
+                    with then:
+                        columns(s, H)
+                    with other:
+                        fewest(H + 1)
+
+            fewest(1)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def copy_span(typingctx, dst, dst_start, src, src_start, count):
+    """``dst[dst_start:dst_start + count] = src[src_start:src_start + count]`` for 1-D
+    C-contiguous arrays of one dtype of 1, 2, 4 or 8 bytes, one vector (masked at the
+    end) per :data:`VECTOR_BYTES`."""
+    if not (_c_array(dst, 1) and _c_array(src, 1) and dst.dtype == src.dtype
+            and isinstance(dst.dtype, (nbtypes.Integer, nbtypes.Float, nbtypes.Boolean))
+            and all(isinstance(t, nbtypes.Integer) for t in (dst_start, src_start, count))):
+        return None
+    sig = nbtypes.void(dst, dst_start, src, src_start, count)
+
+    def codegen(context, builder, signature, args):
+        ts = signature.args
+        intp = context.get_value_type(nbtypes.intp)
+
+        def index(k):
+            return context.cast(builder, args[k], ts[k], nbtypes.intp)
+
+        d_ptr, _ = _pointer(context, builder, ts[0], args[0], [index(1)])
+        s_ptr, _ = _pointer(context, builder, ts[2], args[2], [index(3)])
+        elem = context.get_data_type(ts[0].dtype)
+        size = context.get_abi_sizeof(elem)
+        L = VECTOR_BYTES // size
+        vec = ir.VectorType(elem, L)
+        load, store = _masked(builder, vec, d_ptr.type)
+        undef = ir.Constant(vec, ir.Undefined)
+        count = index(4)
+        with cgutils.for_range_slice(builder, intp(0), count, intp(L), intp=intp) as (s, _):
+            m = _first(builder, intp, L, builder.sub(count, s))
+            v = builder.call(load, [builder.gep(s_ptr, [s]), _I32(size), m, undef])
+            builder.call(store, [v, builder.gep(d_ptr, [s]), _I32(size), m])
+        return context.get_dummy_value()
+
+    return sig, codegen
