@@ -200,13 +200,19 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
             else:
                 for c in range(n):
                     cor[b, 0, c] = corr[b, i, c]
-            s = 0.0
             for c in range(n):
-                v = Z_next[b, i, c] + cor[b, 0, c]
-                Z_next[b, i, c] = v
-                e = v - zt[b, c]
-                s += e * e
-            err[b, i] = np.sqrt(s)
+                Z_next[b, i, c] += cor[b, 0, c]
+        # errors ||z_hat_i - z||, each summed over c ascending as one row would, but with
+        # the N agents' sums side by side (independent chains, not one chain per agent)
+        for i in range(N):
+            err[b, i] = 0.0
+        for c in range(n):
+            t = zt[b, c]
+            for i in range(N):
+                e = Z_next[b, i, c] - t
+                err[b, i] += e * e
+        for i in range(N):
+            err[b, i] = np.sqrt(err[b, i])
 
 
 for _name in ("advance_all", "average_all", "gather_all", "mix_all", "propagate_all",

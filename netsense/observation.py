@@ -80,7 +80,8 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     _fill.at(work)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
                    bool(exact_f32), bool(observations), bool(masks),
                    np.asarray(own, dtype=np.int64), np.empty(shape, np.float32),
-                   np.empty(shape, np.float32), np.empty(mask.shape[1:], np.int8))
+                   np.empty(shape, np.float32), np.empty(mask.shape[1:], np.int8),
+                   np.empty(shape[:2]))
 
 
 @njit(cache=True, inline="always")
@@ -110,7 +111,7 @@ def _finite_or_repair(v):
 
 
 def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do_obs, do_mask,
-          own, om_all, age_all, own_rows):
+          own, om_all, age_all, own_rows, zz_all):
     B, N, n = Z.shape
     r = y.shape[2]
     D = nbr.shape[2]
@@ -131,6 +132,13 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
         om_tab, age_tab = om_all[b], age_all[b]  # (N + 1, M) scratch of this member
         _index_tables(tau[b], H, exact_f32, om_tab, age_tab)
         t_b = np.float32(k[b] / H)
+        zz_b = zz_all[b]  # squared norms of the estimates, summed over c ascending, the
+        for i in range(N):  # agents side by side (independent chains)
+            zz_b[i] = 0.0
+        for c in range(n):
+            for i in range(N):
+                v = Z[b, i, c]
+                zz_b[i] += v * v
         for i in range(N):
             o = obs[b, i]
             o[o_time] = t_b
@@ -142,10 +150,7 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
             copy_span(o, o_om, om_tab[i], 0, M)
             copy_span(o, o_age, age_tab[i], 0, M)
             z = Z[b, i]
-            zz = 0.0
-            for c in range(n):
-                zz += z[c] * z[c]
-            norm = np.sqrt(zz)
+            norm = np.sqrt(zz_b[i])
             den = norm if norm > 0 else 1.0
             if np.isfinite(norm):  # then every entry is finite: no repair needed
                 inv = 1.0 / den  # one division per agent (float32 output: same values
