@@ -159,7 +159,7 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
     M = tau.shape[2]
     per_member = L.shape[0] > 1
     # scratch rows (from the wrapper): row b belongs to the thread that runs member b,
-    # addressed as [b, 0, :] by the row functions
+    # addressed as [b, 0, :] by the row functions (zsel: [b, i, :], one row per agent)
     for b in prange(B):
         okb, inb = okt[b], innov[b]  # one view per member, not per row
         lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
@@ -183,7 +183,7 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
                 src[b, 0, j] = ext[b, a]
                 averaged |= a == D + 1
             advance_row(tau, b, i, own, src, b, 0, tau_next, b, i)
-            gather_row(Z, b, src, b, 0, block_of, zsel, b, 0)
+            gather_row(Z, b, src, b, 0, block_of, zsel, b, i)
             if averaged:
                 average_row(tau, b, i, own, nbr, msg, avg_tau, b, 0)
                 mix_row(Z, b, i, nbr, msg, mix, b, 0)
@@ -192,8 +192,12 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
                         tau_next[b, i, j] = avg_tau[b, 0, j]
                 for c in range(n):
                     if ch[b, 0, block_of[c]] == D + 1:
-                        zsel[b, 0, c] = mix[b, 0, c]
-            propagate_row(zsel, b, 0, Z, b, i, ADT, ALT, Z_next, b, i)
+                        zsel[b, i, c] = mix[b, 0, c]
+        # the propagation of every agent in a loop of its own, so the out-of-order core
+        # overlaps one row's sums (a chain of 2n adds per column) with the next row's
+        for i in range(N):
+            propagate_row(zsel, b, i, Z, b, i, ADT, ALT, Z_next, b, i)
+        for i in range(N):
             if fused:  # the fixed-gain source update, eq. (7), on the same row
                 innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], inb,
                                 cor, b, 0)

@@ -304,7 +304,7 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
         w, W_T = np.zeros((1, 1)), np.zeros((1, x.shape[1]))
     D, p = nbr.shape[2], x.shape[1]
     scratch = (np.empty((B, 1, M), np.int64), np.empty((B, 1, M), np.int64),
-               np.empty((B, 1, n)), np.empty((B, 1, n)), np.empty((B, 1, M), tau.dtype),
+               np.empty((B, N, n)), np.empty((B, 1, n)), np.empty((B, 1, M), tau.dtype),
                np.empty((B, D + 2), np.int64), np.ones((B, D + 2), np.bool_),
                np.empty((B, 1, n)), np.empty((B, C.shape[1])), np.empty((B, n)),
                np.empty((B, p)))
