@@ -166,10 +166,13 @@ def block_triangular_row(typingctx, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, 
 
 @intrinsic
 def copy_span(typingctx, dst, dst_start, src, src_start, count):
-    """``dst[dst_start:dst_start + count] = src[src_start:src_start + count]`` for 1-D
-    C-contiguous arrays of one dtype of 1, 2, 4 or 8 bytes, one vector (masked at the
-    end) per :data:`VECTOR_BYTES`."""
-    if not (_c_array(dst, 1) and _c_array(src, 1) and dst.dtype == src.dtype
+    """Copy ``count`` elements from ``src`` to ``dst``, C-contiguous arrays of one dtype
+    (1, 2, 4 or 8 bytes) and any dimensions, from the flat (C-order) positions
+    ``src_start`` and ``dst_start``: ``dst.reshape(-1)[dst_start:dst_start + count] =
+    src.reshape(-1)[src_start:src_start + count]``, one vector (masked at the end) per
+    :data:`VECTOR_BYTES`."""
+    if not (_c_array(dst, getattr(dst, "ndim", -1)) and _c_array(src, getattr(src, "ndim", -1))
+            and dst.dtype == src.dtype
             and isinstance(dst.dtype, (nbtypes.Integer, nbtypes.Float, nbtypes.Boolean))
             and all(isinstance(t, nbtypes.Integer) for t in (dst_start, src_start, count))):
         return None
@@ -182,8 +185,10 @@ def copy_span(typingctx, dst, dst_start, src, src_start, count):
         def index(k):
             return context.cast(builder, args[k], ts[k], nbtypes.intp)
 
-        d_ptr, _ = _pointer(context, builder, ts[0], args[0], [index(1)])
-        s_ptr, _ = _pointer(context, builder, ts[2], args[2], [index(3)])
+        d_ptr = builder.gep(context.make_array(ts[0])(context, builder, args[0]).data,
+                            [index(1)])
+        s_ptr = builder.gep(context.make_array(ts[2])(context, builder, args[2]).data,
+                            [index(3)])
         elem = context.get_data_type(ts[0].dtype)
         size = context.get_abi_sizeof(elem)
         L = VECTOR_BYTES // size

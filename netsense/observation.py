@@ -72,6 +72,10 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     touched). ``own[i]``: column of agent ``i``'s own substate (``-1``: none; default
     ``i``), when the substates are the sources only (``tau (B, N, M)``).
     """
+    for name, a, dtype in (("obs", obs, np.float32), ("mask", mask, np.int8)):
+        if a.dtype != dtype or a.ndim != 3 or not a.flags.c_contiguous:
+            raise ValueError(f"{name} must be a C-contiguous 3-d {np.dtype(dtype).name} "
+                             f"array (written in place), got {a.dtype} {a.shape}")
     if own is None:
         own = np.arange(Z.shape[1], dtype=np.int64)
     work = (obs.size if observations else 0) + (mask.size if masks else 0)
@@ -122,10 +126,12 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
     if do_mask:  # each agent's mask row when every message arrives (own substate: keep)
         for i in range(N):
             _own_row(own_rows[i], own[i], M, D)
+    S = own_rows.size
     for b in prange(B):
-        if do_mask:
+        if do_mask:  # the member's N rows at once, then clear the slots without a message
+            copy_span(mask, b * S, own_rows, 0, S)
             for i in range(N):
-                _mask_row(mask[b, i], msg[b, i], own_rows[i], M, D)
+                _clear_slots(mask[b, i], msg[b, i], M, D)
         if not do_obs:
             continue
         # every agent's (omega, age) row once per member; own and slot fields copy rows
@@ -200,8 +206,7 @@ def _own_row(m, o, M, D):
 
 
 @njit(cache=True, inline="always")
-def _mask_row(m, msg_row, own_row, M, D):
-    copy_span(m, 0, own_row, 0, m.shape[0])
+def _clear_slots(m, msg_row, M, D):
     W = D + 2
     for d in range(D):
         if not msg_row[d]:  # a slot without a message cannot be adopted

@@ -215,6 +215,21 @@ def test_markov_slot_tables_equal_the_recursion(draws):
         np.testing.assert_array_equal(a, b)
 
 
+def test_fill_refuses_outputs_it_cannot_write_in_place():
+    core = BatchedCore(build_model(load("link_failures-v0")), 2)
+    obs, mask = core.reset(0)
+    good_o, good_m = np.empty_like(obs), np.empty_like(mask)
+    for o, m, what in ((obs.astype(np.float64), good_m, "obs must be"),
+                       (np.empty_like(obs)[:, ::-1], good_m, "obs must be"),
+                       (good_o, np.empty(mask.shape, bool), "mask must be"),
+                       (good_o, np.empty(mask.shape[::-1], np.int8).T, "mask must be")):
+        with pytest.raises(ValueError, match=what):
+            core._fill(o, m)
+    core._fill(good_o, good_m)  # the same state observed again: the same arrays
+    np.testing.assert_array_equal(good_o, obs)
+    np.testing.assert_array_equal(good_m, mask)
+
+
 def test_observations_equal_the_layout_written_out():
     model = build_model(load("link_failures-v0"))
     core = BatchedCore(model, 3)

@@ -85,3 +85,12 @@ def test_copy_span_copies_exactly_the_span(dtype):
         expect = before.copy()
         expect[6:6 + count] = src[3:3 + count]
         np.testing.assert_array_equal(dst, expect, err_msg=f"count {count}")
+
+
+def test_copy_span_counts_flat_positions_of_any_c_array():
+    src = np.arange(2 * 3 * 5, dtype=np.int8).reshape(2, 3, 5)
+    dst = np.zeros((4, 3, 5), dtype=np.int8)
+    _copy(dst, 15 + 2, src, 4, 20)  # into member 1 from its third entry, across rows
+    expect = np.zeros(60, dtype=np.int8)
+    expect[17:37] = src.reshape(-1)[4:24]
+    np.testing.assert_array_equal(dst.reshape(-1), expect)
