@@ -198,7 +198,7 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
         for i in range(N):
             propagate_row(zsel, b, i, Z, b, i, ADT, ALT, Z_next, b, i)
         for i in range(N):
-            if fused:  # the fixed-gain source update, eq. (7), on the same row
+            if fused:  # the fixed-gain source update, eq. (7)
                 innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], inb,
                                 cor, b, 0)
             else:

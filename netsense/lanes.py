@@ -33,9 +33,10 @@ _MAX_ACC = 4  # vector accumulators per pass over the columns of block_triangula
 _I32 = ir.IntType(32)
 
 
-def _c_array(t, ndim: int, dtype=None) -> bool:
-    return (isinstance(t, nbtypes.Array) and t.ndim == ndim and t.layout == "C"
-            and (dtype is None or t.dtype == dtype))
+def _c_array(t, ndim: int | None = None, dtype=None) -> bool:
+    """``t`` is a C-contiguous array type (of ``ndim`` dimensions and ``dtype``, if given)."""
+    return (isinstance(t, nbtypes.Array) and t.layout == "C"
+            and (ndim is None or t.ndim == ndim) and (dtype is None or t.dtype == dtype))
 
 
 def _pointer(context, builder, aryty, ary, index):
@@ -171,8 +172,7 @@ def copy_span(typingctx, dst, dst_start, src, src_start, count):
     ``src_start`` and ``dst_start``: ``dst.reshape(-1)[dst_start:dst_start + count] =
     src.reshape(-1)[src_start:src_start + count]``, one vector (masked at the end) per
     :data:`VECTOR_BYTES`."""
-    if not (_c_array(dst, getattr(dst, "ndim", -1)) and _c_array(src, getattr(src, "ndim", -1))
-            and dst.dtype == src.dtype
+    if not (_c_array(dst) and _c_array(src) and dst.dtype == src.dtype
             and isinstance(dst.dtype, (nbtypes.Integer, nbtypes.Float, nbtypes.Boolean))
             and all(isinstance(t, nbtypes.Integer) for t in (dst_start, src_start, count))):
         return None

@@ -125,7 +125,7 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
                 starts[6], starts[7], starts[8], starts[9], starts[10])
     if do_mask:  # each agent's mask row when every message arrives (own substate: keep)
         for i in range(N):
-            _own_row(own_rows[i], own[i], M, D)
+            _own_row(own_rows[i], own[i], D)
     S = own_rows.size
     for b in prange(B):
         if do_mask:  # the member's N rows at once, then clear the slots without a message
@@ -196,7 +196,7 @@ def _index_tables(tau_b, H, exact_f32, om_tab, age_tab):
 
 
 @njit(cache=True, inline="always")
-def _own_row(m, o, M, D):
+def _own_row(m, o, D):
     W = D + 2
     for t in range(m.shape[0]):  # everything allowed, then clear what is not
         m[t] = 1
