@@ -13,7 +13,7 @@ messages. The rest of a step is :func:`netsense.rewards.finish_step` and
 from __future__ import annotations
 
 import numpy as np
-from numba import prange
+from numba import njit, prange
 
 from netsense.compiled import Driver
 from netsense.rules import (
@@ -142,10 +142,22 @@ def freshness_obs_all(obs, o_om, o_age, o_sarr, o_som, o_sage, keys, act):
             act[b, i, M] = 1
 
 
+@njit(cache=True, inline="always")
+def _start_member(first, b, okb):
+    """A member's validation records: none found yet (``first[b] = -1``); keep and
+    average always allowed (``okb[0] = okb[D + 1] = True``, see ``check_row``). Set by
+    the member's own thread, so the buffers need no initialisation by the caller."""
+    for c in range(first.shape[1]):
+        first[b, c] = -1
+    okb[0] = True
+    okb[okb.shape[0] - 1] = True
+
+
 def check_actions(act, msg, own, choice, masked, first, okt):
     B, N, D = msg.shape
     for b in prange(B):
         okb = okt[b]
+        _start_member(first, b, okb)
         for i in range(N):
             check_row(act, b, i, msg, own, okb, choice, b, i, masked, first)
 
@@ -162,6 +174,7 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
     # addressed as [b, 0, :] by the row functions (zsel: [b, i, :], one row per agent)
     for b in prange(B):
         okb, inb = okt[b], innov[b]  # one view per member, not per row
+        _start_member(first, b, okb)
         lb = np.int64(b) if per_member else np.int64(0)  # (prange indices are unsigned)
         # the plant, eq. (1), and the true state in Lemma 1 coordinates
         vecmat_row(x, b, A_T, x_next, b)

@@ -75,6 +75,7 @@ import numpy as np
 from netsense import drivers, kernels, observation, rewards
 from netsense.coremodel import SUBSTATES, CoreModel, ObsLayout, RewardConfig, symlog
 from netsense.graphs import slot_adjacency
+from netsense.observation import FillBuffers
 from netsense.observers.source import LuenbergerSource
 from netsense.sensing.arrivals import AlwaysArrive
 from netsense.sensing.noise import NoNoise
@@ -138,6 +139,12 @@ class BatchedCore:
     y : (B, N, r_max)      measurements ``y[k]``; ``y_arrived`` (B, N).
     transmit : (B, N)      who transmitted at ``k``; ``msg`` (B, N, D): message arrived.
     errors : (B, N)        normalised errors of the last step (0 after reset).
+
+    The state arrays are the core's working buffers, written in place by its threaded
+    passes: ``x``, ``Z`` and ``tau`` alternate between two sets (the arrays of step ``k``
+    are rewritten at step ``k + 2``), ``nbr``, ``y`` and ``msg`` are rewritten at every
+    step. Copy what you keep. What :meth:`step`, :meth:`reset` and :meth:`observe`
+    return (observations, masks, rewards, flags) is fresh at every step.
 
     Notes
     -----
@@ -299,6 +306,17 @@ class BatchedCore:
         self._claim = 0 if self._liar is None else int(self._liar.claim)
         self._no_v = np.zeros((1, 1, 1))  # stand-ins for absent buffers (never read)
         self._no_link = np.ones((1, 1, 1, 1), dtype=bool)
+        # working buffers, written in place by the threaded passes at every step (each
+        # member's rows by the same thread; see kernels.StepBuffers for why): two sets of
+        # step outputs, used in turn (a step reads the state the other set holds; made
+        # at the first step), the observation pass's scratch rows and the current
+        # step's slots, outputs and messages
+        self._step_bufs: tuple[kernels.StepBuffers, ...] = ()
+        self._turn = 0
+        self._fill_bufs = FillBuffers(B, N, self.M, self.mask_size)
+        self.nbr = np.empty((B, N, self.D), dtype=np.int64)
+        self._y_load = np.empty((B, N * r))
+        self.msg = np.empty((B, N, self.D), dtype=bool)
 
     def _reset_member(self, b: int, seed: int) -> None:
         m = self.model
@@ -367,10 +385,8 @@ class BatchedCore:
         """Expose the current step's graph, measurements and messages (from the chunk)."""
         B, N, r = self.B, self.N, self.r
         # one compiled pass per member: slots, outputs y = C x + v (eq. (2)) and the
-        # message table (link l -> i is buf_msg[b, p, i, l])
-        self.nbr = np.empty((B, N, self.D), dtype=np.int64)
-        y = np.empty((B, N * r))
-        self.msg = np.empty((B, N, self.D), dtype=bool)
+        # message table (link l -> i is buf_msg[b, p, i, l]), into the core's buffers
+        y = self._y_load
         v = self.buf_v.reshape(B, self.chunk, N * r) if self._has_mnoise else self._no_v
         link = self._no_link if self._msg_always else self.buf_msg
         drivers.load_all.at(B * N * (self.D + self.n * r))(
@@ -469,6 +485,11 @@ class BatchedCore:
                                                np.empty(choice.shape, bool), self.own), a)
             corr = self.source.correction(self.k, Z, self.y, self.y_arrived)
             src_kw = {"corr": np.ascontiguousarray(corr, dtype=float)}
+        if not self._step_bufs:
+            C = src_kw["luenberger"][2] if "luenberger" in src_kw else np.zeros((1, 1, 1))
+            one = kernels.StepBuffers(B, self.N, self.n, self.M, self.D, self.n, C.shape[1],
+                                      tau.dtype)
+            self._step_bufs = (one, kernels.StepBuffers(*one.key, share_scratch=one))
         w = None
         if self._has_pnoise:
             w = np.take_along_axis(self.buf_w, self.ptr[:, None, None], 1)[:, 0]  # (B, p)
@@ -478,8 +499,10 @@ class BatchedCore:
         # needed: validation leaves every own substate at 0 = keep.)
         out = kernels.apply_actions(
             Z, tau, a, self.nbr, self.msg, self._block_of, self._ALT, self._ADT, x=self.x,
-            A_T=self._A_T, T=self._TT, w=w, W_T=self._W_T, own=self.own, **src_kw)
-        self._refuse(out.status, a)  # nothing committed yet
+            A_T=self._A_T, T=self._TT, w=w, W_T=self._W_T, own=self.own,
+            work=self._step_bufs[self._turn], **src_kw)
+        self._refuse(out.status, a)  # nothing committed yet (the outputs are the set
+        self._turn ^= 1  # of buffers the state is not in)
         self.last_invalid = out.masked
         self.x, self.Z, self.tau = out.x_next, out.Z_next, out.tau_next
         self.k += 1
@@ -535,7 +558,8 @@ class BatchedCore:
         observation.fill(dummy_o if obs is None else obs, dummy_m if mask is None else mask,
                          self._obs_starts, self.k, H, self.y, self.y_arrived,
                          self.reported_indices(), self.Z, self.nbr, self.msg, exact,
-                         observations=obs is not None, masks=mask is not None, own=self.own)
+                         observations=obs is not None, masks=mask is not None, own=self.own,
+                         work=self._fill_bufs)
 
     # ------------------------------------------------------------------ views
     @property

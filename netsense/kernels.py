@@ -230,10 +230,53 @@ def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
     ``masked``, and returns the ``status`` vector of :data:`STATUS_FIELDS`: the first
     (in C order) out-of-range entry and the first masked one, ``-1`` where there is none.
     """
-    first = np.full((act.shape[0], 4), -1, dtype=np.int64)
-    okt = np.ones((act.shape[0], msg.shape[2] + 2), dtype=np.bool_)  # allowed on others'
+    first = np.empty((act.shape[0], 4), dtype=np.int64)  # (both set per member by the
+    okt = np.empty((act.shape[0], msg.shape[2] + 2), dtype=np.bool_)  # driver's threads)
     drivers.check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first, okt)
     return _status(first)
+
+
+class StepBuffers:
+    """The outputs and scratch rows of :func:`apply_actions` for one problem size, for a
+    caller that steps many times (``apply_actions(..., work=buffers)``).
+
+    Allocated once, written in place at every call: the arrays of the returned
+    :class:`StepOut` *are* these buffers, valid until the next call with the same
+    buffers. :class:`netsense.envcore.BatchedCore` keeps two sets and alternates
+    (a call reads the state the other set holds). Why: fresh outputs of a threaded pass
+    come from recycled memory that the other thread may have written last, and on the
+    benchmark VM, whose two vCPUs sometimes sit far apart, every such cache line crossing
+    costs (measured ~10 % of a step at ``(1024, 10, 10)``); a buffer written by the same
+    thread at every step stays in that thread's caches.
+
+    ``B, N, n`` estimates, ``M`` substates, ``D`` slots, ``p`` plant states, ``r``
+    outputs per agent (the rows of ``C_bar``; 1 without the fused source),
+    ``tau_dtype`` the indices' dtype. ``share_scratch``: another set of this size whose
+    scratch rows this one uses too (they live only during a call; one set stays warmer).
+    """
+
+    def __init__(self, B: int, N: int, n: int, M: int, D: int, p: int, r: int,
+                 tau_dtype=np.int64, share_scratch: StepBuffers | None = None) -> None:
+        tau_dtype = np.dtype(tau_dtype)
+        self.key = (B, N, n, M, D, p, r, tau_dtype)
+        self.Z_next = np.empty((B, N, n))
+        self.tau_next = np.empty((B, N, M), dtype=tau_dtype)
+        self.err = np.empty((B, N))
+        self.x_next = np.empty((B, p))
+        self.masked = np.empty((B, N, M), dtype=bool)
+        self.first = np.empty((B, 4), dtype=np.int64)
+        # scratch rows of the fused pass, one per member (row b: the thread of member b)
+        if share_scratch is not None:
+            if share_scratch.key != self.key:
+                raise ValueError(f"share_scratch holds buffers for {share_scratch.key}, "
+                                 f"not {self.key}")
+            self.scratch = share_scratch.scratch
+            return
+        self.scratch = (np.empty((B, 1, M), np.int64), np.empty((B, 1, M), np.int64),
+                        np.empty((B, N, n)), np.empty((B, 1, n)),
+                        np.empty((B, 1, M), tau_dtype), np.empty((B, D + 2), np.int64),
+                        np.empty((B, D + 2), np.bool_), np.empty((B, 1, n)),
+                        np.empty((B, r)), np.empty((B, n)), np.empty((B, p)))
 
 
 class StepOut(NamedTuple):
@@ -252,8 +295,8 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
                   A_diag_T: np.ndarray, *, x: np.ndarray,
                   A_T: np.ndarray, T: np.ndarray, w: np.ndarray | None = None,
                   W_T: np.ndarray | None = None, corr: np.ndarray | None = None,
-                  luenberger: tuple | None = None, own: np.ndarray | None = None
-                  ) -> StepOut:
+                  luenberger: tuple | None = None, own: np.ndarray | None = None,
+                  work: StepBuffers | None = None) -> StepOut:
     """One step of every member and agent, in one pass over ``(b, i)``.
 
     Per member: the plant ``x_next = A x (+ W w)`` (eq. (1)) and ``z = T^T x_next``. Per
@@ -274,6 +317,9 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     :func:`innovation_correction` does (the fixed-gain source of eq. (7)). With
     substates restricted to the sources (``tau (B, N, M)``), ``block_of`` maps every
     coordinate to its column ``0..M-1`` and ``own`` gives each agent's column.
+
+    ``work``: :class:`StepBuffers` of this size to write the outputs and scratch rows
+    into (the returned arrays are then those buffers); default fresh arrays.
     """
     Z = np.ascontiguousarray(Z, dtype=float)
     B, N, n = Z.shape
@@ -283,12 +329,6 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     if A_diag_T.shape != (n, n) or A_lower_T.shape != (n, n):
         raise ValueError(f"A_diag_T and A_lower_T must be n x n = {(n, n)}, got "
                          f"{A_diag_T.shape} and {A_lower_T.shape}")
-    Z_next = np.empty(Z.shape)
-    tau_next = np.empty(tau.shape, dtype=tau.dtype)
-    err = np.empty((B, N))
-    x_next = np.empty((B, x.shape[1]))
-    masked = np.empty((B, N, M), dtype=bool)
-    first = np.full((B, 4), -1, dtype=np.int64)
     if luenberger is not None:
         y, arrived, C, L = luenberger[:4]
         rows = luenberger[4] if len(luenberger) > 4 else gain_rows(L)
@@ -302,17 +342,23 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     has_w = w is not None
     if not has_w:
         w, W_T = np.zeros((1, 1)), np.zeros((1, x.shape[1]))
-    D, p = nbr.shape[2], x.shape[1]
-    scratch = (np.empty((B, 1, M), np.int64), np.empty((B, 1, M), np.int64),
-               np.empty((B, N, n)), np.empty((B, 1, n)), np.empty((B, 1, M), tau.dtype),
-               np.empty((B, D + 2), np.int64), np.ones((B, D + 2), np.bool_),
-               np.empty((B, 1, n)), np.empty((B, C.shape[1])), np.empty((B, n)),
-               np.empty((B, p)))
+    key = (B, N, n, M, nbr.shape[2], x.shape[1], C.shape[1], tau.dtype)
+    if work is None:
+        work = StepBuffers(*key)
+    elif work.key != key:
+        raise ValueError(f"work holds buffers for (B, N, n, M, D, p, r, tau dtype) = "
+                         f"{work.key}, this call needs {key}")
+    elif any(np.may_share_memory(a, o) for a, o in
+             ((Z, work.Z_next), (tau, work.tau_next), (x, work.x_next))):
+        raise ValueError("work's outputs overlap the inputs Z, tau or x (a step reads the "
+                         "state while it writes the next one: alternate two StepBuffers)")
     drivers.apply_all.at(Z.size * n + tau.size)(
         Z, tau, _own(own, tau), act, nbr, msg, block_of, A_diag_T, A_lower_T, corr,
-        luenberger is not None, y, arrived, C, L, rows, x, A_T, w, W_T, has_w, T, Z_next,
-        tau_next, err, x_next, masked, first, *scratch)
-    return StepOut(Z_next, tau_next, err, x_next, masked, _status(first))
+        luenberger is not None, y, arrived, C, L, rows, x, A_T, w, W_T, has_w, T,
+        work.Z_next, work.tau_next, work.err, work.x_next, work.masked, work.first,
+        *work.scratch)
+    return StepOut(work.Z_next, work.tau_next, work.err, work.x_next, work.masked,
+                   _status(work.first))
 
 
 def _status(first: np.ndarray) -> np.ndarray:

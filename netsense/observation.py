@@ -31,7 +31,7 @@ from netsense import drivers
 from netsense.compiled import Driver
 from netsense.lanes import copy_span
 
-__all__ = ["fill", "slot_messages"]
+__all__ = ["FillBuffers", "fill", "slot_messages"]
 
 
 def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
@@ -52,11 +52,24 @@ def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
     return out
 
 
+class FillBuffers:
+    """Scratch rows of :func:`fill` for ``B`` members of ``N`` agents, ``M`` substates and
+    mask rows of ``mask_size``, kept by a caller that fills at every step (``fill(...,
+    work=buffers)``; the reason is that of :class:`netsense.kernels.StepBuffers`)."""
+
+    def __init__(self, B: int, N: int, M: int, mask_size: int) -> None:
+        self.key = (B, N, M, mask_size)
+        self.om = np.empty((B, N + 1, M), np.float32)  # each member's (omega, age) rows
+        self.age = np.empty((B, N + 1, M), np.float32)
+        self.own_rows = np.empty((N, mask_size), np.int8)
+        self.zz = np.empty((B, N + 1))
+
+
 def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
          horizon: float, y: np.ndarray, y_arrived: np.ndarray, tau: np.ndarray,
          Z: np.ndarray, nbr: np.ndarray, msg: np.ndarray, exact_f32: bool, *,
          observations: bool = True, masks: bool = True,
-         own: np.ndarray | None = None) -> None:
+         own: np.ndarray | None = None, work: FillBuffers | None = None) -> None:
     """Write observations ``obs (B, N, size)`` float32 and masks ``mask (B, N, M)`` int8.
 
     ``starts`` holds the offsets of the layout's fields in the order of
@@ -70,7 +83,8 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     own substate allows only keep; the last two entries (transmit 0/1) are 1.
     ``observations=False`` or ``masks=False`` skips that output (its array is not
     touched). ``own[i]``: column of agent ``i``'s own substate (``-1``: none; default
-    ``i``), when the substates are the sources only (``tau (B, N, M)``).
+    ``i``), when the substates are the sources only (``tau (B, N, M)``). ``work``:
+    :class:`FillBuffers` of this size for the scratch rows (default fresh ones).
     """
     for name, a, dtype in (("obs", obs, np.float32), ("mask", mask, np.int8)):
         if a.dtype != dtype or a.ndim != 3 or not a.flags.c_contiguous:
@@ -78,14 +92,17 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
                              f"array (written in place), got {a.dtype} {a.shape}")
     if own is None:
         own = np.arange(Z.shape[1], dtype=np.int64)
-    work = (obs.size if observations else 0) + (mask.size if masks else 0)
+    size = (obs.size if observations else 0) + (mask.size if masks else 0)
     B, N, M = tau.shape
-    shape = (B, N + 1, M) if observations else (1, 1, 1)
-    _fill.at(work)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
+    if work is None:
+        work = FillBuffers(B, N, M, mask.shape[2])  # (np.empty: unused rows cost nothing)
+    elif work.key[:3] != (B, N, M) or (masks and work.key[3] != mask.shape[2]):
+        raise ValueError(f"work holds buffers for (B, N, M, mask size) = {work.key}, this "
+                         f"call needs {(B, N, M, mask.shape[2])}")
+    _fill.at(size)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
                    bool(exact_f32), bool(observations), bool(masks),
-                   np.asarray(own, dtype=np.int64), np.empty(shape, np.float32),
-                   np.empty(shape, np.float32), np.empty(mask.shape[1:], np.int8),
-                   np.empty(shape[:2]))
+                   np.asarray(own, dtype=np.int64), work.om, work.age, work.own_rows,
+                   work.zz)
 
 
 @njit(cache=True, inline="always")

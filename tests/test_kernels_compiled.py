@@ -306,6 +306,51 @@ def test_fused_validation_agrees_with_check_actions():
         assert (st[0] >= 0) == (bad is not None)
 
 
+def test_reused_step_buffers_give_fresh_results_and_clear_their_records():
+    """apply_actions(work=...) writes its outputs into the buffers and sets its own
+    records per member: garbage left in them, or a refused step before, changes nothing."""
+    s = _random_step(5, B=4)
+    dec, choice = s["dec"], s["choice"]
+    B, N, M = choice.shape
+    n = s["Z"].shape[2]
+    act = np.concatenate([choice, np.ones((B, N, 1), np.int64)], axis=2)
+    args = (s["Z"], s["tau"], act, s["nbr"], s["msg"], dec.block_of.astype(np.int64),
+            np.ascontiguousarray(dec.A_lower.T), np.ascontiguousarray(dec.A_diag.T))
+    kw = dict(x=s["z_true"], A_T=np.eye(n), T=np.eye(n),
+              luenberger=(s["y"], s["arrived"], s["C"], s["L"]))
+    ref = kernels.apply_actions(*args, **kw)
+    work = kernels.StepBuffers(B, N, n, M, s["nbr"].shape[2], n, 2, s["tau"].dtype)
+    for a in (work.Z_next, work.err, work.x_next, *work.scratch):
+        a.fill(np.nan) if a.dtype.kind == "f" else a.fill(1)
+    work.first.fill(7)  # a stale record must not be reported
+    bad = act.copy()
+    bad[1, 2, M] = 5  # refused: out of range
+    assert kernels.apply_actions(*args[:2], bad, *args[3:], work=work, **kw).status[0] == 1
+    out = kernels.apply_actions(*args, work=work, **kw)
+    assert out.Z_next is work.Z_next and list(out.status) == [-1] * 6
+    for got, want in zip(out, ref, strict=True):
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="this call needs"):
+        kernels.apply_actions(*args, work=kernels.StepBuffers(B, N, n, M, 4, n, 2), **kw)
+    with pytest.raises(ValueError, match="overlap the inputs"):
+        kernels.apply_actions(work.Z_next, *args[1:], work=work, **kw)
+
+
+def test_core_state_lives_in_two_alternating_buffer_sets():
+    """The core's state arrays are its working buffers: a step writes the set the state
+    is not in, so the state of step k is intact until step k + 2 (documented)."""
+    core = BatchedCore(build_model(load("random_structured_n20_N10-v0")), 3)
+    core.reset(0)
+    act = np.zeros((3, core.N, core.M + 1), np.int64)
+    core.step(act)
+    Z1, Z1_copy = core.Z, core.Z.copy()
+    core.step(act)
+    assert core.Z is not Z1 and not np.shares_memory(core.Z, Z1)
+    np.testing.assert_array_equal(Z1, Z1_copy)  # one step later: still step 1's state
+    core.step(act)
+    assert core.Z is Z1  # two steps later: the same buffer, rewritten
+
+
 def test_markov_slots_write_into_a_given_int16_buffer():
     base = np.zeros((9, 9), bool)
     for off in (1, 2, 5):
