@@ -180,20 +180,20 @@ def bit_streams(rngs: Sequence[np.random.Generator]
     """
     if not rngs:
         return None
-    kinds = set()
-    states = np.empty(len(rngs), dtype=np.uintp)
-    for m, rng in enumerate(rngs):
-        bg = rng.bit_generator
-        iface = bg.ctypes
-        kinds.add(type(bg))
-        if type(bg) not in _FNS:  # C functions of a class: cast once per process (each
-            _FNS[type(bg)] = np.array(  # cast leaves garbage for the cyclic collector)
-                [ctypes.cast(f, ctypes.c_void_p).value for f in
-                 (iface.next_uint64, iface.next_uint32, iface.next_double)], dtype=np.uintp)
-        states[m] = iface.state_address
-    if len(kinds) != 1 or np.unique(states).size != states.size:  # one generator twice:
-        return None  # its two runs must be drawn one after the other
-    return _FNS[kinds.pop()], states
+    bgs = [rng.bit_generator for rng in rngs]  # (list comprehensions: this runs at every
+    kinds = {type(bg) for bg in bgs}  # refill for each of 1,024 members' generators)
+    if len(kinds) != 1:
+        return None
+    kind = kinds.pop()
+    if kind not in _FNS:  # C functions of a class: cast once per process (each cast
+        iface = bgs[0].ctypes  # leaves garbage for the cyclic collector)
+        _FNS[kind] = np.array([ctypes.cast(f, ctypes.c_void_p).value for f in
+                               (iface.next_uint64, iface.next_uint32, iface.next_double)],
+                              dtype=np.uintp)
+    addresses = [bg.ctypes.state_address for bg in bgs]
+    if len(set(addresses)) != len(addresses):  # one generator twice: its two runs must
+        return None  # be drawn one after the other
+    return _FNS[kind], np.array(addresses, dtype=np.uintp)
 
 
 _FNS: dict[type, np.ndarray] = {}  # bit-generator class -> its C draw functions

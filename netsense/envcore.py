@@ -143,8 +143,9 @@ class BatchedCore:
     The state arrays are the core's working buffers, written in place by its threaded
     passes: ``x``, ``Z`` and ``tau`` alternate between two sets (the arrays of step ``k``
     are rewritten at step ``k + 2``), ``nbr``, ``y`` and ``msg`` are rewritten at every
-    step. Copy what you keep. What :meth:`step`, :meth:`reset` and :meth:`observe`
-    return (observations, masks, rewards, flags) is fresh at every step.
+    step, and so are ``transmit``, ``errors`` and ``raw_errors``. Copy what you keep.
+    What :meth:`step`, :meth:`reset` and :meth:`observe` return (observations, masks,
+    rewards, flags) is fresh at every step.
 
     Notes
     -----
@@ -288,9 +289,9 @@ class BatchedCore:
         self.Z = np.zeros((B, N, n))
         self.tau = np.full((B, N, self.M), kernels.OMEGA, dtype=np.int64)
         self.k = np.zeros(B, dtype=np.int64)
-        self.transmit = np.ones((B, N), dtype=bool)
-        self.errors = np.zeros((B, N))
-        self.raw_errors = np.zeros((B, N))
+        self.transmit = self._tx_buf = np.ones((B, N), dtype=bool)  # rewritten in place
+        self.errors = self._err_buf = np.zeros((B, N))  # at every step
+        self.raw_errors = self._raw_buf = np.zeros((B, N))
         self.messages_sent = np.zeros(B, dtype=np.int64)
         self.ptr = np.zeros(B, dtype=np.int64)
         # graphs are kept as their slot tables only (-1 = empty slot; G[k] is rebuilt
@@ -372,7 +373,7 @@ class BatchedCore:
                     (K, self.N, self.r), out)
                 if not self._outputs_all_real:
                     out *= self.output_mask  # padded outputs carry no noise
-        for b in members:
+        for b in members if not (self._meas_always and self._msg_always) else ():
             if not self._meas_always:
                 s = self.meas_sampler[b]
                 self.buf_meas[b] = np.stack([s.next() for _ in range(K)])
@@ -508,10 +509,13 @@ class BatchedCore:
         self.k += 1
         # rewards, next transmit flags (crashed agents send nothing from their crash step
         # on; k already advanced), termination and truncation, in one compiled pass
+        B, N = self.B, self.N  # (rewards and flags fresh: they are returned)
         tail = rewards.finish_step(
             out.x_next, out.err, a, self.M, self._silenced(self.k) if self._crashes else None,
             self.alive, self.model.reward, self.model.divergence_limit, self.k,
-            self.horizon, self.messages_sent)
+            self.horizon, self.messages_sent, rewards.StepTail(
+                np.empty((B, N)), self._raw_buf, self._err_buf, self._tx_buf,
+                np.empty(B, bool), np.empty(B, bool)))
         self.transmit = tail.transmit
         self.raw_errors, self.errors = tail.raw_errors, tail.errors
         self.ptr += 1

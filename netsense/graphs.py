@@ -408,14 +408,18 @@ class MarkovLinkFailures(GraphProcess):
         if max_degree < self.max_in_degree:  # all of a node's base links can be up
             raise ValueError(f"max_degree must be >= the base graph's in-degree "
                              f"{self.max_in_degree}, got {max_degree}")
-        for st in states:
-            if np.shape(st) != self.base.shape:
-                raise ValueError(f"a link state must have shape {self.base.shape}, "
-                                 f"got {np.shape(st)}")
+        try:  # one array of the states (a refill passes 1,024 of them: no Python loop
+            held = np.array(states, dtype=bool)  # unless a shape is wrong)
+        except ValueError:  # shapes that do not stack
+            held = None
+        if held is None or held.shape != (M, *self.base.shape):
+            for st in states:
+                if np.shape(st) != self.base.shape:
+                    raise ValueError(f"a link state must have shape {self.base.shape}, "
+                                     f"got {np.shape(st)}")
         if out is not None:
             _check_slot_out(out, (M, K, N, max_degree))
-        up = (np.stack([np.asarray(st, dtype=bool) for st in states])[:, ei, el] if M
-              else np.zeros((0, E), bool))
+        up = held[:, ei, el] if M else np.zeros((0, E), bool)
         # draws = "base" slot tables: each run's uniforms are drawn inside the compiled
         # pass, from its own generator through numpy's next_double (the same stream as
         # rng.random), so no (M, K, E) array of uniforms is built

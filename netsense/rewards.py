@@ -42,7 +42,7 @@ class StepTail(NamedTuple):
 def finish_step(x: np.ndarray, err: np.ndarray, act: np.ndarray, M: int,
                 silenced: np.ndarray | None, alive: np.ndarray, reward: RewardConfig,
                 divergence_limit: float | None, k: np.ndarray, horizon: int,
-                messages_sent: np.ndarray) -> StepTail:
+                messages_sent: np.ndarray, out: StepTail | None = None) -> StepTail:
     """Rewards and episode flags after the step ``k - 1 -> k``.
 
     Parameters
@@ -66,6 +66,10 @@ def finish_step(x: np.ndarray, err: np.ndarray, act: np.ndarray, M: int,
     horizon : int
     messages_sent : (B,) int
         Running count of transmissions, incremented in place.
+    out : StepTail, optional
+        Arrays to write the results into (C-contiguous, the shapes and dtypes of
+        :class:`StepTail`); default fresh ones. The core passes its own buffers for
+        ``raw_errors``, ``errors`` and ``transmit``.
 
     Raises
     ------
@@ -87,8 +91,21 @@ def finish_step(x: np.ndarray, err: np.ndarray, act: np.ndarray, M: int,
     _expect("messages_sent", messages_sent, (B,))
     if silenced is not None:
         _expect("silenced", silenced, (B, N))
-    out = StepTail(np.empty((B, N)), np.empty((B, N)), np.empty((B, N)),
-                   np.empty((B, N), bool), np.empty(B, bool), np.empty(B, bool))
+    want = StepTail((B, N), (B, N), (B, N), (B, N), (B,), (B,))
+    if out is None:
+        out = StepTail(*(np.empty(s, bool if f in ("transmit", "terminated", "truncated")
+                                  else float) for f, s in zip(StepTail._fields, want,
+                                                              strict=True)))
+    else:
+        for f, a, s in zip(StepTail._fields, out, want, strict=True):
+            kind = "b" if f in ("transmit", "terminated", "truncated") else "f"
+            if (not isinstance(a, np.ndarray) or a.shape != s or a.dtype.kind != kind
+                    or a.dtype.itemsize != (1 if kind == "b" else 8)
+                    or not a.flags.c_contiguous):
+                raise ValueError(f"out.{f} must be a C-contiguous "
+                                 f"{'bool' if kind == 'b' else 'float64'} array of shape "
+                                 f"{s}, got {getattr(a, 'dtype', type(a))} "
+                                 f"{getattr(a, 'shape', '')}")
     has_sil = silenced is not None
     sil = np.asarray(silenced, bool) if has_sil else np.zeros((1, 1), bool)
     has_lim = divergence_limit is not None

@@ -80,6 +80,29 @@ def test_finish_step_names_a_misshapen_array_and_writes_nothing(which):
     np.testing.assert_array_equal(args["sent"], sent[:len(args["sent"])])
 
 
+def test_finish_step_writes_into_given_arrays_and_refuses_wrong_ones():
+    rng = np.random.default_rng(3)
+    B, N, M = 5, 4, 2
+    x, err = rng.standard_normal((B, 3)), np.abs(rng.standard_normal((B, N)))
+    act = rng.integers(0, 2, size=(B, N, M + 1))
+    args = (x, err, act, M, None, np.ones(N, bool), RewardConfig(), 3.0,
+            np.full(B, 2), 5)
+    ref = finish_step(*args, np.zeros(B, np.int64))
+    out = type(ref)(*(np.full(a.shape, np.nan) if a.dtype.kind == "f" else
+                      np.zeros(a.shape, bool) for a in ref))
+    got = finish_step(*args, np.zeros(B, np.int64), out)
+    for g, o, w in zip(got, out, ref, strict=True):
+        assert g is o
+        np.testing.assert_array_equal(g, w)
+    sent = np.zeros(B, np.int64)
+    for bad in (out._replace(errors=np.zeros((B, N + 1))),
+                out._replace(transmit=np.zeros((B, N))),
+                out._replace(raw_errors=np.zeros((N, B)).T)):
+        with pytest.raises(ValueError, match="out[.]"):
+            finish_step(*args, sent, bad)
+    assert not sent.any()  # nothing counted before the refusal
+
+
 @pytest.mark.parametrize("field", ["error_weight", "team_weight", "message_cost",
                                    "error_floor", "error_clip"])
 @pytest.mark.parametrize("value", [float("nan"), float("inf"), "1"])
