@@ -13,13 +13,16 @@ import tracemalloc
 import numpy as np
 
 from netsense.envcore import BatchedCore
+from netsense.kernels import StepBuffers
+from netsense.observation import FillBuffers
 from netsense.speed.runners import bench_model
 
 
 # ----------------------------------------------------------------------------- memory
 def core_state_bytes(core: BatchedCore) -> dict[str, int]:
     """Bytes of every numpy array the core holds (its attributes, one level deep into
-    lists, tuples and dicts); views are counted once at their base."""
+    lists, tuples and dicts, and its working buffers); views are counted once at their
+    base."""
     seen: set[int] = set()
     out: dict[str, int] = {}
 
@@ -39,6 +42,10 @@ def core_state_bytes(core: BatchedCore) -> dict[str, int]:
             for item in v:
                 if isinstance(item, np.ndarray):
                     add(name, item)
+                elif isinstance(item, StepBuffers):
+                    _add_buffers(add, name, item)
+        elif isinstance(v, FillBuffers):
+            _add_buffers(add, name, v)
         elif isinstance(v, dict):
             for item in v.values():
                 if isinstance(item, np.ndarray):
@@ -48,6 +55,15 @@ def core_state_bytes(core: BatchedCore) -> dict[str, int]:
         if isinstance(v, np.ndarray):
             add(f"source.{name}", v)
     return out
+
+
+def _add_buffers(add, name: str, buffers) -> None:
+    """The working buffers' arrays (:class:`~netsense.kernels.StepBuffers`,
+    :class:`~netsense.observation.FillBuffers`), their scratch tuple included."""
+    for v in vars(buffers).values():
+        for a in v if isinstance(v, tuple) else (v,):
+            if isinstance(a, np.ndarray):
+                add(name, a)
 
 
 def memory_footprint(B: int = 1024, N: int = 30, n: int = 20, *, steps: int = 64,
