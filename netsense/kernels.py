@@ -246,7 +246,7 @@ class StepBuffers:
     (a call reads the state the other set holds). Why: fresh outputs of a threaded pass
     come from recycled memory that the other thread may have written last, and on the
     benchmark VM, whose two vCPUs sometimes sit far apart, every such cache line crossing
-    costs (measured ~10 % of a step at ``(1024, 10, 10)``); a buffer written by the same
+    costs (measured ~15 % of a step at ``(1024, 10, 10)`` then); a buffer written by the same
     thread at every step stays in that thread's caches.
 
     ``B, N, n`` estimates, ``M`` substates, ``D`` slots, ``p`` plant states, ``r``
