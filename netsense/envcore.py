@@ -509,7 +509,7 @@ class BatchedCore:
         self.k += 1
         # rewards, next transmit flags (crashed agents send nothing from their crash step
         # on; k already advanced), termination and truncation, in one compiled pass
-        B, N = self.B, self.N  # (rewards and flags fresh: they are returned)
+        N = self.N  # (rewards and flags fresh: they are returned)
         tail = rewards.finish_step(
             out.x_next, out.err, a, self.M, self._silenced(self.k) if self._crashes else None,
             self.alive, self.model.reward, self.model.divergence_limit, self.k,

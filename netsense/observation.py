@@ -62,7 +62,7 @@ class FillBuffers:
         self.om = np.empty((B, N + 1, M), np.float32)  # each member's (omega, age) rows
         self.age = np.empty((B, N + 1, M), np.float32)
         self.own_rows = np.empty((N, mask_size), np.int8)
-        self.zz = np.empty((B, N + 1))
+        self.zz = np.empty((B, N))  # squared norms of the estimates
 
 
 def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
@@ -94,6 +94,13 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
         own = np.arange(Z.shape[1], dtype=np.int64)
     size = (obs.size if observations else 0) + (mask.size if masks else 0)
     B, N, M = tau.shape
+    D = nbr.shape[2]
+    # the pass writes rows without bounds checks: the outputs' shapes are checked here
+    if observations and (obs.shape[:2] != (B, N) or obs.shape[2] < int(starts[10]) + D * M):
+        raise ValueError(f"obs must have shape (B, N, >= {int(starts[10]) + D * M}) with "
+                         f"(B, N) = {(B, N)}, got {obs.shape}")
+    if masks and mask.shape != (B, N, M * (D + 2) + 2):
+        raise ValueError(f"mask must have shape {(B, N, M * (D + 2) + 2)}, got {mask.shape}")
     if work is None:
         work = FillBuffers(B, N, M, mask.shape[2])  # (np.empty: unused rows cost nothing)
     elif work.key[:3] != (B, N, M) or (masks and work.key[3] != mask.shape[2]):

@@ -222,7 +222,12 @@ def test_fill_refuses_outputs_it_cannot_write_in_place():
     for o, m, what in ((obs.astype(np.float64), good_m, "obs must be"),
                        (np.empty_like(obs)[:, ::-1], good_m, "obs must be"),
                        (good_o, np.empty(mask.shape, bool), "mask must be"),
-                       (good_o, np.empty(mask.shape[::-1], np.int8).T, "mask must be")):
+                       (good_o, np.empty(mask.shape[::-1], np.int8).T, "mask must be"),
+                       (good_o[:, :, :-1].copy(), good_m, "obs must have shape"),
+                       (np.empty((3, *obs.shape[1:]), np.float32), good_m, "obs must have"),
+                       (good_o, good_m[:, :-1].copy(), "mask must have shape"),
+                       (good_o, np.empty((*mask.shape[:2], mask.shape[2] + 1), np.int8),
+                        "mask must have shape")):
         with pytest.raises(ValueError, match=what):
             core._fill(o, m)
     core._fill(good_o, good_m)  # the same state observed again: the same arrays
