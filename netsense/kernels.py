@@ -342,6 +342,8 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
     has_w = w is not None
     if not has_w:
         w, W_T = np.zeros((1, 1)), np.zeros((1, x.shape[1]))
+    # the row products take C-contiguous float64 rows (no copy when they already are)
+    x, A_T, T, w, W_T = (np.ascontiguousarray(a, dtype=float) for a in (x, A_T, T, w, W_T))
     key = (B, N, n, M, nbr.shape[2], x.shape[1], C.shape[1], tau.dtype)
     if work is None:
         work = StepBuffers(*key)

@@ -23,7 +23,7 @@ from numba import types as nbtypes
 from numba.core import cgutils
 from numba.core.extending import intrinsic
 
-__all__ = ["VECTOR_BYTES", "block_triangular_row", "copy_span"]
+__all__ = ["VECTOR_BYTES", "block_triangular_row", "copy_span", "row_times_matrix"]
 
 #: Bytes of one vector (AVX-512: 8 float64 or 16 float32).
 VECTOR_BYTES = 64
@@ -114,55 +114,96 @@ def block_triangular_row(typingctx, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, 
         d_ptr, _ = _pointer(context, builder, ts[6], args[6], [zero, zero])
         z_ptr, _ = _pointer(context, builder, ts[7], args[7], [index(8), index(9), zero])
         a_ptr, _ = _pointer(context, builder, ts[10], args[10], [zero, zero])
-        n, L = o_shape[2], _F64_LANES
-        vec = ir.VectorType(ir.DoubleType(), L)
-        load, store = _masked(builder, vec, o_ptr.type)
-        align, zeros = _I32(8), ir.Constant(vec, [0.0] * L)
-        acc = [cgutils.alloca_once(builder, vec) for _ in range(_MAX_ACC)]
-
-        def columns(s, H):  # one pass: the columns s .. s + H L - 1 that are < n
-            left = builder.sub(n, s)
-            masks = [_first(builder, intp, L, builder.sub(left, intp(L * h)))
-                     for h in range(H)]
-            cols = [builder.add(s, intp(L * h)) for h in range(H)]
-            for h in range(H):
-                builder.store(zeros, acc[h])
-            for v_ptr, m_ptr, diag in ((s_ptr, d_ptr, True), (z_ptr, a_ptr, False)):
-                with cgutils.for_range(builder, n, intp=intp) as loop:
-                    q = loop.index
-                    v = _splat(builder, builder.load(builder.gep(v_ptr, [q])), L)
-                    row = builder.mul(q, n)
-                    for h in range(H):
-                        a = builder.call(load, [builder.gep(m_ptr, [builder.add(row, cols[h])]),
-                                                align, masks[h], zeros])
-                        old = builder.load(acc[h])
-                        new = builder.fadd(old, builder.fmul(a, v))
-                        if diag:  # the block diagonal's non-zeros only
-                            new = builder.select(builder.fcmp_ordered("!=", a, zeros), new, old)
-                        builder.store(new, acc[h])
-            for h in range(H):
-                builder.call(store, [builder.load(acc[h]), builder.gep(o_ptr, [cols[h]]),
-                                     align, masks[h]])
-
-        with cgutils.for_range_slice(builder, zero, n, intp(_MAX_ACC * L),
-                                     intp=intp) as (s, _):
-            left = builder.sub(n, s)
-
-            def fewest(H):  # as few accumulators as the remaining columns need
-                if H == _MAX_ACC:
-                    columns(s, H)
-                    return
-                with builder.if_else(builder.icmp_signed("<=", left, intp(H * L))) as (
-                        then, other):
-                    with then:
-                        columns(s, H)
-                    with other:
-                        fewest(H + 1)
-
-            fewest(1)
+        n = o_shape[2]
+        _row_products(builder, intp, o_ptr, n, [(s_ptr, d_ptr, n, True),
+                                                (z_ptr, a_ptr, n, False)])
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+@intrinsic
+def row_times_matrix(typingctx, out, ob, x, b, A):
+    """``out[ob] = x[b] @ A`` for ``x (., p)``, ``A (p, m)`` and ``out (., m)``: each
+    column ``c`` starts from ``0.0`` and adds ``x[b, q] * A[q, c]`` for ``q = 0 .. p-1``,
+    a multiply and then an add, never fused (the scalar loop of
+    :func:`netsense.rules.vecmat_row`, whose results it reproduces bit for bit; the lanes
+    compute columns side by side, in the passes of :func:`block_triangular_row`). All
+    arrays are C-contiguous 2-d float64; ``x`` and ``out`` may be one array only if
+    ``b != ob``.
+    """
+    f64 = nbtypes.float64
+    if not (_c_array(out, 2, f64) and _c_array(x, 2, f64) and _c_array(A, 2, f64)
+            and all(isinstance(t, nbtypes.Integer) for t in (ob, b))):
+        return None  # a typing error: C-contiguous 2-d float64 arrays, integer indices
+    sig = nbtypes.void(out, ob, x, b, A)
+
+    def codegen(context, builder, signature, args):
+        ts = signature.args
+        intp = context.get_value_type(nbtypes.intp)
+        zero = intp(0)
+        o_ptr, o_shape = _pointer(context, builder, ts[0], args[0],
+                                  [context.cast(builder, args[1], ts[1], nbtypes.intp), zero])
+        x_ptr, _ = _pointer(context, builder, ts[2], args[2],
+                            [context.cast(builder, args[3], ts[3], nbtypes.intp), zero])
+        a_ptr, a_shape = _pointer(context, builder, ts[4], args[4], [zero, zero])
+        _row_products(builder, intp, o_ptr, o_shape[1], [(x_ptr, a_ptr, a_shape[0], False)])
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+def _row_products(builder, intp, o_ptr, m, terms) -> None:
+    """Emit ``o[0:m] = sum of v[q] * A[q, :]`` over ``terms``, each ``(v, A, p,
+    nonzero_only)`` with ``A`` a C-contiguous ``(p, m)`` block: from ``0.0``, the terms in
+    the order given, ``q = 0 .. p-1`` ascending in each, a multiply then an add per
+    entry; ``nonzero_only`` skips the entries where ``A[q, c] == 0``. The columns are
+    taken in passes of up to ``_MAX_ACC`` vectors of :data:`VECTOR_BYTES`, held in as few
+    accumulators as the pass needs, the row's end masked."""
+    zero, L = intp(0), _F64_LANES
+    vec = ir.VectorType(ir.DoubleType(), L)
+    load, store = _masked(builder, vec, o_ptr.type)
+    align, zeros = _I32(8), ir.Constant(vec, [0.0] * L)
+    acc = [cgutils.alloca_once(builder, vec) for _ in range(_MAX_ACC)]
+
+    def columns(s, H):  # one pass: the columns s .. s + H L - 1 that are < m
+        left = builder.sub(m, s)
+        masks = [_first(builder, intp, L, builder.sub(left, intp(L * h))) for h in range(H)]
+        cols = [builder.add(s, intp(L * h)) for h in range(H)]
+        for h in range(H):
+            builder.store(zeros, acc[h])
+        for v_ptr, m_ptr, p, nonzero_only in terms:
+            with cgutils.for_range(builder, p, intp=intp) as loop:
+                q = loop.index
+                v = _splat(builder, builder.load(builder.gep(v_ptr, [q])), L)
+                row = builder.mul(q, m)
+                for h in range(H):
+                    a = builder.call(load, [builder.gep(m_ptr, [builder.add(row, cols[h])]),
+                                            align, masks[h], zeros])
+                    old = builder.load(acc[h])
+                    new = builder.fadd(old, builder.fmul(a, v))
+                    if nonzero_only:
+                        new = builder.select(builder.fcmp_ordered("!=", a, zeros), new, old)
+                    builder.store(new, acc[h])
+        for h in range(H):
+            builder.call(store, [builder.load(acc[h]), builder.gep(o_ptr, [cols[h]]),
+                                 align, masks[h]])
+
+    with cgutils.for_range_slice(builder, zero, m, intp(_MAX_ACC * L), intp=intp) as (s, _):
+        left = builder.sub(m, s)
+
+        def fewest(H):  # as few accumulators as the remaining columns need
+            if H == _MAX_ACC:
+                columns(s, H)
+                return
+            with builder.if_else(builder.icmp_signed("<=", left, intp(H * L))) as (
+                    then, other):
+                with then:
+                    columns(s, H)
+                with other:
+                    fewest(H + 1)
+
+        fewest(1)
 
 
 @intrinsic

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from netsense.lanes import block_triangular_row
+from netsense.lanes import block_triangular_row, row_times_matrix
 
 #: Encoding of the freshness index's dummy value omega (eq. (8)ff.).
 OMEGA = -1
@@ -114,14 +114,11 @@ def innovation_row(Z, b, i, y, arrived, C, L, lb, lo, hi, innov, out, ob, oi):  
 
 
 @njit(cache=True, inline="always")
-def vecmat_row(x, b, M, out, ob):  # out[ob] = x[b] @ M, q-major (eqs. (1), (2))
-    p, m = M.shape
-    for c in range(m):
-        out[ob, c] = 0.0
-    for q in range(p):
-        v = x[b, q]
-        for c in range(m):
-            out[ob, c] += v * M[q, c]
+def vecmat_row(x, b, M, out, ob):  # out[ob] = x[b] @ M (eqs. (1), (2))
+    """``out[ob] = x[b] @ M``: every column from ``0.0``, ``+ x[b, q] * M[q, c]`` for ``q``
+    ascending (in lanes, :func:`netsense.lanes.row_times_matrix`; C-contiguous 2-d
+    float64 arrays)."""
+    row_times_matrix(out, ob, x, b, M)
 
 
 @njit(cache=True, inline="always")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from netsense.lanes import block_triangular_row, copy_span
+from netsense.lanes import block_triangular_row, copy_span, row_times_matrix
 
 
 @njit(_nrt=False)
@@ -94,3 +94,34 @@ def test_copy_span_counts_flat_positions_of_any_c_array():
     expect = np.zeros(60, dtype=np.int8)
     expect[17:37] = src.reshape(-1)[4:24]
     np.testing.assert_array_equal(dst.reshape(-1), expect)
+
+
+@njit(_nrt=False)
+def _products(x, A, out):
+    for b in range(x.shape[0]):
+        row_times_matrix(out, b, x, b, A)
+
+
+@pytest.mark.parametrize("p, m", [(1, 1), (10, 10), (3, 17), (20, 9), (7, 33), (40, 65)])
+def test_row_times_matrix_is_the_scalar_sum_bit_for_bit(p, m):
+    # m from 1 to 65: one to four accumulators, two passes, a masked end; p != m
+    rng = np.random.default_rng(p * 100 + m)
+    A = rng.standard_normal((p, m)) * rng.choice([1e-16, 1.0, 1e16], size=(p, m))
+    A[:, 0] = 0.0  # zero entries are added (0 * inf = nan reaches the column)
+    x = rng.standard_normal((4, p)) * rng.choice([1e-300, 1.0, 1e300], size=(4, p))
+    x[1] = -0.0  # -0 terms: every column stays +0
+    x[2, p - 1] = np.inf
+    x[3, 0] = np.nan
+    out = np.full((4, m), 7.0)
+    _products(x, A, out)
+    for b in range(4):
+        ref = np.empty(m)
+        for c in range(m):
+            o = 0.0
+            for q in range(p):
+                o = o + float(x[b, q]) * float(A[q, c])
+            ref[c] = o
+        np.testing.assert_array_equal(out[b].view(np.int64), ref.view(np.int64),
+                                      err_msg=f"row {b}")
+    assert np.isnan(out[2, 0]) and np.isnan(out[3]).all()
+    assert not np.signbit(out[1]).any() and not out[1].any()
