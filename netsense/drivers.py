@@ -25,7 +25,7 @@ from netsense.rules import (
     innovation_row,
     message_row,
     mix_row,
-    propagate_row,
+    propagate_rows,
     vecmat_row,
 )
 
@@ -56,8 +56,7 @@ def mix_all(Z, nbr, use, out):
 
 def propagate_all(Z_sel, Z, ADT, ALT, out):
     for b in prange(Z.shape[0]):
-        for i in range(Z.shape[1]):
-            propagate_row(Z_sel, b, i, Z, b, i, ADT, ALT, out, b, i)
+        propagate_rows(Z_sel, b, Z, b, ADT, ALT, out, b)
 
 
 def innovation_all(Z, y, arrived, C, L, rows, out, scratch):
@@ -206,10 +205,9 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
                 for c in range(n):
                     if ch[b, 0, block_of[c]] == D + 1:
                         zsel[b, i, c] = mix[b, 0, c]
-        # the propagation of every agent in a loop of its own, so the out-of-order core
-        # overlaps one row's sums (a chain of 2n adds per column) with the next row's
-        for i in range(N):
-            propagate_row(zsel, b, i, Z, b, i, ADT, ALT, Z_next, b, i)
+        # the propagation of every agent after the gathers, two rows at a time (their
+        # chains of 2n adds per column overlap)
+        propagate_rows(zsel, b, Z, b, ADT, ALT, Z_next, b)
         for i in range(N):
             if fused:  # the fixed-gain source update, eq. (7)
                 innovation_row(Z, b, i, y, arrived, C, L, lb, rows[i, 0], rows[i, 1], inb,

@@ -23,7 +23,8 @@ from numba import types as nbtypes
 from numba.core import cgutils
 from numba.core.extending import intrinsic
 
-__all__ = ["VECTOR_BYTES", "block_triangular_row", "copy_span", "row_times_matrix"]
+__all__ = ["VECTOR_BYTES", "block_triangular_pair", "block_triangular_row", "copy_span",
+           "row_times_matrix"]
 
 #: Bytes of one vector (AVX-512: 8 float64 or 16 float32).
 VECTOR_BYTES = 64
@@ -94,6 +95,27 @@ def block_triangular_row(typingctx, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, 
     All arrays are C-contiguous float64 with ``n = out.shape[2]`` columns, ``A_*_T`` of
     shape ``(n, n)``.
     """
+    return _block_triangular(1, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, i, A_lower_T)
+
+
+@intrinsic
+def block_triangular_pair(typingctx, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, i,
+                          A_lower_T):
+    """:func:`block_triangular_row` for two consecutive rows at once: ``out[ob, oi + h]``
+    from ``Z_sel[sb, si + h]`` and ``Z[b, i + h]``, ``h = 0, 1``.
+
+    Each row is computed exactly as :func:`block_triangular_row` computes it (the same
+    operations in the same order, bit for bit); the two rows share the loads of the
+    matrices and run in one loop, so their chains of adds (``2 n`` long per column)
+    overlap instead of following each other (measured 0.18 -> 0.12 ms for the 10,240
+    rows of ``(B, N, n) = (1024, 10, 10)``, one thread). No bounds check: the caller
+    guarantees that the row ``+ 1`` exists in each array.
+    """
+    return _block_triangular(2, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, i, A_lower_T)
+
+
+def _block_triangular(R, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, i, A_lower_T):
+    """Signature and code of ``R`` consecutive rows of :func:`block_triangular_row`."""
     f64 = nbtypes.float64
     if not (_c_array(out, 3, f64) and _c_array(Z_sel, 3, f64) and _c_array(Z, 3, f64)
             and _c_array(A_diag_T, 2, f64) and _c_array(A_lower_T, 2, f64)
@@ -106,17 +128,20 @@ def block_triangular_row(typingctx, out, ob, oi, Z_sel, sb, si, A_diag_T, Z, b, 
         intp = context.get_value_type(nbtypes.intp)
         zero = intp(0)
 
-        def index(k):
-            return context.cast(builder, args[k], ts[k], nbtypes.intp)
+        def index(k, h=0):
+            return builder.add(context.cast(builder, args[k], ts[k], nbtypes.intp), intp(h))
 
-        o_ptr, o_shape = _pointer(context, builder, ts[0], args[0], [index(1), index(2), zero])
-        s_ptr, _ = _pointer(context, builder, ts[3], args[3], [index(4), index(5), zero])
         d_ptr, _ = _pointer(context, builder, ts[6], args[6], [zero, zero])
-        z_ptr, _ = _pointer(context, builder, ts[7], args[7], [index(8), index(9), zero])
         a_ptr, _ = _pointer(context, builder, ts[10], args[10], [zero, zero])
+        rows = []
+        for h in range(R):
+            o_ptr, o_shape = _pointer(context, builder, ts[0], args[0],
+                                      [index(1), index(2, h), zero])
+            s_ptr, _ = _pointer(context, builder, ts[3], args[3], [index(4), index(5, h), zero])
+            z_ptr, _ = _pointer(context, builder, ts[7], args[7], [index(8), index(9, h), zero])
+            rows.append((o_ptr, (s_ptr, z_ptr)))
         n = o_shape[2]
-        _row_products(builder, intp, o_ptr, n, [(s_ptr, d_ptr, n, True),
-                                                (z_ptr, a_ptr, n, False)])
+        _row_products(builder, intp, rows, n, [(d_ptr, n, True), (a_ptr, n, False)])
         return context.get_dummy_value()
 
     return sig, codegen
@@ -147,47 +172,55 @@ def row_times_matrix(typingctx, out, ob, x, b, A):
         x_ptr, _ = _pointer(context, builder, ts[2], args[2],
                             [context.cast(builder, args[3], ts[3], nbtypes.intp), zero])
         a_ptr, a_shape = _pointer(context, builder, ts[4], args[4], [zero, zero])
-        _row_products(builder, intp, o_ptr, o_shape[1], [(x_ptr, a_ptr, a_shape[0], False)])
+        _row_products(builder, intp, [(o_ptr, (x_ptr,))], o_shape[1],
+                      [(a_ptr, a_shape[0], False)])
         return context.get_dummy_value()
 
     return sig, codegen
 
 
-def _row_products(builder, intp, o_ptr, m, terms) -> None:
-    """Emit ``o[0:m] = sum of v[q] * A[q, :]`` over ``terms``, each ``(v, A, p,
-    nonzero_only)`` with ``A`` a C-contiguous ``(p, m)`` block: from ``0.0``, the terms in
-    the order given, ``q = 0 .. p-1`` ascending in each, a multiply then an add per
-    entry; ``nonzero_only`` skips the entries where ``A[q, c] == 0``. The columns are
-    taken in passes of up to ``_MAX_ACC`` vectors of :data:`VECTOR_BYTES`, held in as few
-    accumulators as the pass needs, the row's end masked."""
+def _row_products(builder, intp, rows, m, terms) -> None:
+    """Emit, for every ``(o, vs)`` of ``rows``, ``o[0:m] = sum over t of vs[t] @ A_t``
+    with ``terms[t] = (A_t, p_t, nonzero_only_t)``, ``A_t`` a C-contiguous ``(p_t, m)``
+    block: from ``0.0``, the terms in the order given, ``q = 0 .. p_t - 1`` ascending in
+    each, ``+ vs[t][q] * A_t[q, c]`` as a multiply then an add; ``nonzero_only`` skips
+    the entries where ``A_t[q, c] == 0``. The rows share each load of ``A_t`` and run in
+    one loop (independent chains of adds). The columns are taken in passes of up to
+    ``_MAX_ACC`` vectors of :data:`VECTOR_BYTES`, held in as few accumulators per row as
+    the pass needs, the row's end masked."""
     zero, L = intp(0), _F64_LANES
     vec = ir.VectorType(ir.DoubleType(), L)
-    load, store = _masked(builder, vec, o_ptr.type)
+    load, store = _masked(builder, vec, rows[0][0].type)
     align, zeros = _I32(8), ir.Constant(vec, [0.0] * L)
-    acc = [cgutils.alloca_once(builder, vec) for _ in range(_MAX_ACC)]
+    acc = [[cgutils.alloca_once(builder, vec) for _ in range(_MAX_ACC)] for _ in rows]
 
     def columns(s, H):  # one pass: the columns s .. s + H L - 1 that are < m
         left = builder.sub(m, s)
         masks = [_first(builder, intp, L, builder.sub(left, intp(L * h))) for h in range(H)]
         cols = [builder.add(s, intp(L * h)) for h in range(H)]
-        for h in range(H):
-            builder.store(zeros, acc[h])
-        for v_ptr, m_ptr, p, nonzero_only in terms:
+        for row_acc in acc:
+            for h in range(H):
+                builder.store(zeros, row_acc[h])
+        for t, (m_ptr, p, nonzero_only) in enumerate(terms):
             with cgutils.for_range(builder, p, intp=intp) as loop:
                 q = loop.index
-                v = _splat(builder, builder.load(builder.gep(v_ptr, [q])), L)
+                vs = [_splat(builder, builder.load(builder.gep(v_ptrs[t], [q])), L)
+                      for _, v_ptrs in rows]
                 row = builder.mul(q, m)
                 for h in range(H):
                     a = builder.call(load, [builder.gep(m_ptr, [builder.add(row, cols[h])]),
                                             align, masks[h], zeros])
-                    old = builder.load(acc[h])
-                    new = builder.fadd(old, builder.fmul(a, v))
-                    if nonzero_only:
-                        new = builder.select(builder.fcmp_ordered("!=", a, zeros), new, old)
-                    builder.store(new, acc[h])
-        for h in range(H):
-            builder.call(store, [builder.load(acc[h]), builder.gep(o_ptr, [cols[h]]),
-                                 align, masks[h]])
+                    keep = builder.fcmp_ordered("!=", a, zeros) if nonzero_only else None
+                    for v, row_acc in zip(vs, acc, strict=True):
+                        old = builder.load(row_acc[h])
+                        new = builder.fadd(old, builder.fmul(a, v))
+                        if nonzero_only:
+                            new = builder.select(keep, new, old)
+                        builder.store(new, row_acc[h])
+        for (o_ptr, _), row_acc in zip(rows, acc, strict=True):
+            for h in range(H):
+                builder.call(store, [builder.load(row_acc[h]), builder.gep(o_ptr, [cols[h]]),
+                                     align, masks[h]])
 
     with cgutils.for_range_slice(builder, zero, m, intp(_MAX_ACC * L), intp=intp) as (s, _):
         left = builder.sub(m, s)

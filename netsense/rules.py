@@ -7,27 +7,27 @@ environment's fused step and the benchmarks all run this code, so there is one
 implementation of every rule. No fastmath: the arithmetic is IEEE in program order, hence
 bit-identical wherever a row runs.
 
-=================  ==============================================================
-row function       rule
-=================  ==============================================================
-``advance_row``    freshness index after keep/adopt, eqs. (9), (11), (14)
-``average_row``    index of a uniform average: stalest contributor + 1 (eq. (6))
-``mix_row``        uniform average of the own and the received estimates, eq. (6)
-``gather_row``     each substate's estimate from the agent chosen for it
-``propagate_row``  ``A_jj z_sel^{(j)} + sum_{q<j} A_jq z^{(q)}``, eqs. (7), (10), (12)
-``innovation_row`` fixed-gain source correction ``L_j (y_j - C_bar_j z_j)``, eq. (7)
-``vecmat_row``     ``x[b] @ M`` in a fixed order (plant eq. (1), outputs eq. (2))
-``check_row``      the action rule: range, message present, own substate only keep
-``message_row``    which slots hold a message (neighbour present, sent, delivered)
-``freshness_row``  whom to adopt each substate from: the freshest slot, eqs. (8)-(13)
-=================  ==============================================================
+==================  ==============================================================
+row function        rule
+==================  ==============================================================
+``advance_row``     freshness index after keep/adopt, eqs. (9), (11), (14)
+``average_row``     index of a uniform average: stalest contributor + 1 (eq. (6))
+``mix_row``         uniform average of the own and the received estimates, eq. (6)
+``gather_row``      each substate's estimate from the agent chosen for it
+``propagate_rows``  ``A_jj z_sel^{(j)} + sum_{q<j} A_jq z^{(q)}``, eqs. (7), (10), (12)
+``innovation_row``  fixed-gain source correction ``L_j (y_j - C_bar_j z_j)``, eq. (7)
+``vecmat_row``      ``x[b] @ M`` in a fixed order (plant eq. (1), outputs eq. (2))
+``check_row``       the action rule: range, message present, own substate only keep
+``message_row``     which slots hold a message (neighbour present, sent, delivered)
+``freshness_row``   whom to adopt each substate from: the freshest slot, eqs. (8)-(13)
+==================  ==============================================================
 """
 
 from __future__ import annotations
 
 from numba import njit
 
-from netsense.lanes import block_triangular_row, row_times_matrix
+from netsense.lanes import block_triangular_pair, block_triangular_row, row_times_matrix
 
 #: Encoding of the freshness index's dummy value omega (eq. (8)ff.).
 OMEGA = -1
@@ -87,11 +87,18 @@ def gather_row(Z, b, src, sb, si, block_of, out, ob, oi):
 
 
 @njit(cache=True, inline="always")
-def propagate_row(Z_sel, sb, si, Z, b, i, ADT, ALT, out, ob, oi):
-    """Row of eqs. (7), (10), (12) (see :func:`netsense.kernels.propagate`):
-    ``A_diag z_sel + A_lower z`` with ``ADT = A_diag^T``, ``ALT = A_lower^T``, in the
-    fixed order of :func:`netsense.lanes.block_triangular_row`."""
-    block_triangular_row(out, ob, oi, Z_sel, sb, si, ADT, Z, b, i, ALT)
+def propagate_rows(Z_sel, sb, Z, b, ADT, ALT, out, ob):
+    """Every agent's row of eqs. (7), (10), (12) for one member (see
+    :func:`netsense.kernels.propagate`): ``out[ob, i] = A_diag z_sel + A_lower z`` with
+    ``z_sel = Z_sel[sb, i]``, ``z = Z[b, i]``, ``ADT = A_diag^T``, ``ALT = A_lower^T``,
+    each row in the fixed order of :func:`netsense.lanes.block_triangular_row`. The
+    agents go two at a time (:func:`netsense.lanes.block_triangular_pair`, the same
+    bits), whose independent chains of adds overlap."""
+    N = Z.shape[1]
+    for i in range(0, N - 1, 2):
+        block_triangular_pair(out, ob, i, Z_sel, sb, i, ADT, Z, b, i, ALT)
+    if N % 2:
+        block_triangular_row(out, ob, N - 1, Z_sel, sb, N - 1, ADT, Z, b, N - 1, ALT)
 
 
 @njit(cache=True, inline="always")

@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 from numba import njit
 
-from netsense.lanes import block_triangular_row, copy_span, row_times_matrix
+from netsense.lanes import (
+    block_triangular_pair,
+    block_triangular_row,
+    copy_span,
+    row_times_matrix,
+)
 
 
 @njit(_nrt=False)
@@ -12,6 +17,13 @@ def _rows(Z_sel, Z, ADT, ALT, out):
     for b in range(Z.shape[0]):
         for i in range(Z.shape[1]):
             block_triangular_row(out, b, i, Z_sel, b, i, ADT, Z, b, i, ALT)
+
+
+@njit(_nrt=False)
+def _pairs(Z_sel, Z, ADT, ALT, out):  # rows (0, 1), (2, 3) of each member (N = 4)
+    for b in range(Z.shape[0]):
+        for i in range(0, Z.shape[1], 2):
+            block_triangular_pair(out, b, i, Z_sel, b, i, ADT, Z, b, i, ALT)
 
 
 def _scalar_row(z_sel, z, ADT, ALT):
@@ -59,12 +71,16 @@ def test_block_triangular_row_is_the_scalar_sum_bit_for_bit(sizes):
     Z_sel[1, 2, n - 1] = np.inf  # reaches only the last block's columns
     Z[2, 3, 0] = np.nan  # reaches every column A_lower couples to it
     out = np.full((B, N, n), 7.0)
+    pairs = np.full((B, N, n), 7.0)
     _rows(Z_sel, Z, ADT, ALT, out)
+    _pairs(Z_sel, Z, ADT, ALT, pairs)  # two rows in one loop: each the same bits
     for b in range(B):
         for i in range(N):
             ref = _scalar_row(Z_sel[b, i], Z[b, i], ADT, ALT)
             np.testing.assert_array_equal(out[b, i].view(np.int64), ref.view(np.int64),
                                           err_msg=f"row {b, i}")
+            np.testing.assert_array_equal(pairs[b, i].view(np.int64), ref.view(np.int64),
+                                          err_msg=f"pair row {b, i}")
     assert np.isfinite(out[1, 2, :n - sizes[-1]]).all()  # the inf stayed in its block
 
 
