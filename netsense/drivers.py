@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit, prange
 
 from netsense.compiled import Driver
+from netsense.lanes import square_sums
 from netsense.rules import (
     advance_row,
     average_row,
@@ -217,15 +218,9 @@ def apply_all(Z, tau, own, act, nbr, msg, block_of, ADT, ALT, corr, fused, y,
                     cor[b, 0, c] = corr[b, i, c]
             for c in range(n):
                 Z_next[b, i, c] += cor[b, 0, c]
-        # errors ||z_hat_i - z||, each summed over c ascending as one row would, but with
-        # the N agents' sums side by side (independent chains, not one chain per agent)
-        for i in range(N):
-            err[b, i] = 0.0
-        for c in range(n):
-            t = zt[b, c]
-            for i in range(N):
-                e = Z_next[b, i, c] - t
-                err[b, i] += e * e
+        # errors ||z_hat_i - z||, each summed over c ascending (the agents' sums are
+        # independent chains)
+        square_sums(err, b, Z_next, b, zt, b)
         for i in range(N):
             err[b, i] = np.sqrt(err[b, i])
 

@@ -24,7 +24,7 @@ from numba.core import cgutils
 from numba.core.extending import intrinsic
 
 __all__ = ["VECTOR_BYTES", "block_triangular_pair", "block_triangular_row", "copy_span",
-           "row_times_matrix"]
+           "row_times_matrix", "square_sums"]
 
 #: Bytes of one vector (AVX-512: 8 float64 or 16 float32).
 VECTOR_BYTES = 64
@@ -237,6 +237,84 @@ def _row_products(builder, intp, rows, m, terms) -> None:
                     fewest(H + 1)
 
         fewest(1)
+
+
+@intrinsic
+def square_sums(typingctx, out, ob, Z, b, t, tb):
+    """``out[ob, i] = sum_c (Z[b, i, c] - t[tb, c]) ** 2`` for every row ``i`` of ``Z[b]``
+    (``t`` None: ``sum_c Z[b, i, c] ** 2``), each from ``0.0`` with ``c`` ascending, a
+    subtract, a multiply and an add per term, never fused: the scalar loop, bit for bit.
+
+    The differences and squares of a row are taken in lanes (masked at the row's end),
+    then added lane by lane in column order; the rows' sums are independent chains
+    (measured 0.052 -> 0.035 ms for the 1,024 x 10 rows of ``n = 10``, one thread).
+    ``Z (., N, n)``, ``out (., >= N)`` and ``t (., n)`` are C-contiguous float64; no
+    bounds check.
+    """
+    f64 = nbtypes.float64
+    centred = not isinstance(t, nbtypes.NoneType)
+    if not (_c_array(out, 2, f64) and _c_array(Z, 3, f64)
+            and (not centred or _c_array(t, 2, f64))
+            and all(isinstance(v, nbtypes.Integer) for v in (ob, b, tb))):
+        return None  # a typing error: C-contiguous float64 arrays, integer indices
+    sig = nbtypes.void(out, ob, Z, b, t, tb)
+
+    def codegen(context, builder, signature, args):
+        ts = signature.args
+        intp = context.get_value_type(nbtypes.intp)
+        zero, L = intp(0), _F64_LANES
+
+        def index(k):
+            return context.cast(builder, args[k], ts[k], nbtypes.intp)
+
+        o_ptr, _ = _pointer(context, builder, ts[0], args[0], [index(1), zero])
+        z_ptr, z_shape = _pointer(context, builder, ts[2], args[2], [index(3), zero, zero])
+        t_ptr = (_pointer(context, builder, ts[4], args[4], [index(5), zero])[0]
+                 if centred else None)
+        N, n = z_shape[1], z_shape[2]
+        vec = ir.VectorType(ir.DoubleType(), L)
+        zeros = ir.Constant(vec, [0.0] * L)
+        load, _ = _masked(builder, vec, z_ptr.type)
+        acc = cgutils.alloca_once(builder, ir.DoubleType())
+        with cgutils.for_range(builder, N, intp=intp) as rloop:
+            row = builder.gep(z_ptr, [builder.mul(rloop.index, n)])
+            builder.store(ir.Constant(ir.DoubleType(), 0.0), acc)
+            with cgutils.for_range_slice(builder, zero, n, intp(L), intp=intp) as (c0, _):
+                mask = _first(builder, intp, L, builder.sub(n, c0))
+                v = builder.call(load, [builder.gep(row, [c0]), _I32(8), mask, zeros])
+                if centred:
+                    tv = builder.call(load, [builder.gep(t_ptr, [c0]), _I32(8), mask, zeros])
+                    v = builder.fsub(v, tv)
+                sq = builder.fmul(v, v)
+                left = builder.sub(n, c0)
+
+                def add_lanes(count):  # lanes 0 .. count-1 in order (the row's end: fewer)
+                    total = builder.load(acc)
+                    for h in range(count):
+                        total = builder.fadd(total, builder.extract_element(sq, _I32(h)))
+                    builder.store(total, acc)
+
+                def tail(h):  # the row ends after lane h (h = L - 1: a full vector)
+                    if h == L - 1:
+                        add_lanes(L)
+                        return
+                    with builder.if_else(builder.icmp_signed("==", left, intp(h + 1))) as (
+                            then, other):
+                        with then:
+                            add_lanes(h + 1)
+                        with other:
+                            tail(h + 1)
+
+                with builder.if_else(builder.icmp_signed(">=", left, intp(L)),
+                                     likely=True) as (full, part):
+                    with full:
+                        add_lanes(L)
+                    with part:
+                        tail(0)
+            builder.store(builder.load(acc), builder.gep(o_ptr, [rloop.index]))
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 @intrinsic

@@ -29,7 +29,7 @@ from numba import njit, prange
 
 from netsense import drivers
 from netsense.compiled import Driver
-from netsense.lanes import copy_span
+from netsense.lanes import copy_span, square_sums
 
 __all__ = ["FillBuffers", "fill", "slot_messages"]
 
@@ -92,6 +92,7 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
                              f"array (written in place), got {a.dtype} {a.shape}")
     if own is None:
         own = np.arange(Z.shape[1], dtype=np.int64)
+    Z = np.ascontiguousarray(Z, dtype=float)  # (the norms' lanes read C rows)
     size = (obs.size if observations else 0) + (mask.size if masks else 0)
     B, N, M = tau.shape
     D = nbr.shape[2]
@@ -162,13 +163,8 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
         om_tab, age_tab = om_all[b], age_all[b]  # (N + 1, M) scratch of this member
         _index_tables(tau[b], H, exact_f32, om_tab, age_tab)
         t_b = np.float32(k[b] / H)
-        zz_b = zz_all[b]  # squared norms of the estimates, summed over c ascending, the
-        for i in range(N):  # agents side by side (independent chains)
-            zz_b[i] = 0.0
-        for c in range(n):
-            for i in range(N):
-                v = Z[b, i, c]
-                zz_b[i] += v * v
+        square_sums(zz_all, b, Z, b, None, 0)  # squared norms, summed over c ascending
+        zz_b = zz_all[b]
         for i in range(N):
             o = obs[b, i]
             o[o_time] = t_b

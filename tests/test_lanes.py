@@ -9,6 +9,7 @@ from netsense.lanes import (
     block_triangular_row,
     copy_span,
     row_times_matrix,
+    square_sums,
 )
 
 
@@ -141,3 +142,44 @@ def test_row_times_matrix_is_the_scalar_sum_bit_for_bit(p, m):
                                       err_msg=f"row {b}")
     assert np.isnan(out[2, 0]) and np.isnan(out[3]).all()
     assert not np.signbit(out[1]).any() and not out[1].any()
+
+
+@njit(_nrt=False)
+def _square_sums(out, Z, t):
+    for b in range(Z.shape[0]):
+        square_sums(out, b, Z, b, t, b)
+
+
+@njit(_nrt=False)
+def _plain_square_sums(out, Z):
+    for b in range(Z.shape[0]):
+        square_sums(out, b, Z, b, None, 0)
+
+
+@pytest.mark.parametrize("N, n", [(1, 1), (10, 10), (3, 17), (30, 20), (17, 1), (4, 8),
+                                  (5, 9)])
+def test_square_sums_are_the_scalar_sums_bit_for_bit(N, n):
+    # rows of 1 to 20 columns: a full vector, a masked end, both; with and without t
+    rng = np.random.default_rng(N * 100 + n)
+    B = 3
+    Z = rng.standard_normal((B, N, n)) * rng.choice([1e-200, 1.0, 1e150], size=(B, N, n))
+    t = rng.standard_normal((B, n))
+    Z[0, 0, 0] = np.nan
+    Z[1, N - 1, n - 1] = np.inf
+    Z[2, 0] = t[2]  # a row equal to t: exactly +0
+    for centred in (True, False):
+        out = np.full((B, N + 1), 7.0)
+        if centred:
+            _square_sums(out, Z, t)
+        else:
+            _plain_square_sums(out, Z)
+        for b in range(B):
+            for i in range(N):
+                o = 0.0
+                for c in range(n):
+                    e = float(Z[b, i, c]) - (float(t[b, c]) if centred else 0.0)
+                    o = o + e * e
+                assert out[b, i].tobytes() == np.float64(o).tobytes(), (centred, b, i)
+            assert out[b, N] == 7.0  # nothing written past the N rows
+        assert np.isnan(out[0, 0]) and np.isinf(out[1, N - 1])
+        assert (out[2, 0] == 0.0) == centred
