@@ -235,6 +235,41 @@ def test_fill_refuses_outputs_it_cannot_write_in_place():
     np.testing.assert_array_equal(good_m, mask)
 
 
+def test_mask_table_rows_equal_the_slot_by_slot_rule(monkeypatch):
+    """The masks copied from the per-pattern table equal the masks written slot by slot
+    (the path taken when the table would be too large), member by member, under link
+    drops; a buffer reused with other own columns rebuilds its table."""
+    core = BatchedCore(build_model(load("link_failures-v0")), 6)
+    core.reset(2)
+    act = np.zeros((core.B, core.N, core.M + 1), np.int64)
+    act[:, ::2, core.M] = 1  # half the agents transmit; links drop some of their messages
+    for _ in range(5):
+        core.step(act)
+    assert core.msg.any() and not core.msg.all()
+
+    def masks(work, own):
+        m = np.full((core.B, core.N, core.mask_size), 9, np.int8)
+        observation.fill(np.empty((1, 1, 1), np.float32), m, core._obs_starts, core.k, 50.0,
+                         core.y, core.y_arrived, core.tau, core.Z, core.nbr, core.msg, True,
+                         observations=False, own=own, work=work)
+        return m
+
+    key = (core.B, core.N, core.M, core.mask_size)
+    with_table = observation.FillBuffers(*key)
+    assert with_table.mask_table.shape == (core.N, 2 ** core.D, core.mask_size)
+    monkeypatch.setattr(observation, "MASK_TABLE_BYTES", 0)
+    without = observation.FillBuffers(*key)
+    assert without.mask_table.shape[0] == 0
+    own = np.arange(core.N)
+    other = np.roll(own, 1)
+    other[0] = -1  # agent 0 owns no substate: all its choices open
+    for o in (own, other, own):  # the table follows the own columns it is given
+        a, b = masks(with_table, o), masks(without, o)
+        np.testing.assert_array_equal(a, b)
+        assert (a != 9).all()
+    assert not np.array_equal(masks(with_table, own), masks(with_table, other))
+
+
 def test_observations_equal_the_layout_written_out():
     model = build_model(load("link_failures-v0"))
     core = BatchedCore(model, 3)
