@@ -10,8 +10,8 @@ semantics exactly: every output element is computed by the same IEEE operations 
 same order as the scalar loop they replace, so results are bit-identical to it wherever
 a row runs (``tests/test_lanes.py`` holds them to scalar references).
 
-They are inlined into the drivers (:mod:`netsense.drivers`, :mod:`netsense.observation`)
-through the row functions of :mod:`netsense.rules`; this file is part of the drivers'
+They are inlined into the drivers (:mod:`netsense.drivers`, :mod:`netsense.observation`),
+mostly through the row functions of :mod:`netsense.rules`; this file is part of the drivers'
 cache key (:func:`netsense.compiled.inlined_digest`). There is no bounds check: the
 callers check the shapes.
 """
