@@ -23,17 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.design import design_observer
+from netsense.graphs.aoi import aoi_stats, trigger_step
+from netsense.graphs.families import make_graph_process
 from netsense.observers.freshness import FreshnessObserver
-from netsense.systems import random_structured
-from netsense.topology import (
-    aoi_stats,
-    make_graph_process,
-    run_observer,
-    sample_graphs,
-    trigger_step,
-    write_csv,
-)
+from netsense.observers.run import run_observer
+from netsense.studies.sweep import sample_graphs, write_csv
+from netsense.systems.design import design_observer
+from netsense.systems.plants import random_structured
 
 # family -> (T, param) at the default N
 FAMILIES = {"ring": (4, 0.0), "ring_backward": (4, 0.0), "random_jsc": (2, 0.1),

@@ -2,7 +2,7 @@
 
 In one run (so every contender sees the same machine load; compare ratios):
 
-1. agent-steps/s of :class:`netsense.envcore.BatchedCore` at ``(B, N, n)`` in
+1. agent-steps/s of :class:`netsense.engine.core.BatchedCore` at ``(B, N, n)`` in
    {(1024, 10, 10), (1024, 30, 20), (64, 100, 20)}, of the bare update kernel on the same
    arrays (gather + block-triangular multiply) and of VMAS ``simple_spread`` on CPU
    (:func:`netsense.speed.measure`);
@@ -210,7 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("\n".join(lines))
         sections["growth"] = lines
     rev = speed.source_revision
-    head = [f"netsense {rev()}, envcore.py at {rev('netsense/envcore.py')}, "
+    head = [f"netsense {rev()}, engine/core.py at {rev('netsense/engine/core.py')}, "
             f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"]
     for name, lines in sections.items():
         (out / f"{stem}_{name}.txt").write_text("\n".join(head + lines) + "\n")

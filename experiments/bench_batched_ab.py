@@ -26,9 +26,9 @@ import time
 
 import numpy as np
 
-from netsense.envcore import BatchedCore
-from netsense.policies import FreshnessPolicy
-from netsense.scenarios import build_model, load, with_overrides
+from netsense.engine.core import BatchedCore
+from netsense.env.policies import FreshnessPolicy
+from netsense.env.registry import build_model, load, with_overrides
 
 SHAPES = ((1024, 10, 10), (1024, 30, 20), (64, 100, 20))
 

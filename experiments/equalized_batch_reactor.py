@@ -24,12 +24,12 @@ from scipy.signal import cont2discrete
 from scipy.stats import truncnorm
 from tqdm import tqdm
 
-from netsense.observers.equalized import (
+from netsense.estimators.equalized import (
     EqualizedRecoveryEstimator,
     constraint_violation,
     design_switching,
 )
-from netsense.observers.equalized_design import EqualizedProblem, design
+from netsense.estimators.equalized_design import EqualizedProblem, design
 from netsense.sensing.delays import DelayLanguage
 
 # A and C as printed in section IV-A.

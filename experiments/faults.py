@@ -3,7 +3,7 @@
 One plant (``random_structured``, n = 6, N = 8, spectral radius 1.05), process and
 measurement noise (std ``--noise``), random jointly strongly connected graphs (T = 2),
 Theorem 1 gains (rho = 0.5) shared by both observers; ``--seeds`` runs per scenario in
-one batch. Faults (:mod:`netsense.faults`) start at step ``--at``:
+one batch. Faults (:mod:`netsense.observers.faults`) start at step ``--at``:
 
 * message loss on every link: Bernoulli 20 % and 50 %, Gilbert-Elliott 50 % in bursts
   of mean length 10 (a Markov link-failure channel);
@@ -33,8 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.design import design_observer
-from netsense.faults import (
+from netsense.graphs.aoi import worst_index
+from netsense.graphs.families import make_graph_process
+from netsense.observers.faults import (
     CrashedAgents,
     LinkDrops,
     LyingAgent,
@@ -44,8 +45,9 @@ from netsense.faults import (
 )
 from netsense.sensing.drops import BernoulliArrivals, GilbertElliottArrivals
 from netsense.sensing.noise import GaussianNoise
-from netsense.systems import random_structured
-from netsense.topology import make_graph_process, sample_graphs, worst_index, write_csv
+from netsense.studies.sweep import sample_graphs, write_csv
+from netsense.systems.design import design_observer
+from netsense.systems.plants import random_structured
 
 OBSERVERS = ("freshness", "consensus")
 

@@ -12,7 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from netsense.examples import run_fig2, save_fig2, summarize_fig2
+from netsense.studies.examples import run_fig2, save_fig2, summarize_fig2
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,7 +4,7 @@ Paper's claim (Section III, Fig. 2): on the switching graphs of Fig. 1 with ``a 
 consensus with uniform weights and consensus along the tree rooted at node 1 both give
 unbounded errors, while the freshness-index observer's errors vanish. The paper shows one
 run; here ``--runs`` initial estimates (node 1 exact, nodes 2 and 3 at ``x0 + U(-1, 1)``,
-as in :func:`netsense.examples.run_fig2`) run **as one batch** per observer
+as in :func:`netsense.studies.examples.run_fig2`) run **as one batch** per observer
 (``FreshnessObserver(design, batch_size=B)`` / ``ConsensusObserver(...)``, no Python loop
 over runs). Run 0 uses exactly the draws of ``run_fig2(seed)`` and is checked against it.
 
@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.design import design_observer
-from netsense.examples import FIG2_OBSERVERS, run_fig2
-from netsense.graphs import fig1_graphs
-from netsense.systems import fig1_scalar
+from netsense.graphs.processes import fig1_graphs
+from netsense.studies.examples import FIG2_OBSERVERS, run_fig2
+from netsense.systems.design import design_observer
+from netsense.systems.plants import fig1_scalar
 
 RESULTS = Path(__file__).parent / "results"
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
@@ -178,7 +178,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--stem", default="fig2_montecarlo")
     args = p.parse_args(argv)
     res = run_montecarlo(args.runs, args.steps, seed=args.seed)
-    # run 0 is the paper-style single run of netsense.examples.run_fig2
+    # run 0 is the paper-style single run of netsense.studies.examples.run_fig2
     single = run_fig2(steps=args.steps, seed=args.seed)
     for lab in FIG2_OBSERVERS:
         np.testing.assert_allclose(res[lab][:, 0], single[lab], rtol=1e-12, atol=1e-12)
@@ -195,7 +195,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         batch_rate = args.runs / sum(r["seconds_batched"] for r in rows)
         print(f"Python loop: {loop_rate:.1f} runs/s (all three observers); batched: "
               f"{batch_rate:.1f} runs/s -> {batch_rate / loop_rate:.0f}x")
-    print("run 0 equals netsense.examples.run_fig2(seed) for every observer")
+    print("run 0 equals netsense.studies.examples.run_fig2(seed) for every observer")
     print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 

@@ -38,9 +38,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
+from netsense.estimators.online import ose_step  # noqa: E402
 from netsense.grid import linearize, load_ieee37  # noqa: E402
 from netsense.grid.meters import PMU, SMART_METER, GridMetering, truncated_normal  # noqa: E402
-from netsense.observers.online import ose_step  # noqa: E402
 
 PMU_BUSES = ("701", "702", "703", "709", "734", "711")
 REL_STEP = 0.0068

@@ -6,17 +6,17 @@ Claims (under Assumption 1, joint strong connectivity over every window of ``T``
 * Lemma 5, eq. (17): every index is at most ``2(N-1)T`` from step ``(N-1)T`` on.
 
 For each case (graph family, ``N``, ``T``) the environment's batched core
-(:class:`netsense.envcore.BatchedCore`) runs ``--batch`` independent members — each its
+(:class:`netsense.engine.core.BatchedCore`) runs ``--batch`` independent members — each its
 own graph sequence, seed ``seed + b`` — under the scripted freshness policy (transmit
 always; this is the freshness observer, eqs. (8)-(14)), as **one array program**: there is
 no Python loop over runs. Families with a guaranteed period ``T``
-(:func:`netsense.topology.guaranteed_period`): ``random_jsc`` (random jointly strongly
+(:func:`netsense.graphs.families.guaranteed_period`): ``random_jsc`` (random jointly strongly
 connected graphs, several extra-edge probabilities), ``ring`` and ``ring_backward``
 (round-robin directed ring; the backward schedule is the slowest, where the bounds are
 nearly tight).
 
 Per member we record the step after which all indices stay finite
-(:func:`netsense.topology.trigger_step`) and the worst index over ``k >= (N-1)T``; a
+(:func:`netsense.graphs.aoi.trigger_step`) and the worst index over ``k >= (N-1)T``; a
 violation is a member above a bound. Writes ``results/lemma_checks_batched.csv`` (one row
 per case) and ``lemma_checks_batched.png`` (measured maxima vs bounds).
 
@@ -37,18 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.design import design_observer
-from netsense.envcore import BatchedCore, CoreModel
-from netsense.policies import FreshnessPolicy
-from netsense.systems import random_structured
-from netsense.topology import (
-    guaranteed_period,
-    lemma3_bound,
-    lemma5_bound,
-    make_graph_process,
-    trigger_step,
-    worst_index,
-)
+from netsense.engine.core import BatchedCore, CoreModel
+from netsense.env.policies import FreshnessPolicy
+from netsense.graphs.aoi import trigger_step, worst_index
+from netsense.graphs.bounds import lemma3_bound, lemma5_bound
+from netsense.graphs.families import guaranteed_period, make_graph_process
+from netsense.systems.design import design_observer
+from netsense.systems.plants import random_structured
 
 RESULTS = Path(__file__).parent / "results"
 

@@ -2,10 +2,10 @@
 
 ``N`` agents move in the unit square (random waypoint or reflected random walk) and can
 send to every agent within their communication radius
-(:mod:`netsense.mobility`). For a range of radii and ``--seeds`` runs each, we check
+(:mod:`netsense.graphs.mobility`). For a range of radii and ``--seeds`` runs each, we check
 Assumption 1 window by window with ``T = --period``
-(:func:`netsense.topology.window_connectivity`; the first failing window is what
-:func:`netsense.graphs.check_joint_connectivity` reports) and run the freshness observer
+(:func:`netsense.graphs.families.window_connectivity`; the first failing window is what
+:func:`netsense.graphs.processes.check_joint_connectivity` reports) and run the freshness observer
 
 * noiseless with deadbeat gains: does every estimate become exact, and when (steps to a
   relative error ``1e-6``; Corollary 1 needs Assumption 1);
@@ -32,22 +32,16 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.design import design_observer
-from netsense.graphs import check_joint_connectivity
-from netsense.mobility import RandomWalk, RandomWaypoint
+from netsense.graphs.aoi import aoi_stats, trigger_step, worst_index
+from netsense.graphs.families import window_connectivity
+from netsense.graphs.mobility import RandomWalk, RandomWaypoint
+from netsense.graphs.processes import check_joint_connectivity
 from netsense.observers.freshness import FreshnessObserver
+from netsense.observers.run import relative_error, run_observer, steps_to_tolerance
 from netsense.sensing.noise import GaussianNoise
-from netsense.systems import random_structured
-from netsense.topology import (
-    aoi_stats,
-    relative_error,
-    run_observer,
-    steps_to_tolerance,
-    trigger_step,
-    window_connectivity,
-    worst_index,
-    write_csv,
-)
+from netsense.studies.sweep import write_csv
+from netsense.systems.design import design_observer
+from netsense.systems.plants import random_structured
 
 RADII = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.7)
 MODELS = ("random_waypoint", "random_walk")

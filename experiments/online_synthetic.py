@@ -31,8 +31,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from netsense import online_analysis as oa  # noqa: E402
-from netsense.observers.online import ose_step  # noqa: E402
+from netsense.estimators import online_analysis as oa  # noqa: E402
+from netsense.estimators.online import ose_step  # noqa: E402
 
 N, M, LIB, TAU_PAPER = 15, 3, 10, 4
 PAPER = {"gamma_star_bounded": 0.25, "gamma_star_stochastic": 0.4}

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from netsense.observers.kalman import KFIO, KalmanFilter, StateSpaceModel
-from netsense.observers.robust import RSEIO
+from netsense.estimators.kalman import KFIO, KalmanFilter, StateSpaceModel
+from netsense.estimators.robust import RSEIO
 from netsense.sensing.drops import BernoulliArrivals
 
 # %% The plant of section IV

@@ -32,7 +32,7 @@ import numpy as np
 from scipy import stats
 from tqdm import tqdm
 
-from netsense.observers.robust import RSEIO
+from netsense.estimators.robust import RSEIO
 from netsense.sensing.drops import BernoulliArrivals
 
 try:  # run as a script from the repository root or imported by the tests

@@ -4,18 +4,18 @@ For six graph families (round-robin directed ring, the same ring on its slowest
 "backward" schedule, random jointly strongly connected graphs with period T, gossip on the
 complete graph, Markov link failures on the bidirectional ring, random-waypoint agents with a
 communication radius), several N, T and plant dimensions n, the batched freshness observer
-is run on ``--seeds`` graph sequences per case (:func:`netsense.topology.run_case`) and
+is run on ``--seeds`` graph sequences per case (:func:`netsense.studies.sweep.run_case`) and
 we measure
 
 * the step after which every freshness index is triggered vs Lemma 3's ``(N-1)T``;
 * the worst index from ``(N-1)T`` on vs Lemma 5's ``2(N-1)T`` and vs ``NT - 1``, the
-  sharper bound the proof of Lemma 3 gives (:func:`netsense.topology.sharp_index_bound`);
+  sharper bound the proof of Lemma 3 gives (:func:`netsense.graphs.bounds.sharp_index_bound`);
 * steps to a relative error ``eps`` with deadbeat gains vs Corollary 1's ``n + 2N(N-1)T``
   and with Theorem 1's rho-ordered gains vs the onset ``(2N-1)(N-1)T`` of eq. (33);
 * messages per step (links carrying a message) and adoptions per step.
 
 For gossip, Markov and mobility, ``T`` is the smallest period for which Assumption 1 holds
-on the realised sequence (:func:`netsense.graphs.smallest_period`); a run where none does
+on the realised sequence (:func:`netsense.graphs.processes.smallest_period`); a run where none does
 counts as "Assumption 1 fails" and is left out of the ratios.
 
 Writes ``topology_sweep.csv`` (one row per run), ``topology_summary.csv`` (per case),
@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.topology import SweepCase, run_sweep, summarize, write_csv
+from netsense.studies.sweep import SweepCase, run_sweep, summarize, write_csv
 
 FAMILY_STYLE = {"ring": ("tab:blue", "o"), "ring_backward": ("tab:purple", "v"),
                 "random_jsc": ("tab:green", "s"), "gossip": ("tab:orange", "D"),

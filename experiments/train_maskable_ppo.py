@@ -49,6 +49,7 @@ def load_configs(path: Path = CONFIG, smoke: bool = False) -> dict:
 
 # %%
 def main(argv: list[str] | None = None) -> int:
+    from netsense.benchmark.baselines import baseline_returns
     from netsense.rl.sb3 import train
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -61,7 +62,9 @@ def main(argv: list[str] | None = None) -> int:
     for scenario, cfg in configs.items():
         if args.only and scenario not in args.only:
             continue
-        res = train(cfg, Path(args.out) / f"train_{scenario}", progress=not args.no_progress)
+        refs = baseline_returns(cfg, ("freshness", "uniform_consensus"))
+        res = train(cfg, Path(args.out) / f"train_{scenario}", progress=not args.no_progress,
+                    baselines=refs)
         last = res.curve[-1]["mean_episode_reward"] if res.curve else float("nan")
         print(f"{scenario}: {cfg.steps} agent-steps in {res.wall_s:.1f} s, final mean "
               f"episode return {last:.4g}, masked actions {res.mask_violations}/"

@@ -10,8 +10,8 @@ import pytest
 from experiment_loader import load_experiment
 
 from netsense import speed
-from netsense.envcore import BatchedCore
-from netsense.examples import FIG2_OBSERVERS, run_fig2
+from netsense.engine.core import BatchedCore
+from netsense.studies.examples import FIG2_OBSERVERS, run_fig2
 
 load = load_experiment
 
@@ -20,9 +20,9 @@ def test_fig2_montecarlo_batch_equals_single_runs_and_reproduces_the_claim(tmp_p
     mod = load("fig2_montecarlo")
     res = mod.run_montecarlo(runs=6, steps=12, seed=3)
     # every batch member equals the unbatched observers started from its estimates
-    from netsense.design import design_observer
-    from netsense.graphs import fig1_graphs
-    from netsense.systems import fig1_scalar
+    from netsense.graphs.processes import fig1_graphs
+    from netsense.systems.design import design_observer
+    from netsense.systems.plants import fig1_scalar
 
     plant = fig1_scalar(2.0)
     design = design_observer(plant, deadbeat=True)

@@ -9,7 +9,7 @@ import pytest
 
 from netsense import benchmark as bm
 from netsense.cli import main
-from netsense.systems import Plant
+from netsense.systems.plants import Plant
 
 
 # ----------------------------------------------------------------------------- metrics

@@ -61,7 +61,7 @@ def test_batched_backend_equals_serial_per_seed(scenario, policies, overrides):
 
 
 def test_batched_groups_interleaved_jobs_and_keeps_their_order(monkeypatch):
-    import netsense.vector as vec
+    import netsense.benchmark.batched as vec
 
     over = {"horizon": 10}
     J = bm.Job
@@ -87,7 +87,7 @@ def test_batched_groups_interleaved_jobs_and_keeps_their_order(monkeypatch):
 
 
 def test_batched_splits_groups_beyond_the_memory_budget(monkeypatch):
-    import netsense.vector as vec
+    import netsense.benchmark.batched as vec
 
     jobs = bm.make_jobs(["message_cost-v0"], ["freshness"], range(5), overrides={"horizon": 8})
     sizes, done = [], []
@@ -143,9 +143,9 @@ def test_benchmark_command_with_batched_backend(tmp_path, capsys):
 
 # ------------------------------------------------------------------ per-member pieces
 def test_random_policy_member_generators_equal_single_policies():
-    from netsense.envcore import BatchedCore
-    from netsense.policies import make_policy
-    from netsense.vector import load_model
+    from netsense.engine.core import BatchedCore
+    from netsense.env.policies import make_policy
+    from netsense.env.vector import load_model
 
     model, _ = load_model("message_cost-v0", horizon=6)
     core = BatchedCore(model, 3)
@@ -166,7 +166,7 @@ def test_random_policy_member_generators_equal_single_policies():
 
 def test_batched_kf_equals_one_filter_per_member():
     from netsense.sensing import GaussianNoise
-    from netsense.systems import Plant
+    from netsense.systems.plants import Plant
 
     plant = Plant(A=[[1.1, 0.2], [0.0, 0.9]], C=(np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]),
                                                  np.array([[1.0, 1.0]])),

@@ -3,9 +3,9 @@
 import numpy as np
 
 from netsense import ConsensusObserver, design_observer, fig1_graphs, fig1_scalar
-from netsense.examples import run_fig2
-from netsense.graphs import as_adjacency, in_neighbor_slots
+from netsense.graphs.processes import as_adjacency, in_neighbor_slots
 from netsense.observers.consensus import hop_distances, tree_parents
+from netsense.studies.examples import run_fig2
 
 
 def test_uniform_consensus_matches_eq6_by_hand():

@@ -1,5 +1,5 @@
 """Age of information in the environment's infos (issue 9 item 2): ``infos[agent]["aoi"]``
-equals :func:`netsense.topology.aoi_stats` of the agent's freshness-index history."""
+equals :func:`netsense.graphs.aoi.aoi_stats` of the agent's freshness-index history."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from netsense.env import RunningAoI
-from netsense.policies import make_policy
-from netsense.scenarios import make
-from netsense.topology import aoi_stats
+from netsense.env.pettingzoo_env import RunningAoI
+from netsense.env.policies import make_policy
+from netsense.env.registry import make
+from netsense.graphs.aoi import aoi_stats
 
 
 @pytest.mark.parametrize("sid, policy", [("link_failures-v0", "freshness"),

@@ -20,8 +20,8 @@ from pettingzoo.test import (
 )
 from pettingzoo.utils import parallel_to_aec
 
-from netsense.policies import make_policy
-from netsense.scenarios import list_scenarios, make
+from netsense.env.policies import make_policy
+from netsense.env.registry import list_scenarios, make
 
 SCENARIOS = list_scenarios()
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import netsense as ns
-from netsense.envcore import BatchedCore, ObsLayout
-from netsense.policies import make_policy
-from netsense.scenarios import build_model, load, make, with_overrides
+from netsense.engine.core import BatchedCore, ObsLayout
+from netsense.env.policies import make_policy
+from netsense.env.registry import build_model, load, make, with_overrides
 
 
 def model_of(sid, **over):
@@ -237,7 +237,7 @@ def test_divergence_limit_terminates():
     assert all(term.values()) and not any(trunc.values()) and env.agents == []
 
 
-@pytest.mark.parametrize("sid", __import__("netsense.scenarios", fromlist=["x"]).list_scenarios())
+@pytest.mark.parametrize("sid", __import__("netsense").list_scenarios())
 def test_realisation_does_not_depend_on_chunk_length(sid):
     """Large batches draw shorter chunks (memory budget); every registered scenario's
     streams must give the same realisation for any chunk length."""
@@ -276,7 +276,7 @@ def test_graphs_are_the_members_graph_stream():
 
 
 def test_chunk_buffers_respect_the_memory_budget():
-    from netsense.envcore import CHUNK_BUDGET
+    from netsense.engine.core import CHUNK_BUDGET
 
     model = model_of("random_structured_n20_N10-v0", plant={"num_agents": 30},
                      graph={"num_nodes": 30})
@@ -290,7 +290,7 @@ def test_chunk_buffers_respect_the_memory_budget():
 def test_large_batch_path_equals_small_batch_path(monkeypatch):
     """Under a tiny memory budget the core draws 1-step chunks and derives the slot tables
     per step (the large-batch path); the trajectory is the same as the default path."""
-    import netsense.envcore as envcore
+    import netsense.engine.core as envcore
 
     model = model_of("link_failures-v0", horizon=15)
     ref = BatchedCore(model, 2)
@@ -313,7 +313,7 @@ def test_large_batch_path_equals_small_batch_path(monkeypatch):
 def test_markov_slot_sampler_equals_per_run_sampling(draws):
     """MarkovLinkFailures.sample_slots_many (the core's batched refill) gives, per run, the
     slot tables of sample() with that run's generator, and the same continuation state."""
-    from netsense.graphs import MarkovLinkFailures, in_neighbor_slots
+    from netsense.graphs.processes import MarkovLinkFailures, in_neighbor_slots
 
     base = np.zeros((9, 9), bool)
     for o in (1, 2, 5):

@@ -6,9 +6,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import netsense.env as env_module
-from netsense.envcore import ObsLayout
-from netsense.scenarios import make
+import netsense.env.pettingzoo_env as env_module
+from netsense.engine.core import ObsLayout
+from netsense.env.registry import make
 
 
 def test_observation_table_matches_layout_order_and_sizes():

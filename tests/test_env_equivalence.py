@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import netsense as ns
-from netsense.policies import make_policy
-from netsense.scenarios import make
+from netsense.env.policies import make_policy
+from netsense.env.registry import make
 
 
 def _rollout_against(env, observer, policy_name, steps, exact=True):

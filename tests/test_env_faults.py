@@ -1,6 +1,7 @@
 """Faults in the environment (issue 9 item 4): each ``[[faults]]`` kind has its documented
 effect, and the freshness policy in the environment equals the library's faulty runs
-(:func:`netsense.faults.run_with_faults`, :class:`netsense.faults.LyingFreshnessObserver`)
+(:func:`netsense.observers.faults.run_with_faults`,
+:class:`netsense.observers.faults.LyingFreshnessObserver`)
 on the same graphs and initial state."""
 
 from __future__ import annotations
@@ -8,16 +9,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from netsense.envcore import BatchedCore
-from netsense.faults import (
+from netsense.engine.core import BatchedCore
+from netsense.env.policies import make_policy
+from netsense.env.registry import build_model, load, make, with_overrides
+from netsense.observers.faults import (
     CrashedAgents,
     LyingAgent,
     StuckSensor,
     captured_fraction,
     run_with_faults,
 )
-from netsense.policies import make_policy
-from netsense.scenarios import build_model, load, make, with_overrides
 
 NOISELESS = {"noise": {"process": {"kind": "none"}, "measurement": {"kind": "none"}}}
 

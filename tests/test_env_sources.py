@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import netsense as ns
-from netsense.envcore import BatchedCore
+from netsense.engine.core import BatchedCore
+from netsense.env.policies import make_policy
+from netsense.env.registry import build_model, load, load_file, make, with_overrides
 from netsense.observers.source_estimators import KFIOSource, RSEIOSource
 from netsense.observers.source_estimators_equalized import EqualizedSource
-from netsense.policies import make_policy
-from netsense.scenarios import build_model, load, load_file, make, with_overrides
 from netsense.sensing.delays import DelayLanguage
 from netsense.sensing.multirate import MultiRateArrivals
 

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from netsense.observers.equalized import (
+from netsense.estimators.equalized import (
     EqualizedRecoveryEstimator,
     causality_mask,
     constraint_violation,
@@ -17,7 +17,7 @@ from netsense.observers.equalized import (
     prefix_constraints,
     worst_case_levels,
 )
-from netsense.observers.equalized_design import EqualizedProblem, design
+from netsense.estimators.equalized_design import EqualizedProblem, design
 from netsense.sensing.delays import DelayLanguage
 
 ETA = 0.1
@@ -172,7 +172,7 @@ def test_bad_inputs_raise_before_state_changes():
 
 
 def test_feasibility_is_monotone_in_mu1_on_a_grid():
-    from netsense.observers.equalized_design import build_lp, solve_fixed
+    from netsense.estimators.equalized_design import build_lp, solve_fixed
 
     P = random_problem(seed=3, s0=False)
     tpl = build_lp(P)

@@ -4,12 +4,12 @@ with the source's data arriving through a delay channel."""
 import numpy as np
 import pytest
 
-from netsense.design import design_observer
-from netsense.observers.equalized import EqualizedRecoveryEstimator
+from netsense.estimators.equalized import EqualizedRecoveryEstimator
 from netsense.observers.freshness import FreshnessObserver
 from netsense.observers.source_estimators_equalized import EqualizedSource
 from netsense.sensing.delays import DelayLanguage
-from netsense.systems import Plant
+from netsense.systems.design import design_observer
+from netsense.systems.plants import Plant
 
 ETA = 0.05
 
@@ -63,9 +63,9 @@ def test_environment_core_runs_with_delayed_equalized_source():
     import dataclasses
     from functools import partial
 
-    from netsense.envcore import BatchedCore
-    from netsense.policies import FreshnessPolicy
-    from netsense.scenarios import build_model, load
+    from netsense.engine.core import BatchedCore
+    from netsense.env.policies import FreshnessPolicy
+    from netsense.env.registry import build_model, load
 
     lang = DelayLanguage.each_delayed_at_most(1, 3)
     model = dataclasses.replace(build_model(load("fig1_scalar-v0")),

@@ -9,7 +9,10 @@ import numpy as np
 import pytest
 
 from netsense import GaussianNoise, Plant, design_observer
-from netsense.faults import (
+from netsense.graphs.aoi import aoi_stats, trigger_step
+from netsense.graphs.families import RoundRobinRing, StaticGraph
+from netsense.kernels.update import OMEGA
+from netsense.observers.faults import (
     CrashedAgents,
     LinkDrops,
     LyingAgent,
@@ -18,9 +21,7 @@ from netsense.faults import (
     fault_from_dict,
     run_with_faults,
 )
-from netsense.kernels import OMEGA
 from netsense.sensing.drops import BernoulliArrivals, GilbertElliottArrivals
-from netsense.topology import RoundRobinRing, StaticGraph, aoi_stats, trigger_step
 
 # Lower-triangular plant: agent 0 sees x1, agent 1 sees x2, agent 2 sees x3, agent 3 sees
 # nothing (a relay). Lemma 1 then gives substates 0, 1, 2 of size 1, owned by agents
@@ -201,8 +202,8 @@ def test_fault_scenarios_freshness_beats_consensus(scenario_id):
     # The env's fault scenarios (the faults the scenario schema supports: per-link message
     # loss, Markov link failures, sensor outages): the scripted freshness policy keeps the
     # error at the noise level, the uniform consensus policy does not.
-    from netsense.policies import make_policy
-    from netsense.scenarios import list_scenarios, make
+    from netsense.env.policies import make_policy
+    from netsense.env.registry import list_scenarios, make
 
     assert scenario_id in list_scenarios()
     mean_err = {}

@@ -14,7 +14,7 @@ from netsense import (
     fig1_scalar,
     random_structured,
 )
-from netsense.systems import Plant
+from netsense.systems.plants import Plant
 
 
 def reference_step(des, Z, tau, y, adj):

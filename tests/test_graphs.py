@@ -5,7 +5,7 @@ import pickle
 import numpy as np
 import pytest
 
-from netsense.graphs import (
+from netsense.graphs.processes import (
     Gossip,
     MarkovLinkFailures,
     PeriodicGraphs,
@@ -13,10 +13,10 @@ from netsense.graphs import (
     as_adjacency,
     check_joint_connectivity,
     fig1_graphs,
-    graph_process_from_dict,
     in_neighbor_slots,
     smallest_period,
 )
+from netsense.graphs.spec import graph_process_from_dict
 
 
 def test_fig1_alternates_and_satisfies_assumption1_with_T2():
@@ -80,8 +80,8 @@ def test_roundtrip_dict_and_pickle():
 
 
 def test_topology_and_mobility_kinds_from_dict():
-    from netsense.mobility import RandomWalk, RandomWaypoint
-    from netsense.topology import RoundRobinRing, StaticGraph, ring_with_chords
+    from netsense.graphs.families import RoundRobinRing, StaticGraph, ring_with_chords
+    from netsense.graphs.mobility import RandomWalk, RandomWaypoint
 
     for proc in [RoundRobinRing(5, 2, "backward"), StaticGraph(ring_with_chords(5)),
                  RandomWaypoint(6, radius=0.5), RandomWalk(6, radius=0.5)]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from netsense import online_analysis as oa
+from netsense.estimators import online_analysis as oa
 from netsense.grid import Feeder, LineConfig, linearize, load_ieee37, solve_power_flow
 from netsense.grid.feeder import FT_PER_MILE
 from netsense.grid.linear import delta_incidence

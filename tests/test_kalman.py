@@ -1,9 +1,9 @@
-"""KF and KFIO (netsense.observers.kalman) against closed forms and Monte Carlo."""
+"""KF and KFIO (netsense.estimators.kalman) against closed forms and Monte Carlo."""
 
 import numpy as np
 import pytest
 
-from netsense.observers.kalman import KFIO, KalmanFilter, StateSpaceModel, bmm, spd_solve
+from netsense.estimators.kalman import KFIO, KalmanFilter, StateSpaceModel, bmm, spd_solve
 
 
 def random_model(rng, n=3, p=2, m=2):

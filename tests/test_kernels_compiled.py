@@ -12,10 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from netsense import compiled, kernels, observation
-from netsense.envcore import BatchedCore
-from netsense.graphs import MarkovLinkFailures
-from netsense.scenarios import build_model, load
+from netsense.engine import observation
+from netsense.engine.core import BatchedCore
+from netsense.env.registry import build_model, load
+from netsense.graphs.processes import MarkovLinkFailures
+from netsense.kernels import jit as compiled
+from netsense.kernels import update as kernels
 
 OMEGA = kernels.OMEGA
 
@@ -125,7 +127,7 @@ def test_serial_and_threaded_drivers_agree(monkeypatch):
 
 
 def test_driver_threads_only_from_its_work_and_member_thresholds():
-    from netsense.graphs import MARKOV_THREADED_RUNS, _markov_slots
+    from netsense.graphs.processes import MARKOV_THREADED_RUNS, _markov_slots
 
     d = compiled.Driver(lambda x: None, min_runs=4)
     big = compiled.PARALLEL_WORK
@@ -317,7 +319,7 @@ def test_observations_equal_the_layout_written_out():
                 want = [1] + [0 if j == i else int(g) for g in core.msg[b, i]] + [int(j != i)]
                 assert m[j].tolist() == want
             assert mask[b, i, N * W:].tolist() == [1, 1]
-    assert observation.slot_messages(core.nbr, core.transmit).shape == core.nbr.shape
+    assert kernels.slot_messages(core.nbr, core.transmit).shape == core.nbr.shape
 
 
 def test_fused_validation_agrees_with_check_actions():
@@ -450,8 +452,8 @@ def _ring(N, offsets=(1, 2, 5)):
 
 def test_compiled_uniform_draws_continue_each_generators_stream():
     # 256 runs x 12 steps x 27 edges: the threaded build draws
-    from netsense.compiled import PARALLEL_WORK, bit_streams
-    from netsense.graphs import MARKOV_THREADED_RUNS
+    from netsense.graphs.processes import MARKOV_THREADED_RUNS
+    from netsense.kernels.jit import PARALLEL_WORK, bit_streams
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
     seeds = list(range(100, 100 + MARKOV_THREADED_RUNS))
@@ -470,7 +472,7 @@ def test_compiled_uniform_draws_continue_each_generators_stream():
 
 
 def test_mixed_or_repeated_generators_are_drawn_through_numpy():
-    from netsense.compiled import bit_streams
+    from netsense.kernels.jit import bit_streams
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
 
@@ -500,7 +502,7 @@ def test_threaded_drivers_called_from_several_python_threads_under_workqueue():
     code = """
 import numpy as np, numba
 from concurrent.futures import ThreadPoolExecutor
-from netsense import compiled
+from netsense.kernels import jit as compiled
 import tests.test_kernels_compiled as t
 steps = [t._random_step(40 + k, B=6) for k in range(4)]
 kws = [{"luenberger": (s["y"], s["arrived"], s["C"], s["L"])} for s in steps]
@@ -535,15 +537,15 @@ def test_slot_messages_follow_neighbour_transmit_and_link():
     b, i, d = np.nonzero(nbr >= 0)
     expect = np.zeros((B, N, D), bool)
     expect[b, i, d] = transmit[b, nbr[b, i, d]]
-    np.testing.assert_array_equal(observation.slot_messages(nbr, transmit), expect)
+    np.testing.assert_array_equal(kernels.slot_messages(nbr, transmit), expect)
     expect[b, i, d] &= link[b, i, nbr[b, i, d]]
-    np.testing.assert_array_equal(observation.slot_messages(nbr, transmit, link), expect)
+    np.testing.assert_array_equal(kernels.slot_messages(nbr, transmit, link), expect)
 
 
 def test_gaussian_sample_many_continues_each_generators_stream():
     # 300 runs x (16, 7, 3): the threaded build draws; every value and every generator's
     # final position must be what numpy's own standard_normal gives run by run
-    from netsense.compiled import PARALLEL_WORK
+    from netsense.kernels.jit import PARALLEL_WORK
     from netsense.sensing.noise import GaussianNoise
 
     noise, shape, seeds = GaussianNoise(0.37), (16, 7, 3), range(500, 800)
@@ -587,7 +589,7 @@ def test_gaussian_sample_many_falls_back_and_checks_out():
 def test_observation_log1p_is_log1p_to_a_few_ulps():
     # the observation's log1p (Goldberg's formula) against libm's over 600 decades, the
     # subnormals and the special values; float32 roundings agree except at boundaries
-    from netsense.observation import _log1p
+    from netsense.engine.observation import _log1p
 
     rng = np.random.default_rng(0)
     x = np.concatenate([10.0 ** rng.uniform(-320, 308, 200_000), rng.uniform(0, 4, 200_000),
@@ -655,11 +657,11 @@ def test_driver_cache_names_follow_the_rules_they_inline():
     import hashlib
     from pathlib import Path
 
-    from netsense import drivers
+    from netsense.kernels import drivers
 
     here = Path(compiled.__file__).parent
     h = hashlib.sha256()
-    for name in ("rules.py", "compiled.py", "lanes.py"):  # rows, streams, vector code
+    for name in ("rules.py", "jit.py", "lanes.py"):  # rows, streams, vector code
         h.update((here / name).read_bytes())
     digest = h.hexdigest()[:12]
     assert compiled.inlined_digest() == digest

@@ -1,10 +1,10 @@
-"""The explicit vector helpers of netsense.lanes against scalar references, bit for bit."""
+"""The explicit vector helpers of netsense.kernels.lanes against scalar references, bit for bit."""
 
 import numpy as np
 import pytest
 from numba import njit
 
-from netsense.lanes import (
+from netsense.kernels.lanes import (
     block_triangular_pair,
     block_triangular_row,
     copy_span,

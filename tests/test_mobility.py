@@ -7,15 +7,15 @@ import pickle
 import numpy as np
 import pytest
 
-from netsense.graphs import check_joint_connectivity
-from netsense.mobility import (
+from netsense.graphs.families import window_connectivity
+from netsense.graphs.mobility import (
     MobilityState,
     RandomWalk,
     RandomWaypoint,
     disk_graph,
     mobility_from_dict,
 )
-from netsense.topology import window_connectivity
+from netsense.graphs.processes import check_joint_connectivity
 
 
 @pytest.mark.parametrize("process", [RandomWaypoint(6, radius=0.3, pause=2),
@@ -98,9 +98,9 @@ def test_mobility_graphs_drive_the_environment():
 
     from pettingzoo.test import parallel_api_test
 
-    from netsense.env import NetSenseEnv
-    from netsense.policies import make_policy
-    from netsense.scenarios import build_model, load
+    from netsense.env.pettingzoo_env import NetSenseEnv
+    from netsense.env.policies import make_policy
+    from netsense.env.registry import build_model, load
 
     base = build_model(load("fault_message_drops-v0"))
     model = dataclasses.replace(base, graphs=RandomWaypoint(8, radius=0.4))

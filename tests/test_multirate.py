@@ -7,8 +7,8 @@ import pickle
 import numpy as np
 import pytest
 
-from netsense import online_analysis as oa
-from netsense.observers.online import ose_step
+from netsense.estimators import online_analysis as oa
+from netsense.estimators.online import ose_step
 from netsense.sensing.arrivals import ArrivalModel, ArrivalSampler
 from netsense.sensing.multirate import (
     MultiRateArrivals,

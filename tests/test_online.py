@@ -7,7 +7,7 @@ import pickle
 import numpy as np
 import pytest
 
-from netsense.observers.online import OnlineStateEstimator, OSEConfig, lambda_matrix, ose_step
+from netsense.estimators.online import OnlineStateEstimator, OSEConfig, lambda_matrix, ose_step
 
 
 def _argmin_lstsq(x_prev, y, A, gamma, Q):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from netsense import online_analysis as oa
-from netsense.observers.online import ose_step
+from netsense.estimators import online_analysis as oa
+from netsense.estimators.online import ose_step
 
 E = np.eye(3)
 

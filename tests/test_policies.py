@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from netsense.envcore import BatchedCore
-from netsense.policies import POLICIES, make_policy
-from netsense.scenarios import build_model, list_scenarios, load, make, with_overrides
+from netsense.engine.core import BatchedCore
+from netsense.env.policies import POLICIES, make_policy
+from netsense.env.registry import build_model, list_scenarios, load, make, with_overrides
 
 
 def run(sid, name, seed=0, **over):
@@ -125,7 +125,7 @@ def test_freshness_policy_equals_the_rule_on_the_indices(seed):
     """Read from the observation, the policy chooses what ``kernels.freshness_choice``
     chooses on the indices and messages behind that observation (mid-run, with link
     failures: slots without messages, omega indices and ties)."""
-    from netsense import kernels
+    from netsense.kernels import update as kernels
 
     model = build_model(with_overrides(load("link_failures-v0"), horizon=40))
     core = BatchedCore(model, 4)

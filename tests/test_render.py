@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from netsense.policies import make_policy
-from netsense.scenarios import make
+from netsense.env.policies import make_policy
+from netsense.env.registry import make
 
 
 def _run(env, steps):

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from netsense.coremodel import RewardConfig
-from netsense.rewards import finish_step
+from netsense.engine.model import RewardConfig
+from netsense.engine.rewards import finish_step
 
 
 def _numpy_tail(x, err, act, M, silenced, alive, rw, lim, k, horizon):

@@ -19,7 +19,7 @@ def test_rllib_config_keys_are_ppo_config_arguments():
 
     params = set(inspect.signature(rllib.ppo_config).parameters)
     assert set(cfg) - {"iterations"} <= params
-    from netsense.scenarios import list_scenarios
+    from netsense.env.registry import list_scenarios
 
     assert cfg["scenario"] in list_scenarios()
 
@@ -60,9 +60,9 @@ def test_committed_policies_still_fit_their_scenarios(scenario):
     import numpy as np
 
     from netsense.benchmark import rollout
+    from netsense.env.registry import make
     from netsense.rl.sb3 import LearnedPolicy
     from netsense.rl.wrappers import MaskedFlatObs
-    from netsense.scenarios import make
 
     path = EXP / "results" / f"train_{scenario}" / "policy.zip"
     space = MaskedFlatObs(make(scenario)).observation_space("sensor_0")

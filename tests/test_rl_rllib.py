@@ -25,8 +25,8 @@ def test_rllib_one_iteration_with_shared_masked_policy():
 
 
 def test_rllib_observation_keys_match_the_masking_module():
+    from netsense.env.registry import make
     from netsense.rl.rllib import RLlibMaskedObs
-    from netsense.scenarios import make
 
     env = RLlibMaskedObs(make("fig1_scalar-v0"))
     obs, _ = env.reset(seed=0)

@@ -12,9 +12,9 @@ from pettingzoo.utils.env import ParallelEnv  # noqa: E402
 
 from netsense import benchmark as bm  # noqa: E402
 from netsense.cli import main  # noqa: E402
+from netsense.env.registry import make  # noqa: E402
 from netsense.rl.sb3 import LearnedPolicy, TrainConfig, make_vec_env, train  # noqa: E402
 from netsense.rl.wrappers import MaskedFlatObs, flat_mask, mask_allows  # noqa: E402
-from netsense.scenarios import make  # noqa: E402
 
 
 class ToyMaskedEnv(ParallelEnv):

@@ -4,8 +4,8 @@ Theorem 2's recursion (eq. (9)) and its reductions to KFIO."""
 import numpy as np
 import pytest
 
-from netsense.observers.kalman import KFIO, StateSpaceModel
-from netsense.observers.robust import RSEIO, sensitivity_matrices
+from netsense.estimators.kalman import KFIO, StateSpaceModel
+from netsense.estimators.robust import RSEIO, sensitivity_matrices
 
 inv = np.linalg.inv
 
@@ -172,7 +172,7 @@ def test_bad_derivatives_and_late_mu_raise_before_state_change():
 # ------------------------------------------------------------ source-node adapters
 def _two_source_plant():
     from netsense.sensing.noise import GaussianNoise
-    from netsense.systems import Plant
+    from netsense.systems.plants import Plant
 
     A = np.array([[0.98, 0.0], [0.1, 0.95]])
     return Plant(A=A, C=(np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]]), np.zeros((0, 2))),
@@ -180,9 +180,9 @@ def _two_source_plant():
 
 
 def _run_observer(source, B, K, seed, arrival_p=0.7):
-    from netsense.design import design_observer
     from netsense.observers.freshness import FreshnessObserver
     from netsense.sensing.drops import BernoulliArrivals
+    from netsense.systems.design import design_observer
 
     plant = _two_source_plant()
     rng = np.random.default_rng(seed)
@@ -251,10 +251,10 @@ def test_kfio_source_inside_the_environment():
     steps 30..59 in each."""
     import dataclasses
 
-    from netsense import scenarios
-    from netsense.env import NetSenseEnv
+    from netsense.env import registry as scenarios
+    from netsense.env.pettingzoo_env import NetSenseEnv
+    from netsense.env.policies import make_policy
     from netsense.observers.source_estimators import KFIOSource
-    from netsense.policies import make_policy
 
     model = scenarios.build_model(scenarios.load("link_failures-v0"))
 

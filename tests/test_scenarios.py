@@ -8,16 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from netsense import scenarios
-from netsense.graphs import MarkovLinkFailures, PeriodicGraphs
-from netsense.scenarios import Scenario, list_scenarios, load, load_file, make
+from netsense.env import registry as scenarios
+from netsense.env.registry import Scenario, list_scenarios, load, load_file, make
+from netsense.graphs.processes import MarkovLinkFailures, PeriodicGraphs
 
 REQUIRED = {"fig1_scalar-v0", "random_structured_n20_N10-v0", "large_n20_N100-v0",
             "link_failures-v0", "message_cost-v0"}
 
 
 def test_files_and_registry_agree():
-    folder = resources.files("netsense") / "envs"
+    folder = resources.files("netsense.env") / "scenarios"
     files = sorted(p.name for p in folder.iterdir() if p.name.endswith(".toml"))
     ids = [f[: -len(".toml")].rpartition("_v")[0] + "-v" + f[: -len(".toml")].rpartition(
         "_v")[2] for f in files]
@@ -29,7 +29,7 @@ def test_files_and_registry_agree():
 
 def test_top_level_envs_is_the_package_folder():
     root = Path(__file__).parents[1]
-    assert (root / "envs").resolve() == (root / "netsense" / "envs").resolve()
+    assert (root / "envs").resolve() == (root / "netsense" / "env" / "scenarios").resolve()
 
 
 @pytest.mark.parametrize("sid", sorted(REQUIRED))
@@ -116,8 +116,8 @@ def test_cli_list_prints_every_scenario(capsys):
 
 def _returns(sid, policy, transmit_period=1, B=8):
     """Mean per-agent return and message-cost share over B seeds (batched core)."""
-    from netsense.envcore import BatchedCore
-    from netsense.policies import make_policy
+    from netsense.engine.core import BatchedCore
+    from netsense.env.policies import make_policy
 
     core = BatchedCore(scenarios.build_model(load(sid)), B)
     o, m = core.reset(0)

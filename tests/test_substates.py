@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from netsense.envcore import BatchedCore, CoreModel
-from netsense.faults import LyingAgent
-from netsense.policies import make_policy
-from netsense.scenarios import Scenario, build_model, load, make, with_overrides
+from netsense.engine.core import BatchedCore, CoreModel
+from netsense.env.policies import make_policy
+from netsense.env.registry import Scenario, build_model, load, make, with_overrides
+from netsense.observers.faults import LyingAgent
 
 
 @pytest.mark.parametrize("policy", ["freshness", "uniform"])

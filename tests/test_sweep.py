@@ -7,7 +7,7 @@ import csv
 import pytest
 
 from netsense.cli import main
-from netsense.topology import SweepCase, run_sweep, summarize
+from netsense.studies.sweep import SweepCase, run_sweep, summarize
 
 
 def _read(path):

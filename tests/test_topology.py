@@ -6,28 +6,19 @@ import numpy as np
 import pytest
 
 from netsense import design_observer, random_structured
-from netsense.graphs import RandomJointlyConnected, check_joint_connectivity
-from netsense.kernels import OMEGA
-from netsense.observers.freshness import FreshnessObserver
-from netsense.topology import (
+from netsense.graphs.aoi import aoi_stats, trigger_step, worst_index
+from netsense.graphs.bounds import corollary1_bound, lemma3_bound, lemma5_bound, sharp_index_bound
+from netsense.graphs.families import (
     RoundRobinRing,
     StaticGraph,
-    SweepCase,
-    aoi_stats,
-    corollary1_bound,
-    lemma3_bound,
-    lemma5_bound,
     make_graph_process,
-    relative_error,
-    run_case,
-    run_observer,
-    sample_graphs,
-    sharp_index_bound,
-    steps_to_tolerance,
-    trigger_step,
     window_connectivity,
-    worst_index,
 )
+from netsense.graphs.processes import RandomJointlyConnected, check_joint_connectivity
+from netsense.kernels.update import OMEGA
+from netsense.observers.freshness import FreshnessObserver
+from netsense.observers.run import relative_error, run_observer, steps_to_tolerance
+from netsense.studies.sweep import SweepCase, run_case, sample_graphs
 
 
 def reference_indices(graphs: np.ndarray) -> np.ndarray:

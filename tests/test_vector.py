@@ -8,9 +8,9 @@ import inspect
 import numpy as np
 import pytest
 
-from netsense.policies import make_policy
-from netsense.scenarios import make
-from netsense.vector import AgentVectorEnv, BatchedEnv, load_model
+from netsense.env.policies import make_policy
+from netsense.env.registry import make
+from netsense.env.vector import AgentVectorEnv, BatchedEnv, load_model
 
 
 def single_arrays(env, obs):
@@ -197,7 +197,7 @@ def test_sb3_vec_env_trains_maskable_ppo_and_serves_masks():
     from sb3_contrib.common.maskable.utils import get_action_masks, is_masking_supported
     from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
-    from netsense.vector import make_sb3_vec_env
+    from netsense.env.vector import make_sb3_vec_env
 
     venv = make_sb3_vec_env("fig1_scalar-v0", 2, seed=4, horizon=5)
     assert isinstance(venv, VecEnv) and venv.num_envs == 6
@@ -246,7 +246,7 @@ def test_agent_vector_env_works_with_gymnasium_vector_wrappers():
                                         ("message_cost-v0", "random")])
 def test_rollout_seeds_equals_the_benchmark_rollout_per_seed(sid, policy):
     from netsense.benchmark import rollout
-    from netsense.vector import rollout_seeds
+    from netsense.benchmark.batched import rollout_seeds
 
     seeds, over = [3, 8, 21], {"horizon": 12}
     recs = rollout_seeds(sid, policy, seeds, over)
@@ -262,7 +262,7 @@ def test_rollout_seeds_equals_the_benchmark_rollout_per_seed(sid, policy):
 
 
 def test_rollout_seeds_cuts_members_at_their_own_end():
-    from netsense.vector import rollout_seeds
+    from netsense.benchmark.batched import rollout_seeds
 
     # open loop on an unstable plant diverges; a low limit ends members at different steps
     recs = rollout_seeds("random_structured_n20_N10-v0", "open_loop", [0, 1, 2, 3],

@@ -22,7 +22,7 @@ metric                      definition
 Policies (names accepted by :func:`run_benchmark` and ``netsense benchmark``):
 
 ``freshness``, ``uniform_consensus``, ``tree_consensus``, ``open_loop``, ``random``
-    the scripted policies of :mod:`netsense.policies`, acting through the environment;
+    the scripted policies of :mod:`netsense.env.policies`, acting through the environment;
 ``kf_oracle``
     a centralized Kalman filter that sees every agent's measurement every step (no
     network): a lower bound on the error, no messages and no reward;
@@ -34,7 +34,7 @@ Backends (:func:`execute`), all with a tqdm bar and the same results in job orde
 
 ``batched`` (default)
     the jobs of one (scenario, policy, overrides) run as **one** batched simulation
-    (:func:`netsense.vector.rollout_seeds`, one :class:`netsense.envcore.BatchedCore`
+    (:func:`netsense.benchmark.batched.rollout_seeds`, one :class:`netsense.engine.core.BatchedCore`
     member per seed) instead of one episode per seed; every policy but ``learned``
     batches (``random`` with one generator per member, ``kf_oracle`` with a batched
     centralized filter), and member ``b``'s record equals the single episode of its seed.
@@ -46,11 +46,14 @@ Backends (:func:`execute`), all with a tqdm bar and the same results in job orde
     (for learned policies or many scenarios on many machines).
 
 Modules: :mod:`~netsense.benchmark.records` (episode records, jobs),
-:mod:`~netsense.benchmark.metrics` (the table's metrics), :mod:`~netsense.benchmark.oracle`
+:mod:`~netsense.benchmark.metrics` (the table's metrics), :mod:`~netsense.estimators.oracle`
 (the centralized filter), :mod:`~netsense.benchmark.rollouts` (policy names, single
 episodes), :mod:`~netsense.benchmark.backends` (running jobs), :mod:`~netsense.benchmark.report`
 (aggregation, CSV, table, plots); this module re-exports their public names and holds
 :func:`make_jobs` and :func:`run_benchmark`.
+
+Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense.grid`
+and :mod:`netsense.rl` (learned policies).
 """
 
 from __future__ import annotations
@@ -60,15 +63,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from netsense.benchmark.backends import BACKENDS, execute, run_batched, run_job
-from netsense.benchmark.metrics import (
-    METRICS,
-    aoi_statistics,
-    episode_metrics,
-    relative_errors,
-    steps_to_epsilon,
-)
-from netsense.benchmark.oracle import CentralizedKF
-from netsense.benchmark.records import EpisodeRecord, EpisodeRecorder, Job
+from netsense.benchmark.metrics import METRICS, aoi_statistics, episode_metrics, steps_to_epsilon
+from netsense.benchmark.records import EpisodeRecord, EpisodeRecorder, Job, relative_errors
 from netsense.benchmark.report import (
     _fmt_csv,
     aggregate,
@@ -80,12 +76,13 @@ from netsense.benchmark.report import (
 from netsense.benchmark.rollouts import (
     DEFAULT_POLICIES,
     POLICY_NAMES,
-    SCRIPTED_POLICIES,
     NotApplicable,
     rollout,
     rollout_oracle,
     scripted_policy,
 )
+from netsense.env.policies import SCRIPTED_POLICIES
+from netsense.estimators.oracle import CentralizedKF
 
 __all__ = [
     "BACKENDS", "DEFAULT_POLICIES", "METRICS", "POLICY_NAMES",

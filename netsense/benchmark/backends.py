@@ -61,10 +61,10 @@ def run_batched(jobs: Sequence[Job], *, runner: Callable[[Job], dict | None] = r
                 on_done: Callable[[int], object] | None = None) -> list[dict | None]:
     """Run ``jobs`` as batched simulations, one per (scenario, policy, overrides) group.
 
-    The seeds of a group run as one :func:`netsense.vector.rollout_seeds` batch (split
+    The seeds of a group run as one :func:`netsense.benchmark.batched.rollout_seeds` batch (split
     into batches whose records fit :data:`BATCH_BYTES`), so a group costs about one
     episode of Python per step instead of one per seed. Policies outside
-    :data:`netsense.vector.BATCHABLE_POLICIES` (``learned``) run job by job through
+    :data:`netsense.benchmark.batched.BATCHABLE_POLICIES` (``learned``) run job by job through
     ``runner`` in this process. A group whose policy does not apply to the scenario
     (:class:`NotApplicable`) gives None for each of its jobs, as :func:`run_job` does.
 
@@ -82,7 +82,8 @@ def run_batched(jobs: Sequence[Job], *, runner: Callable[[Job], dict | None] = r
         One entry per job, in job order, equal to ``[runner(job) for job in jobs]``
         (estimates up to the last bits of the matrix products).
     """
-    from netsense.vector import BATCHABLE_POLICIES, load_model, rollout_seeds
+    from netsense.benchmark.batched import BATCHABLE_POLICIES, rollout_seeds
+    from netsense.env.vector import load_model
 
     jobs = list(jobs)
     done = on_done or (lambda count: None)

@@ -12,26 +12,8 @@ if TYPE_CHECKING:
 METRICS = ("mean_rel_error", "final_rel_error", "steps_to_eps", "msgs_per_agent_step",
            "aoi_mean", "aoi_max", "aoi_omega_frac", "reward")
 
-_FLOOR = 1e-3
 
 
-def relative_errors(errors: np.ndarray, x_norm: np.ndarray, floor: float = _FLOOR
-                    ) -> np.ndarray:
-    """Relative errors ``errors[k, i] / max(x_norm[k], floor)``.
-
-    Parameters
-    ----------
-    errors : (K + 1, N) array
-    x_norm : (K + 1,) array
-    floor : float
-        Lower bound of the denominator (a state at the origin).
-    """
-    errors = np.asarray(errors, dtype=float)
-    x_norm = np.asarray(x_norm, dtype=float)
-    if errors.ndim != 2 or x_norm.shape != errors.shape[:1]:
-        raise ValueError(f"errors must be (K+1, N) and x_norm (K+1,), got {errors.shape} "
-                         f"and {x_norm.shape}")
-    return errors / np.maximum(x_norm, floor)[:, None]
 
 
 def steps_to_epsilon(rel: np.ndarray, eps: float) -> float:

@@ -1,7 +1,7 @@
 """Records of the benchmark: one episode's per-step curves and the job that makes them.
 
 :class:`EpisodeRecorder` builds the :class:`EpisodeRecord` of every path (the PettingZoo
-episode, the batched runs of :func:`netsense.vector.rollout_seeds` and the oracle);
+episode, the batched runs of :func:`netsense.benchmark.batched.rollout_seeds` and the oracle);
 :class:`Job` names one episode to run.
 """
 
@@ -12,7 +12,26 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from netsense.benchmark.metrics import relative_errors
+_FLOOR = 1e-3
+
+
+def relative_errors(errors: np.ndarray, x_norm: np.ndarray, floor: float = _FLOOR
+                    ) -> np.ndarray:
+    """Relative errors ``errors[k, i] / max(x_norm[k], floor)``.
+
+    Parameters
+    ----------
+    errors : (K + 1, N) array
+    x_norm : (K + 1,) array
+    floor : float
+        Lower bound of the denominator (a state at the origin).
+    """
+    errors = np.asarray(errors, dtype=float)
+    x_norm = np.asarray(x_norm, dtype=float)
+    if errors.ndim != 2 or x_norm.shape != errors.shape[:1]:
+        raise ValueError(f"errors must be (K+1, N) and x_norm (K+1,), got {errors.shape} "
+                         f"and {x_norm.shape}")
+    return errors / np.maximum(x_norm, floor)[:, None]
 
 
 @dataclass
@@ -56,7 +75,8 @@ class EpisodeRecorder:
     """Collects the curves of :class:`EpisodeRecord` from a core's ``B`` members.
 
     One recorder serves the single episode through the PettingZoo env (``B = 1``, its
-    ``env.core``), the batched runs of :func:`netsense.vector.rollout_seeds` and both forms
+    ``env.core``), the batched runs of :func:`~netsense.benchmark.batched.rollout_seeds`
+    and both forms
     of the oracle, so every path builds its records the same way.
 
     Parameters
@@ -82,7 +102,7 @@ class EpisodeRecorder:
 
         Parameters
         ----------
-        core : netsense.envcore.BatchedCore
+        core : netsense.engine.core.BatchedCore
         estimates : (B, N', n) array, optional
             Estimates to score (default the agents' ``core.estimates``; the oracle passes
             its own, ``N' = 1``).
@@ -147,3 +167,4 @@ class Job:
     seed: int
     overrides: dict = field(default_factory=dict)
     eps: float = 1e-2
+

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from netsense.benchmark.metrics import METRICS
-from netsense.benchmark.rollouts import SCRIPTED_POLICIES
+from netsense.env.policies import SCRIPTED_POLICIES
 
 
 def aggregate(results: Iterable[dict]) -> list[dict]:

@@ -1,6 +1,6 @@
 """Policy names and single episodes: scripted or learned policies through the env, the oracle.
 
-:func:`netsense.vector.rollout_seeds` is the batched counterpart of :func:`rollout` and
+:func:`netsense.benchmark.batched.rollout_seeds` is the batched counterpart of :func:`rollout` and
 :func:`rollout_oracle` (the same record per seed).
 """
 
@@ -10,11 +10,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from netsense.benchmark.oracle import CentralizedKF
 from netsense.benchmark.records import EpisodeRecord, EpisodeRecorder
+from netsense.env.policies import SCRIPTED_POLICIES
+from netsense.estimators.oracle import CentralizedKF
 
-#: Scripted policies run through the environment.
-SCRIPTED_POLICIES = ("freshness", "uniform_consensus", "tree_consensus", "open_loop", "random")
 #: Every policy name the harness knows (``learned`` may carry ``:PATH``).
 POLICY_NAMES = SCRIPTED_POLICIES + ("kf_oracle", "learned")
 #: Default policy set of ``netsense benchmark``.
@@ -26,34 +25,34 @@ class NotApplicable(ValueError):
 
 
 def _make_env(scenario: str, overrides: dict | None):
-    from netsense.scenarios import make
+    from netsense.env.registry import make
 
     return make(scenario, **dict(overrides or {}))
 
 
-#: Benchmark policy name -> name in :mod:`netsense.policies`.
+#: Benchmark policy name -> name in :mod:`netsense.env.policies`.
 _SCRIPTED = {"freshness": "freshness", "uniform_consensus": "uniform",
              "tree_consensus": "tree", "open_loop": "open_loop", "random": "random"}
 
 
 def scripted_policy(name: str, env, seed: int | Sequence[int]):
-    """The scripted policy ``name`` (a benchmark name) of :mod:`netsense.policies`.
+    """The scripted policy ``name`` (a benchmark name) of :mod:`netsense.env.policies`.
 
     Parameters
     ----------
     name : str
         One of :data:`SCRIPTED_POLICIES`.
-    env : netsense.env.NetSenseEnv or netsense.envcore.BatchedCore
+    env : netsense.env.pettingzoo_env.NetSenseEnv or netsense.engine.core.BatchedCore
     seed : int or sequence of int
         Seeds ``random`` (a sequence: one generator per batch member, see
-        :class:`netsense.policies.RandomPolicy`); unused by the other policies.
+        :class:`netsense.env.policies.RandomPolicy`); unused by the other policies.
 
     Raises
     ------
     NotApplicable
         ``tree_consensus`` on a scenario without a periodic graph schedule.
     """
-    from netsense.policies import make_policy
+    from netsense.env.policies import make_policy
 
     if name not in _SCRIPTED:
         raise ValueError(f"unknown scripted policy {name!r}; choose from "
@@ -73,7 +72,7 @@ def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
 
     The true state, every estimate and the freshness indices are read from the
     environment's core after each step (``env.core``); transmissions are the transmit
-    bits the agents chose. :func:`netsense.vector.rollout_seeds` is the batched
+    bits the agents chose. :func:`netsense.benchmark.batched.rollout_seeds` is the batched
     counterpart (one run for many seeds, the same record per seed).
     """
     env = _make_env(scenario, overrides)
@@ -114,7 +113,7 @@ def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> E
     The environment is stepped with the always-valid "keep everything, stay silent"
     action just to advance the plant and draw the measurements; only ``x[k]`` and
     ``y[k]`` are used. ``rollout_seeds(scenario, "kf_oracle", seeds)`` of
-    :mod:`netsense.vector` runs many seeds as one batch with the same records.
+    :mod:`netsense.env.vector` runs many seeds as one batch with the same records.
     """
     env = _make_env(scenario, overrides)
     core = env.core

@@ -2,4 +2,6 @@
 
 Command modules must import heavy dependencies inside ``run`` so that ``netsense --help``
 stays fast and works with the core install only.
+
+Top layer. May import everything but :mod:`netsense.cli`.
 """

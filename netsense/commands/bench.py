@@ -85,8 +85,8 @@ def bench_netsense(N: int, seconds: float, horizon: int, policy: str | None = No
     ``policy=None`` steps with a fixed valid action (keep every estimate, transmit);
     otherwise the named scripted policy computes the actions (its cost included).
     """
-    from netsense.policies import make_policy
-    from netsense.scenarios import make
+    from netsense.env.policies import make_policy
+    from netsense.env.registry import make
 
     env = make(FAMILY, plant={"num_agents": N}, graph={"num_nodes": N}, horizon=horizon)
     if policy is None:

@@ -15,7 +15,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netsense.examples import run_fig2, save_fig2, summarize_fig2
+    from netsense.studies.examples import run_fig2, save_fig2, summarize_fig2
 
     result = run_fig2(steps=args.steps, seed=args.seed)
     csv, png = save_fig2(result, args.out, stem="fig2")

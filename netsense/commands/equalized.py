@@ -44,7 +44,7 @@ def parse_language(spec: str):
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from netsense.observers.equalized_design import EqualizedProblem, design
+    from netsense.estimators.equalized_design import EqualizedProblem, design
 
     A = np.asarray(json.loads(args.A), dtype=float)
     lang = parse_language(args.language)

@@ -1,11 +1,11 @@
-"""``netsense list``: the registered scenarios (one per file in ``netsense/envs/``)."""
+"""``netsense list``: the registered scenarios (one per file in ``netsense/env/scenarios/``)."""
 
 from __future__ import annotations
 
 import argparse
 
 NAME = "list"
-HELP = "List the registered environment scenarios (ids for netsense.scenarios.make)."
+HELP = "List the registered environment scenarios (ids for netsense.env.registry.make)."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -14,13 +14,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netsense.scenarios import list_scenarios, load
+    from netsense.env.registry import list_scenarios, load
 
     for sid in list_scenarios():
         sc = load(sid)
         line = f"{sid:<32} {sc.description}"
         if args.details:
-            from netsense.scenarios import _cached_model
+            from netsense.env.registry import _cached_model
 
             m = _cached_model(sid)
             line = (f"{sid:<32} N={m.plant.num_agents:<4} n={m.plant.n:<3} "

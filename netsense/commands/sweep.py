@@ -2,7 +2,7 @@
 
 Every combination of ``--family``, ``--N``, ``--T``, ``--n`` and ``--param`` is one case;
 each case runs ``--seeds`` graph sequences at once through the batched observer (see
-:func:`netsense.topology.run_case`) and the cases run in ``--workers`` processes.
+:func:`netsense.studies.sweep.run_case`) and the cases run in ``--workers`` processes.
 """
 
 from __future__ import annotations
@@ -58,8 +58,9 @@ _PERIODIC = ("ring", "ring_backward", "random_jsc")
 
 
 def build_cases(args: argparse.Namespace) -> list:
-    """The list of :class:`netsense.topology.SweepCase` the arguments describe."""
-    from netsense.topology import FAMILIES, SweepCase
+    """The list of :class:`netsense.studies.sweep.SweepCase` the arguments describe."""
+    from netsense.graphs.families import FAMILIES
+    from netsense.studies.sweep import SweepCase
 
     fams = [f.strip() for f in args.family.split(",") if f.strip()]
     for f in fams:
@@ -81,7 +82,7 @@ def build_cases(args: argparse.Namespace) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
-    from netsense.topology import run_sweep, summarize, write_csv
+    from netsense.studies.sweep import run_sweep, summarize, write_csv
 
     cases = build_cases(args)
     rows = run_sweep(cases, workers=args.workers, progress=not args.quiet)

@@ -50,13 +50,15 @@ def parse_overrides(items: list[str]) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from netsense.benchmark.baselines import baseline_returns
     from netsense.rl.sb3 import TrainConfig, train
 
     cfg = TrainConfig(scenario=args.scenario, steps=args.steps, seed=args.seed,
                       num_vec_envs=args.num_envs, n_steps=args.n_steps,
                       batch_size=args.batch_size, learning_rate=args.lr, gamma=args.gamma,
                       ent_coef=args.ent_coef, overrides=parse_overrides(args.override))
-    res = train(cfg, args.out, progress=not args.no_progress)
+    refs = baseline_returns(cfg, ("freshness", "uniform_consensus"))
+    res = train(cfg, args.out, progress=not args.no_progress, baselines=refs)
     last = res.curve[-1]["mean_episode_reward"] if res.curve else float("nan")
     print(f"trained {args.algo} on {args.scenario} for {args.steps} agent-steps in "
           f"{res.wall_s:.1f} s; final mean episode return {last:.4g}; "

@@ -5,6 +5,8 @@
 eqs. (39)-(40), and a nonlinear fixed-point solver), :mod:`.meters` (smart meters and
 PMUs, eqs. (41)-(44)), :mod:`.opendss` (OpenDSS script generation and validation through
 ``opendssdirect.py``, imported lazily; install the ``grid`` extra).
+
+Tool layer (a case study). May import every layer up to :mod:`netsense.env`.
 """
 
 from netsense.grid.feeder import Feeder, LineConfig, load_ieee37

@@ -2,7 +2,7 @@
 
 Subclasses only decide *what each agent propagates* for each substate
 (:meth:`DistributedObserver._select`); propagation, the source correction and the
-coordinate change are common and come from :mod:`netsense.kernels`.
+coordinate change are common and come from :mod:`netsense.kernels.update`.
 """
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from netsense import kernels
-from netsense.design import ObserverDesign, design_observer
-from netsense.graphs import in_neighbor_slots
+from netsense.graphs.processes import in_neighbor_slots
+from netsense.kernels import update as kernels
 from netsense.observers.source import LuenbergerSource, SourceEstimator
+from netsense.systems.design import ObserverDesign, design_observer
 
 
 class DistributedObserver:

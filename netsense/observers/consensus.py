@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from netsense import kernels
-from netsense.graphs import slot_adjacency
+from netsense.graphs.processes import slot_adjacency
+from netsense.kernels import update as kernels
 from netsense.observers.base import DistributedObserver
 
 

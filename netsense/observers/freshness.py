@@ -21,7 +21,7 @@ Tie-break: among equally fresh neighbours the smallest node index is adopted.
 
 from __future__ import annotations
 
-from netsense import kernels
+from netsense.kernels import update as kernels
 from netsense.observers.base import DistributedObserver
 
 

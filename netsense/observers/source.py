@@ -1,7 +1,7 @@
 """Local estimators of the source nodes (the output-injection part of eq. (7)).
 
 A distributed observer propagates every agent's estimate with the open-loop part of
-eqs. (7), (10), (12) (see :func:`netsense.kernels.propagate`) and then adds, for each
+eqs. (7), (10), (12) (see :func:`netsense.kernels.update.propagate`) and then adds, for each
 source ``j``, a *correction* on its own block. The paper's correction is the fixed gain
 ``L_j (y_j - C_bar_j z_j)`` (:class:`LuenbergerSource`); other estimators (KFIO, RSEIO,
 equalized recovery, ...) plug in here by subclassing :class:`SourceEstimator`.
@@ -28,8 +28,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from netsense.design import ObserverDesign
-from netsense.kernels import gain_rows, innovation_correction
+from netsense.kernels.update import gain_rows, innovation_correction
+from netsense.systems.design import ObserverDesign
 
 #: One generator for the whole batch, one per member, or None (a fixed default).
 Rngs = np.random.Generator | Sequence[np.random.Generator] | None
@@ -107,7 +107,7 @@ class LuenbergerSource(SourceEstimator):
         for i, Cb in enumerate(d.C_bar):
             self.C_bar_pad[i, : Cb.shape[0]] = Cb
         self.L_pad = design.gain_padded(r_max)
-        #: ``(N, 2)`` rows that hold each agent's gain (:func:`netsense.kernels.gain_rows`)
+        #: ``(N, 2)`` rows that hold each agent's gain (:func:`netsense.kernels.update.gain_rows`)
         self.gain_rows = gain_rows(self.L_pad)
 
     def correction(self, k: int | np.ndarray, Z: np.ndarray, y: np.ndarray,

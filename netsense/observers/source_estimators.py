@@ -31,10 +31,10 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from netsense.design import ObserverDesign
-from netsense.observers.kalman import KFIO, StateSpaceModel, check_matrix
-from netsense.observers.robust import RSEIO
+from netsense.estimators.kalman import KFIO, StateSpaceModel, check_matrix
+from netsense.estimators.robust import RSEIO
 from netsense.observers.source import Rngs, SourceEstimator
+from netsense.systems.design import ObserverDesign
 
 __all__ = ["KFIOSource", "RSEIOSource"]
 

@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from netsense.design import ObserverDesign
-from netsense.observers.equalized import EqualizedRecoveryEstimator
-from netsense.observers.equalized_design import EqualizedDesign, EqualizedProblem
-from netsense.observers.equalized_design import design as design_equalized
+from netsense.estimators.equalized import EqualizedRecoveryEstimator
+from netsense.estimators.equalized_design import EqualizedDesign, EqualizedProblem
+from netsense.estimators.equalized_design import design as design_equalized
 from netsense.observers.source import Rngs, SourceEstimator
 from netsense.sensing.delays import DelayChannel, DelayLanguage
+from netsense.systems.design import ObserverDesign
 
 __all__ = ["EqualizedSource"]
 
@@ -47,7 +47,7 @@ class EqualizedSource(SourceEstimator):
         none.
     mu1 : float, optional
         Fixed equalized recovery level (default: searched, see
-        :func:`~netsense.observers.equalized_design.design`).
+        :func:`~netsense.estimators.equalized_design.design`).
     channel : DelayChannel, optional
         Run-time delay model; default ``language.channel()`` (uniform words, data after
         its block lost).

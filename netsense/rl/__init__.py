@@ -12,6 +12,8 @@ module                  what                                                   e
 ``netsense.rl.rllib``     RLlib multi-agent PPO, one shared masked policy        ``rllib``
 ``netsense.rl.torchrl``   TorchRL ``PettingZooWrapper`` (the BenchMARL path)     ``torchrl``
 ======================  =====================================================  ==========
+
+Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense.grid`.
 """
 
 __all__ = ["rllib", "sb3", "torchrl", "wrappers"]

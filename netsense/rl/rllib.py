@@ -39,7 +39,7 @@ class RLlibMaskedObs(ParallelEnv):
 
     Parameters
     ----------
-    env : netsense.env.NetSenseEnv
+    env : netsense.env.pettingzoo_env.NetSenseEnv
         Built with the default ``action_mask_in="observation"``.
     """
 
@@ -108,7 +108,7 @@ def env_creator(env_config: dict[str, Any]):
     """RLlib env factory: ``{"scenario": id, "overrides": {...}}`` -> MultiAgentEnv."""
     from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
-    from netsense.scenarios import make
+    from netsense.env.registry import make
 
     cfg = dict(env_config)
     scenario = cfg.get("scenario")

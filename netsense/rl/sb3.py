@@ -40,7 +40,7 @@ __all__ = ["LearnedPolicy", "TrainConfig", "TrainResult", "make_vec_env", "train
 
 
 def _make_env(scenario: str, overrides: dict | None):
-    from netsense.scenarios import make
+    from netsense.env.registry import make
 
     return make(scenario, **dict(overrides or {}))
 
@@ -278,27 +278,11 @@ def _callback(total: int, progress: bool):
     return CurveCallback()
 
 
-def baseline_returns(config: TrainConfig, policies: tuple[str, ...] = ("freshness",),
-                     episodes: int = 5) -> dict[str, float]:
-    """Mean episode return per agent of scripted policies on the training scenario.
-
-    Same scenario and overrides as the training run (seeds ``10_000 + e``), so the
-    numbers sit on the training curve's axis.
-    """
-    from netsense.benchmark import rollout
-
-    out = {}
-    for name in policies:
-        rets = [np.mean(np.sum(rollout(config.scenario, name, 10_000 + e,
-                                       config.overrides).rewards, axis=0))
-                for e in range(episodes)]
-        out[name] = float(np.mean(rets))
-    return out
 
 
 def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
           env_fn: Callable[[], Any] | None = None, verbose: int = 0,
-          baselines: tuple[str, ...] = ("freshness", "uniform_consensus")) -> TrainResult:
+          baselines: dict[str, float] | None = None) -> TrainResult:
     """Train a parameter-shared MaskablePPO policy and save it with its training curve.
 
     Writes ``policy.zip``, ``training_curve.csv``, ``training_curve.png`` and
@@ -315,9 +299,10 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
         Builds the ParallelEnv instead of ``netsense.make(config.scenario)``.
     verbose : int
         SB3 verbosity.
-    baselines : tuple of str
-        Scripted policies whose mean return is drawn on the curve (and stored in
-        ``train_config.json``); ignored with ``env_fn``.
+    baselines : dict of str to float, optional
+        Mean episode returns of scripted policies, drawn on the curve and stored in
+        ``train_config.json`` (:func:`netsense.benchmark.baselines.baseline_returns`
+        computes them for ``config``).
     """
     import torch
     from sb3_contrib import MaskablePPO
@@ -352,7 +337,7 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
                                            "wall_s"])
         w.writeheader()
         w.writerows(cb.rows)
-    refs = baseline_returns(config, baselines) if env_fn is None and baselines else {}
+    refs = dict(baselines or {})
     curve_png = _plot_curve(cb.rows, out / "training_curve.png", config.scenario, refs)
     meta = {**asdict(config), "algo": "maskable_ppo", "wall_s": round(wall, 2),
             "mask_violations": masks.mask_violations, "actions_checked": masks.actions_checked,

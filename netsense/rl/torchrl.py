@@ -25,7 +25,7 @@ def make_torchrl_env(scenario: str, *, seed: int | None = 0, **overrides):
     """
     from torchrl.envs.libs.pettingzoo import PettingZooWrapper
 
-    from netsense.scenarios import make
+    from netsense.env.registry import make
 
     return PettingZooWrapper(env=make(scenario, **overrides), use_mask=True,
                              categorical_actions=True, seed=seed)

@@ -367,7 +367,7 @@ class MultiRateSensing:
         -------
         y, A, Q, b : (R, Mtot), (R, Mtot, N), (R, Mtot, Mtot), (R, Mtot)
             A zero row with unit variance and zero data contributes nothing to eq. (6), so
-            :func:`netsense.observers.online.ose_step` on these equals the stacked step.
+            :func:`netsense.estimators.online.ose_step` on these equals the stacked step.
         """
         rows = self.row_mask(reported)
         if rows.ndim != 2:

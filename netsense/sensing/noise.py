@@ -16,7 +16,7 @@ import numpy as np
 from numba import prange
 from numba.np.random.distributions import random_standard_normal
 
-from netsense.compiled import Driver, bit_generator, bit_streams
+from netsense.kernels.jit import Driver, bit_generator, bit_streams
 
 
 class NoiseModel:

@@ -1,10 +1,10 @@
-"""Measured speed and memory of the batched core (issue 8, items 4 and 5).
+"""Measured speed and memory of the batched core.
 
 What is measured, in one process and interleaved (so a noisy, shared machine slows every
 contender alike; compare the *ratios*):
 
 ``core``
-    :meth:`netsense.envcore.BatchedCore.step` on ``B`` members of :func:`bench_model`
+    :meth:`netsense.engine.core.BatchedCore.step` on ``B`` members of :func:`bench_model`
     (``N`` agents, plant dimension ``n``, Markov link failures on a circulant graph with
     in-degree ``D = 3``, measurement noise), replaying ``steps`` freshness-policy actions
     recorded on a twin core from the same seed. Only ``step`` is timed (graphs/noise
@@ -40,6 +40,9 @@ Run ``python -m netsense.speed`` or :func:`main`; ``netsense bench batched`` is 
 package's :data:`HELP`, :func:`add_arguments` and :func:`run` (the :mod:`netsense.cli`
 contract), and ``experiments/bench_batched.py`` adds the profile, the scaling figure, the
 memory figures and the CSV files.
+
+Tool layer. May import every layer up to :mod:`netsense.env`, and the tools ``grid``,
+``rl``, ``benchmark``, ``studies``.
 """
 
 from netsense.speed.measure import (

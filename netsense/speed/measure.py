@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.envcore import BatchedCore
+from netsense.engine.core import BatchedCore
 from netsense.speed.runners import (
     _CoreRunner,
     _KernelRunner,

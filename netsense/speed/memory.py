@@ -12,9 +12,9 @@ import tracemalloc
 
 import numpy as np
 
-from netsense.envcore import BatchedCore
-from netsense.kernels import StepBuffers
-from netsense.observation import FillBuffers
+from netsense.engine.core import BatchedCore
+from netsense.engine.observation import FillBuffers
+from netsense.kernels.update import StepBuffers
 from netsense.speed.runners import bench_model
 
 
@@ -58,8 +58,8 @@ def core_state_bytes(core: BatchedCore) -> dict[str, int]:
 
 
 def _add_buffers(add, name: str, buffers) -> None:
-    """The working buffers' arrays (:class:`~netsense.kernels.StepBuffers`,
-    :class:`~netsense.observation.FillBuffers`), their scratch tuple included."""
+    """The working buffers' arrays (:class:`~netsense.kernels.update.StepBuffers`,
+    :class:`~netsense.engine.observation.FillBuffers`), their scratch tuple included."""
     for v in vars(buffers).values():
         for a in v if isinstance(v, tuple) else (v,):
             if isinstance(a, np.ndarray):
@@ -79,7 +79,7 @@ def memory_footprint(B: int = 1024, N: int = 30, n: int = 20, *, steps: int = 64
         incl. the last step's observations and masks), ``traced_peak`` (tracemalloc peak
         over reset + steps: state plus the transient temporaries of one step).
     """
-    from netsense.policies import FreshnessPolicy
+    from netsense.env.policies import FreshnessPolicy
 
     model = bench_model(N, n, seed=seed)
     gc.collect()
@@ -120,7 +120,7 @@ def _rss_bytes() -> int:
 def allocation_growth(steps: int = 100_000, *, scenario: str = "link_failures-v0",
                       B: int = 8, every: int = 1000, seed: int = 0,
                       progress: bool = True, top: int = 5) -> tuple[list[dict], list[str]]:
-    """Run ``steps`` steps of :class:`netsense.vector.BatchedEnv` (auto-reset, freshness
+    """Run ``steps`` steps of :class:`netsense.env.vector.BatchedEnv` (auto-reset, freshness
     policy) under tracemalloc and sample the live allocations and the RSS.
 
     The sample buffers are allocated before tracing starts, so the bookkeeping itself does
@@ -130,8 +130,8 @@ def allocation_growth(steps: int = 100_000, *, scenario: str = "link_failures-v0
     """
     from tqdm import tqdm
 
-    from netsense.policies import FreshnessPolicy
-    from netsense.vector import BatchedEnv
+    from netsense.env.policies import FreshnessPolicy
+    from netsense.env.vector import BatchedEnv
 
     env = BatchedEnv(scenario, B)
     pol = FreshnessPolicy(env.layout)

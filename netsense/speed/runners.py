@@ -14,8 +14,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from netsense.coremodel import CoreModel
-from netsense.envcore import BatchedCore
+from netsense.engine.core import BatchedCore
+from netsense.engine.model import CoreModel
 
 
 def bench_model(N: int, n: int, *, seed: int = 0, horizon: int = 200,
@@ -30,7 +30,7 @@ def bench_model(N: int, n: int, *, seed: int = 0, horizon: int = 200,
     and observations over the sources (``substates="all"``: over every agent, as
     ``large_n20_N100-v1``).
     """
-    from netsense.scenarios import build_model, load, with_overrides
+    from netsense.env.registry import build_model, load, with_overrides
 
     offs = sorted({int(o) % N for o in offsets} - {0})
     if not offs:
@@ -49,7 +49,7 @@ class _CoreRunner:
     """A core under the freshness policy; ``block(steps)`` returns seconds in ``step``."""
 
     def __init__(self, model: CoreModel, B: int, seed: int = 0) -> None:
-        from netsense.policies import FreshnessPolicy
+        from netsense.env.policies import FreshnessPolicy
 
         self.core = BatchedCore(model, B)
         self.policy = FreshnessPolicy(self.core.layout)
@@ -75,7 +75,7 @@ class _ReplayRunner:
     and times the replay: the core in a hot loop of its own work, like the kernel."""
 
     def __init__(self, model: CoreModel, B: int, steps: int, seed: int = 0) -> None:
-        from netsense.policies import FreshnessPolicy
+        from netsense.env.policies import FreshnessPolicy
 
         twin = BatchedCore(model, B)
         pol = FreshnessPolicy(twin.layout)

@@ -1,0 +1,233 @@
+"""What a scenario compiles to: the model of the batched core and its observation layout.
+
+:func:`netsense.env.registry.build_model` turns a scenario (a TOML file in
+``netsense/env/scenarios/``)
+into a :class:`CoreModel`: plant, observer design, graph process, arrival models, reward
+weights (:class:`RewardConfig`), faults and the substates the indices, actions and
+observations cover. :class:`netsense.engine.core.BatchedCore` simulates it, and
+:class:`ObsLayout` is the layout of the flat per-agent observation vector the core writes
+(:mod:`netsense.engine.observation`), fixed by the model's sizes and sources. These classes hold
+and check data; none of them runs a step. :mod:`netsense.engine.core` re-exports every name
+defined here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from netsense.graphs.processes import GraphProcess
+from netsense.observers.source import SourceEstimator
+from netsense.sensing.arrivals import AlwaysArrive, ArrivalModel
+from netsense.systems.design import ObserverDesign
+from netsense.systems.plants import Plant
+
+__all__ = ["SUBSTATES", "CoreModel", "ObsLayout", "RewardConfig", "symlog"]
+
+SUBSTATES = ("all", "sources")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Reward weights (scenario section ``[reward]``).
+
+    Agent ``i``'s reward after step ``k -> k + 1`` is
+
+    .. math:: r_i = -w_e \\big((1 - w_t) e_i + w_t \\bar e\\big) - c\\, t_i,
+              \\qquad e_i = \\min\\Big(\\frac{\\|\\hat x_i[k+1] - x[k+1]\\|}
+              {\\max(\\|x[k+1]\\|, f)}, e_{\\max}\\Big),
+
+    with ``\\bar e`` the mean of ``e_i`` over the agents whose errors count (crashed
+    agents and liars excluded; those get only ``-c t_i``) and ``t_i`` the transmit bit
+    chosen at this step. A non-finite error is clipped to ``e_max``
+    (:mod:`netsense.engine.rewards`).
+
+    Attributes
+    ----------
+    error_weight : float
+        ``w_e``, weight of the normalised estimation error.
+    team_weight : float
+        ``w_t`` in ``[0, 1]``: 0 = individual errors, 1 = fully shared team error.
+    message_cost : float
+        ``c``, cost of one transmission.
+    error_floor : float
+        ``f > 0``, the smallest ``||x||`` used for normalising (keeps ``e`` finite at 0).
+    error_clip : float
+        ``e_max``, the normalised error is clipped there (bounded rewards).
+    """
+
+    error_weight: float = 1.0
+    team_weight: float = 0.0
+    message_cost: float = 0.0
+    error_floor: float = 1e-3
+    error_clip: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("error_weight", "team_weight", "message_cost", "error_floor",
+                     "error_clip"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+                raise ValueError(f"reward.{name} must be a finite number, got {v!r}")
+        if not 0.0 <= self.team_weight <= 1.0:
+            raise ValueError(f"reward.team_weight must be in [0, 1], got {self.team_weight}")
+        if self.error_floor <= 0:
+            raise ValueError(f"reward.error_floor must be > 0, got {self.error_floor}")
+        if self.error_clip <= 0:
+            raise ValueError(f"reward.error_clip must be > 0, got {self.error_clip}")
+        if self.message_cost < 0 or self.error_weight < 0:
+            raise ValueError("reward.message_cost and reward.error_weight must be >= 0")
+
+
+@dataclass(frozen=True, eq=False)
+class CoreModel:
+    """Everything that defines one scenario's dynamics (built by :mod:`netsense.env.registry`).
+
+    Attributes
+    ----------
+    plant : Plant
+        eqs. (1)-(2), with its noise models.
+    design : ObserverDesign
+        Lemma 1 decomposition and source gains.
+    graphs : GraphProcess
+        Switching communication graph ``G[k]``.
+    horizon : int
+        Episode length (truncation).
+    measurement_arrivals, message_arrivals : ArrivalModel
+        Whether ``y_i[k]`` arrives (shape ``(N,)`` per step) and whether the message on
+        link ``l -> i`` arrives (shape ``(N, N)`` per step, entry ``[i, l]``).
+    reward : RewardConfig
+    x0_std : float
+        ``x[0] ~ N(0, x0_std^2 I)``; every estimate starts at 0.
+    initial_transmit : bool
+        Transmit flags of step 0.
+    divergence_limit : float or None
+        Terminate a member when some agent's normalised error (before clipping) exceeds it.
+    source_estimator : callable returning a SourceEstimator, optional
+        Default :class:`~netsense.observers.source.LuenbergerSource` (eq. (7)). Called
+        once per core; the object keeps per-member state (see
+        :mod:`netsense.observers.source`).
+    faults : tuple of netsense.observers.faults.Fault
+        Crashed agents, stuck/stale sensors and at most one :class:`~netsense.observers.faults.
+        LyingAgent` (message loss is ``message_arrivals``); see
+        :class:`~netsense.engine.core.BatchedCore`.
+    substates : {"all", "sources"}
+        Which substates the freshness indices, actions and observations cover: ``"all"``
+        (one per agent, as in the paper: ``tau`` is ``N x N``) or ``"sources"`` (only the
+        agents whose block of Lemma 1 is non-empty; ``tau`` is ``N x M``). The indices of
+        an empty substate carry nothing to estimate, so the estimates, errors and rewards
+        are the same in both (tested); with ``N`` agents and ``n < N`` states at most
+        ``n`` agents are sources, and the O(N^2) per-member bookkeeping becomes O(N M).
+    """
+
+    plant: Plant
+    design: ObserverDesign
+    graphs: GraphProcess
+    horizon: int
+    measurement_arrivals: ArrivalModel = field(default_factory=AlwaysArrive)
+    message_arrivals: ArrivalModel = field(default_factory=AlwaysArrive)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    x0_std: float = 1.0
+    initial_transmit: bool = True
+    divergence_limit: float | None = None
+    source_estimator: Callable[[], SourceEstimator] | None = None
+    faults: tuple = ()
+    substates: str = "all"
+
+    def __post_init__(self) -> None:
+        from netsense.observers.faults import CrashedAgents, LyingAgent, StuckSensor
+
+        object.__setattr__(self, "faults", tuple(self.faults))
+        for f in self.faults:
+            if not isinstance(f, (CrashedAgents, StuckSensor, LyingAgent)):
+                raise ValueError(f"faults must be CrashedAgents, StuckSensor or LyingAgent "
+                                 f"(message loss is message_arrivals), got "
+                                 f"{type(f).__name__}")
+            f.check(self.plant.num_agents)
+        if self.substates not in SUBSTATES:
+            raise ValueError(f"substates must be one of {SUBSTATES}, got {self.substates!r}")
+        if self.substates == "sources" and any(isinstance(f, LyingAgent)
+                                                for f in self.faults):
+            raise ValueError("a LyingAgent fault needs substates = 'all' (its claims are "
+                             "per agent and substate)")
+        if sum(isinstance(f, LyingAgent) for f in self.faults) > 1:
+            raise ValueError("faults may hold at most one LyingAgent (list all liars in it)")
+        if (not isinstance(self.horizon, (int, np.integer)) or isinstance(self.horizon, bool)
+                or self.horizon < 1):
+            raise ValueError(f"horizon must be an integer >= 1, got {self.horizon!r}")
+        if self.graphs.num_nodes != self.plant.num_agents:
+            raise ValueError(f"graph process has {self.graphs.num_nodes} nodes but the plant "
+                             f"has {self.plant.num_agents} agents")
+        if self.design.num_agents != self.plant.num_agents:
+            raise ValueError("design and plant disagree on the number of agents")
+        if not np.isfinite(self.x0_std) or self.x0_std < 0:
+            raise ValueError(f"x0_std must be a finite number >= 0, got {self.x0_std!r}")
+        lim = self.divergence_limit
+        if lim is not None and (np.isnan(lim) or lim <= 0):
+            raise ValueError(f"divergence_limit must be None or > 0, got {lim!r}")
+
+
+#: Fields of the per-agent observation, in their order in the flat vector.
+OBS_FIELDS = ("time", "y", "y_arrived", "own_omega", "own_age", "z_dir", "z_lognorm",
+              "slot_arrived", "slot_id", "slot_omega", "slot_age")
+
+
+@dataclass(frozen=True)
+class ObsLayout:
+    """Offsets of the flat per-agent observation vector (see :mod:`netsense.env.pettingzoo_env`).
+
+    Every field is a ``slice`` into the last axis of ``obs``; block fields with two
+    dimensions are stored row-major (``slot_omega``: ``D x M``, slot first). ``M`` is the
+    number of substates the indices and actions cover: ``N`` (one per agent, default) or
+    the number of sources (agents with a non-empty block, scenario key
+    ``substates = "sources"``); ``sources[m]`` is the agent that owns substate ``m``.
+    """
+
+    N: int
+    n: int
+    r: int
+    D: int
+    M: int
+    sources: tuple[int, ...]
+    time: slice
+    y: slice
+    y_arrived: slice
+    own_omega: slice
+    own_age: slice
+    z_dir: slice
+    z_lognorm: slice
+    slot_arrived: slice
+    slot_id: slice
+    slot_omega: slice
+    slot_age: slice
+    size: int
+
+    @classmethod
+    def build(cls, N: int, n: int, r: int, D: int,
+              sources: Sequence[int] | None = None) -> ObsLayout:
+        src = tuple(range(N)) if sources is None else tuple(int(v) for v in sources)
+        M = len(src)
+        sizes = (1, r, 1, M, M, n, 1, D, D, D * M, D * M)
+        out, o = {}, 0
+        for name, s in zip(OBS_FIELDS, sizes, strict=True):
+            out[name] = slice(o, o + s)
+            o += s
+        return cls(N=N, n=n, r=r, D=D, M=M, sources=src, size=o, **out)
+
+    @property
+    def own(self) -> np.ndarray:
+        """``(N,)``: the substate (column) agent ``i`` owns, ``-1`` if none."""
+        out = np.full(self.N, -1, dtype=np.int64)
+        out[list(self.sources)] = np.arange(self.M)
+        return out
+
+    def table(self) -> list[tuple[str, int, int]]:
+        """``(field, start, stop)`` rows in :data:`OBS_FIELDS` order (the documentation
+        table, and the offsets the compiled observation pass writes at)."""
+        return [(nm, getattr(self, nm).start, getattr(self, nm).stop) for nm in OBS_FIELDS]
+
+
+def symlog(v: np.ndarray) -> np.ndarray:
+    """``sign(v) log(1 + |v|)``: a monotone, scale-compressing encoding of raw values."""
+    return np.sign(v) * np.log1p(np.abs(v))

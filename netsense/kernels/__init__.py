@@ -1,0 +1,34 @@
+"""Layer 1 — the update rules and the compiled machinery that runs them.
+
+The one implementation of the freshness-index observer's update (eqs. (7)-(14)) and of the
+consensus baselines (eq. (6)): compiled row functions (:mod:`.rules`), explicit vector
+code for the rows (:mod:`.lanes`), loops over batch members and agents compiled serial
+and threaded (:mod:`.drivers`, built by :class:`.jit.Driver`, which also hands numpy's
+random streams to compiled code), and the checked array functions every caller uses
+(:mod:`.update`). The scripted observers, the environment and the benchmarks all call
+this code, so it sits below every other layer.
+
+May import: numpy, numba. Nothing else from netsense.
+"""
+
+from netsense.kernels.rules import OMEGA
+from netsense.kernels.update import (
+    StepBuffers,
+    StepOut,
+    advance_indices,
+    apply_actions,
+    average_indices,
+    freshness_choice,
+    gather_substates,
+    innovation_correction,
+    propagate,
+    slot_messages,
+    uniform_mix,
+    usable_slots,
+)
+
+__all__ = [
+    "OMEGA", "StepBuffers", "StepOut", "advance_indices", "apply_actions", "average_indices",
+    "freshness_choice", "gather_substates", "innovation_correction", "propagate",
+    "slot_messages", "uniform_mix", "usable_slots",
+]

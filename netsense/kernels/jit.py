@@ -1,0 +1,206 @@
+"""Compiled drivers: one numba source, a serial and a threaded build.
+
+A *driver* loops over batch members (``prange``) and calls the row functions of
+:mod:`netsense.kernels.update` or :mod:`netsense.engine.observation`. :class:`Driver` compiles
+it twice
+from the same Python source, once serial and once with ``parallel=True``, and
+:meth:`Driver.at` picks by the size of the call: a single environment (``B = 1``) runs
+serially, where starting threads costs more than it saves; large batches use numba's
+thread pool (``NUMBA_NUM_THREADS``, default one thread per core). Every member is computed
+by the same row functions, independently, so both builds give bit-identical results
+(``tests/test_kernels_compiled.py``).
+
+Threads: numba's threading layer is left as the user configures it
+(``NUMBA_THREADING_LAYER``; numba's default tries TBB, then OpenMP, which is what runs
+here). OpenMP's workers spin after every call: fastest on free cores, but on cores busy
+with other work every threaded call waits for a time slice (see the README's batched
+section for measurements and ``workqueue`` as the remedy). Threaded
+calls are serialised by a lock, so several Python threads may step their own batches under
+any layer.
+
+Drivers are cached on disk by numba (``cache=True``) under names that end with a digest of
+the modules they inline (:func:`inlined_digest`): numba checks only the defining file's
+timestamp, so an edit of :mod:`netsense.kernels.rules` alone would otherwise leave every driver
+running its old machine code.
+
+Drivers are compiled without numba's reference counting (``_nrt=False``): they allocate
+nothing (outputs and scratch rows come from the Python wrapper), so no array needs a
+reference count, and the row functions they inline run without the atomic
+increments and decrements numba otherwise wraps around every array argument — at
+``N = 10`` those cost more than the arithmetic of the rules (measured 10x on the source
+correction).
+
+:func:`bit_streams` hands numpy's own C draw functions and the generators' states to a
+driver, and :func:`bit_generator` turns them into numba's bit-generator object, so
+per-member random numbers are drawn inside the threaded pass that consumes them, by
+numba's implementation of numpy's algorithms, continuing each member's stream exactly:
+link failures (:class:`netsense.graphs.processes.MarkovLinkFailures`) and Gaussian noise
+(:meth:`netsense.sensing.noise.GaussianNoise.sample_many`). This builds on numba's own
+model of numpy bit generators (``numba.np.random``, the code behind numba's support for
+``np.random.Generator``); ``tests/test_kernels_compiled.py`` checks the streams against
+numpy's, so a change of that model in a future numba fails there, not silently.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import threading
+import types
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+from numba import types as nbtypes
+from numba.core import cgutils
+from numba.core.extending import intrinsic
+from numba.np.random import generator_core  # noqa: F401  (numba's bit-generator model)
+
+#: Work (array elements touched) from which a call runs on numba's thread pool.
+PARALLEL_WORK = 1 << 16
+
+__all__ = ["NO_STREAMS", "PARALLEL_WORK", "Driver", "bit_generator", "bit_streams"]
+
+# numba's workqueue threading layer (a choice for busy machines, see the module docstring)
+# refuses concurrent parallel calls from several Python threads (it aborts the process);
+# netsense's threaded drivers therefore run one at a time, whatever the layer.
+_PARALLEL_LOCK = threading.Lock()
+
+
+class Driver:
+    """A driver compiled twice from one source: ``serial`` and ``parallel``.
+
+    ``min_runs``: fewest members (the ``prange`` axis) for which the threaded build is
+    worth it whatever the work, for drivers whose threaded build is erratic on few long
+    members (measured for the Markov slot pass,
+    :data:`netsense.graphs.processes.MARKOV_THREADED_RUNS`).
+    """
+
+    def __init__(self, fn, *, min_runs: int = 1) -> None:
+        self.serial = njit(cache=True, _nrt=False)(_renamed(fn, "serial"))
+        self.parallel = njit(cache=True, parallel=True, _nrt=False)(_renamed(fn, "parallel"))
+        self.min_runs = int(min_runs)
+
+    def at(self, work: int, runs: int | None = None):
+        """The build for a call that touches ``work`` array elements over ``runs``
+        members (the threaded one holds a process-wide lock while it runs)."""
+        if work < PARALLEL_WORK or (runs is not None and runs < self.min_runs):
+            return self.serial
+        return self._threaded
+
+    def _threaded(self, *args):
+        with _PARALLEL_LOCK:
+            return self.parallel(*args)
+
+
+#: Modules whose compiled functions every driver may inline or call: the row functions,
+#: numba's view of numpy's bit generators and the explicit vector code.
+INLINED_SOURCES = ("rules.py", "jit.py", "lanes.py")
+
+
+def inlined_digest() -> str:
+    """Digest of :data:`INLINED_SOURCES` (their bytes), part of every driver's cache key.
+
+    numba's on-disk cache checks only the timestamp of the file that defines a function,
+    not of the functions it inlines: after an edit of a row function in
+    :mod:`netsense.kernels.rules` alone, every driver would load its stale machine code from the
+    cache and run the old rule. With this digest in the drivers' names, such an edit gives
+    new names, hence a fresh compilation.
+    """
+    h = hashlib.sha256()
+    here = Path(__file__).parent
+    for name in INLINED_SOURCES:
+        h.update((here / name).read_bytes())
+    return h.hexdigest()[:12]
+
+
+_DIGEST = inlined_digest()
+
+
+def _renamed(fn, tag: str):
+    """A copy of ``fn`` under its own qualified name (numba caches per name), which ends
+    with :func:`inlined_digest`."""
+    name = f"{fn.__name__}_{tag}_{_DIGEST}"
+    out = types.FunctionType(fn.__code__, fn.__globals__, name, fn.__defaults__,
+                             fn.__closure__)
+    out.__qualname__ = f"{fn.__qualname__}_{tag}_{_DIGEST}"
+    out.__module__ = fn.__module__
+    return out
+
+
+_BIT_GENERATOR = nbtypes.NumPyRandomBitGeneratorType("bit_generator")
+
+
+@intrinsic
+def _bit_generator(typingctx, fns, state):
+    """numba's bit-generator struct over numpy's C functions ``fns`` and a raw state."""
+    if not (isinstance(fns, nbtypes.Array) and fns.ndim == 1 and fns.dtype == nbtypes.uintp
+            and state == nbtypes.uintp):
+        return None  # typing error: fns must be bit_streams' (3,) uintp array
+    sig = _BIT_GENERATOR(fns, state)
+
+    def codegen(context, builder, signature, args):
+        fns_ty = signature.args[0]
+        arr = context.make_array(fns_ty)(context, builder, args[0])
+        data = arr.data
+        bg = cgutils.create_struct_proxy(_BIT_GENERATOR)(context, builder)
+        bg.parent = context.get_constant_null(nbtypes.pyobject)
+        bg.state_address = args[1]
+        bg.state = args[1]
+        for k, name in enumerate(("next_uint64", "next_uint32", "next_double")):
+            ptr = builder.gep(data, [context.get_constant(nbtypes.intp, k)])
+            setattr(bg, f"fnptr_{name}", builder.load(ptr))
+        bg.bit_generator = context.get_constant(nbtypes.uintp, 0)
+        return bg._getvalue()
+
+    return sig, codegen
+
+
+@njit(cache=True, inline="always")
+def bit_generator(fns, state):
+    """numba's view of one numpy bit generator: ``fns`` and ``state`` from
+    :func:`bit_streams`. numba's own draws (``next_double``, ``next_uint64`` of
+    ``numba.np.random.generator_core``, the distributions of
+    ``numba.np.random.distributions``) take it and continue that generator's stream
+    exactly as numpy's ``Generator`` methods would."""
+    return _bit_generator(fns, state)
+
+
+def bit_streams(rngs: Sequence[np.random.Generator]
+                ) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(fns (3,) uintp, states (len(rngs),) uintp)`` of the generators, or None.
+
+    ``fns`` are the C functions ``next_uint64``, ``next_uint32`` and ``next_double`` of
+    the generators' bit-generator type, from its documented ``ctypes`` interface, and
+    ``states[m]`` the state of ``rngs[m]``: a driver that draws through
+    ``bit_generator(fns, states[m])`` draws exactly what ``rngs[m]``'s methods would, and
+    leaves ``rngs[m]`` where they would. None when the list is empty, its bit generators
+    are not all of one type, or one generator appears twice (then the caller draws
+    through numpy). The generators must stay alive, and nobody else may use them, while
+    a driver draws (numpy's per-generator lock is not taken).
+    """
+    if not rngs:
+        return None
+    bgs = [rng.bit_generator for rng in rngs]  # (list comprehensions: this runs at every
+    kinds = {type(bg) for bg in bgs}  # refill for each of 1,024 members' generators)
+    if len(kinds) != 1:
+        return None
+    kind = kinds.pop()
+    if kind not in _FNS:  # C functions of a class: cast once per process (each cast
+        iface = bgs[0].ctypes  # leaves garbage for the cyclic collector)
+        _FNS[kind] = np.array([ctypes.cast(f, ctypes.c_void_p).value for f in
+                               (iface.next_uint64, iface.next_uint32, iface.next_double)],
+                              dtype=np.uintp)
+    addresses = [bg.ctypes.state_address for bg in bgs]
+    if len(set(addresses)) != len(addresses):  # one generator twice: its two runs must
+        return None  # be drawn one after the other
+    return _FNS[kind], np.array(addresses, dtype=np.uintp)
+
+
+_FNS: dict[type, np.ndarray] = {}  # bit-generator class -> its C draw functions
+
+
+#: ``fns`` for drivers called without streams (never called).
+NO_STREAMS = np.zeros(3, dtype=np.uintp)
+

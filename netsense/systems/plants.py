@@ -1,0 +1,247 @@
+"""Plants: a linear system observed by N sensor agents.
+
+.. math::  x[k+1] = A x[k] + B u[k] + W w[k], \\qquad y_i[k] = C_i x[k] + v_i[k]
+
+eqs. (1)-(2) of the freshness-index paper, with the optional input ``B`` and process-noise
+input ``W`` added. Agent ``i`` measures ``r_i`` outputs; ``r_i = 0`` is allowed (a sensor
+that sees nothing and only relays).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from netsense.sensing.noise import NoiseModel, NoNoise
+
+
+def _as_matrix(name: str, M, rows: int | None, cols: int | None) -> np.ndarray:
+    M = np.asarray(M, dtype=float)
+    if M.ndim == 1 and rows == 0:
+        M = M.reshape(0, cols)
+    if M.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D matrix, got an array with shape {M.shape}")
+    if (rows is not None and M.shape[0] != rows) or (cols is not None and M.shape[1] != cols):
+        want = f"({'*' if rows is None else rows}, {'*' if cols is None else cols})"
+        raise ValueError(f"{name} must have shape {want}, got {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise ValueError(f"{name} contains NaN or infinite entries")
+    return M
+
+
+@dataclass(frozen=True, eq=False)
+class Plant:
+    """A linear plant with one output matrix per sensor agent.
+
+    Parameters
+    ----------
+    A : (n, n) array
+        System matrix; may be unstable.
+    C : sequence of N arrays, each (r_i, n)
+        Output matrix of agent ``i`` (``r_i`` may be 0).
+    B : (n, m) array, optional
+        Input matrix for a known input ``u`` (shared by every agent).
+    W : (n, p) array, optional
+        Process-noise input matrix; defaults to the identity when process noise is set.
+    process_noise, measurement_noise : NoiseModel
+        Additive noise models (see :mod:`netsense.sensing.noise`).
+    name : str
+        A label used in reports.
+    """
+
+    A: np.ndarray
+    C: tuple[np.ndarray, ...]
+    B: np.ndarray | None = None
+    W: np.ndarray | None = None
+    process_noise: NoiseModel = field(default_factory=NoNoise)
+    measurement_noise: NoiseModel = field(default_factory=NoNoise)
+    name: str = "plant"
+
+    def __post_init__(self) -> None:
+        A = _as_matrix("A", self.A, None, None)
+        if A.shape[0] != A.shape[1]:
+            raise ValueError(f"A must be square, got shape {A.shape}")
+        n = A.shape[0]
+        if n == 0:
+            raise ValueError("A must have at least one state (n >= 1)")
+        if isinstance(self.C, np.ndarray) and self.C.ndim == 2:
+            raise ValueError("C must be a sequence with one output matrix per agent, "
+                             "not a single stacked matrix")
+        if len(self.C) == 0:
+            raise ValueError("C must hold at least one agent's output matrix")
+        Cs = tuple(_as_matrix(f"C[{i}]", Ci, None, n) for i, Ci in enumerate(self.C))
+        B = None if self.B is None else _as_matrix("B", self.B, n, None)
+        W = None if self.W is None else _as_matrix("W", self.W, n, None)
+        for label, model in (("process_noise", self.process_noise),
+                             ("measurement_noise", self.measurement_noise)):
+            if not isinstance(model, NoiseModel):
+                raise ValueError(f"{label} must be a NoiseModel, got {type(model).__name__}")
+        object.__setattr__(self, "A", A)
+        object.__setattr__(self, "C", Cs)
+        object.__setattr__(self, "B", B)
+        object.__setattr__(self, "W", W)
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.A.shape[0]
+
+    @property
+    def num_agents(self) -> int:
+        """Number of sensor agents N."""
+        return len(self.C)
+
+    @property
+    def output_sizes(self) -> tuple[int, ...]:
+        """``r_i`` for every agent."""
+        return tuple(Ci.shape[0] for Ci in self.C)
+
+    @property
+    def max_outputs(self) -> int:
+        """``max_i r_i``: the padded width of stacked measurements."""
+        return max(self.output_sizes)
+
+    @property
+    def C_stacked(self) -> np.ndarray:
+        """``C = [C_1; ...; C_N]`` as one ``(sum r_i, n)`` matrix."""
+        return np.vstack(self.C)
+
+    @property
+    def C_padded(self) -> np.ndarray:
+        """``(N, r_max, n)`` array; rows beyond ``r_i`` are zero."""
+        out = np.zeros((self.num_agents, self.max_outputs, self.n))
+        for i, Ci in enumerate(self.C):
+            out[i, : Ci.shape[0]] = Ci
+        return out
+
+    @property
+    def output_mask(self) -> np.ndarray:
+        """``(N, r_max)`` boolean mask of the real (unpadded) measurement rows."""
+        r = np.asarray(self.output_sizes)
+        return np.arange(self.max_outputs)[None, :] < r[:, None]
+
+    @property
+    def W_effective(self) -> np.ndarray:
+        """``W`` or the identity when none was given."""
+        return np.eye(self.n) if self.W is None else self.W
+
+    # ------------------------------------------------------------- simulation
+    def step(self, x: np.ndarray, rng: np.random.Generator | None = None,
+             u: np.ndarray | None = None) -> np.ndarray:
+        """Advance ``x`` (shape ``(..., n)``) one step; eq. (1) plus input and noise."""
+        x_next = x @ self.A.T
+        if u is not None:
+            if self.B is None:
+                raise ValueError("an input u was given but the plant has no B matrix")
+            x_next = x_next + np.asarray(u) @ self.B.T
+        if not isinstance(self.process_noise, NoNoise):
+            if rng is None:
+                raise ValueError("a Generator is required to draw process noise")
+            W = self.W_effective
+            w = self.process_noise.sample(rng, x.shape[:-1] + (W.shape[1],))
+            x_next = x_next + w @ W.T
+        return x_next
+
+    def measure(self, x: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """Every agent's measurement, eq. (2), padded to ``(..., N, r_max)``.
+
+        Padded rows (beyond ``r_i``) are exactly zero, also under noise.
+        """
+        y = np.einsum("irn,...n->...ir", self.C_padded, x)
+        if not isinstance(self.measurement_noise, NoNoise):
+            if rng is None:
+                raise ValueError("a Generator is required to draw measurement noise")
+            v = self.measurement_noise.sample(rng, y.shape)
+            y = y + v * self.output_mask
+        return y
+
+    def pad_measurements(self, ys: Sequence[np.ndarray]) -> np.ndarray:
+        """Stack per-agent measurement vectors into the padded ``(N, r_max)`` layout."""
+        if len(ys) != self.num_agents:
+            raise ValueError(f"expected {self.num_agents} measurement vectors, got {len(ys)}")
+        out = np.zeros((self.num_agents, self.max_outputs))
+        for i, (yi, ri) in enumerate(zip(ys, self.output_sizes, strict=True)):
+            yi = np.asarray(yi, dtype=float).reshape(-1)
+            if yi.shape[0] != ri:
+                raise ValueError(f"measurement of agent {i} must have {ri} entries, "
+                                 f"got {yi.shape[0]}")
+            out[i, :ri] = yi
+        return out
+
+
+# --------------------------------------------------------------------- named plants
+def fig1_scalar(a: float = 2.0) -> Plant:
+    """The scalar plant of Fig. 1: ``x[k+1] = a x[k]``, node 1 measures ``x``, 2-3 see nothing."""
+    return Plant(A=[[a]], C=(np.ones((1, 1)), np.zeros((0, 1)), np.zeros((0, 1))),
+                 name=f"fig1_scalar(a={a:g})")
+
+
+def random_structured(n: int, num_agents: int, *, num_sources: int | None = None,
+                      outputs_per_source: int | None = None, spectral_radius: float = 1.2,
+                      rng: np.random.Generator | int | None = None,
+                      max_tries: int = 100) -> Plant:
+    """A random observable plant in which each sensing agent sees only part of the state.
+
+    The plant is built in the coordinates of Lemma 1 and then rotated by a random
+    orthogonal matrix, so the decomposition has ``num_sources`` non-empty substates owned
+    by different agents (chosen at random); the remaining agents measure nothing.
+    The eigenvalues of ``A`` are real or complex with modulus up to
+    ``spectral_radius`` (so the plant is unstable when it is > 1).
+
+    Parameters
+    ----------
+    n, num_agents : int
+        State dimension and number of agents N.
+    num_sources : int, optional
+        How many agents own a substate; default ``min(n, max(2, N // 2))``.
+    outputs_per_source : int, optional
+        Rows of each sensing agent's ``C_i``; default ``ceil(n_j / 4)`` for a block of
+        size ``n_j`` (single outputs make large blocks numerically near-unobservable).
+    spectral_radius : float
+        Largest eigenvalue modulus of ``A``.
+    rng : Generator or int, optional
+        Randomness source or seed.
+    """
+    if n < 1 or num_agents < 1:
+        raise ValueError(f"need n >= 1 and num_agents >= 1, got n={n}, num_agents={num_agents}")
+    rng = np.random.default_rng(rng)
+    if num_sources is None:
+        num_sources = min(n, num_agents, max(2, num_agents // 2))
+    if not 1 <= num_sources <= min(n, num_agents):
+        raise ValueError(f"num_sources must be in [1, min(n, N)] = [1, {min(n, num_agents)}], "
+                         f"got {num_sources}")
+    from netsense.systems.decomposition import decompose  # local import: avoids a cycle
+
+    for _ in range(max_tries):
+        cuts = np.sort(rng.choice(np.arange(1, n), size=num_sources - 1, replace=False))
+        sizes = np.diff(np.concatenate([[0], cuts, [n]]))
+        offs = np.concatenate([[0], np.cumsum(sizes)])
+        A_bar = np.zeros((n, n))
+        for j, s in enumerate(sizes):
+            blk = slice(offs[j], offs[j + 1])
+            eig = rng.uniform(-spectral_radius, spectral_radius, size=s)
+            eig[np.argmax(np.abs(eig))] = spectral_radius * rng.choice([-1.0, 1.0])
+            Q, _ = np.linalg.qr(rng.standard_normal((s, s)))
+            A_bar[blk, blk] = Q @ np.diag(eig) @ Q.T
+            A_bar[blk, : offs[j]] = 0.3 * rng.standard_normal((s, offs[j]))
+        owners = rng.choice(num_agents, size=num_sources, replace=False)
+        owners.sort()
+        C_bar = [np.zeros((0, n)) for _ in range(num_agents)]
+        for j, agent in enumerate(owners):
+            rows = outputs_per_source or int(np.ceil(sizes[j] / 4))
+            Cj = np.zeros((rows, n))
+            Cj[:, : offs[j + 1]] = rng.standard_normal((rows, offs[j + 1]))
+            C_bar[agent] = Cj
+        T, _ = np.linalg.qr(rng.standard_normal((n, n)))
+        A = T @ A_bar @ T.T
+        Cs = tuple(Ci @ T.T for Ci in C_bar)
+        try:
+            dec = decompose(A, Cs)
+        except ValueError:
+            continue
+        if sum(1 for s in dec.sizes if s > 0) == num_sources:
+            return Plant(A=A, C=Cs, name=f"random_structured(n={n}, N={num_agents})")
+    raise ValueError(f"could not draw an observable structured plant in {max_tries} tries")
