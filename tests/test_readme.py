@@ -1,13 +1,40 @@
-"""Every Python example in the README runs (doc examples that never run rot)."""
+"""Every Python example in the README and in docs/ runs (doc examples that never run rot)."""
 
 import re
 from pathlib import Path
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+PAGES = sorted((ROOT / "docs").glob("*.md"))
+
+
+def _blocks(path: Path) -> list[str]:
+    return re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S)
 
 
 def test_readme_python_blocks_run():
-    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    blocks = _blocks(README)
     assert blocks, "the README should carry at least one Python example"
     for code in blocks:
         exec(compile(code, str(README), "exec"), {})
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[p.name for p in PAGES])
+def test_docs_python_blocks_run(page, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # examples that write files write them here
+    for code in _blocks(page):
+        exec(compile(code, str(page), "exec"), {})
+
+
+def test_readme_is_a_front_door():
+    assert len(README.read_text().splitlines()) <= 300
+
+
+@pytest.mark.parametrize("page", [README, *PAGES], ids=["README.md", *[p.name for p in PAGES]])
+def test_user_facing_text_has_no_history_markers(page):
+    text = page.read_text()
+    assert not re.search(r"\bissue \d+", text), "internal issue numbers in the README"
+    commit = r"\b(?=[0-9a-f]*\d)(?=[0-9a-f]*[a-f])[0-9a-f]{7,40}\b"
+    assert not re.search(commit, text), "commit hashes in the README"

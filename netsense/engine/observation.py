@@ -6,7 +6,7 @@ writes the observations of every member and
 agent of a :class:`~netsense.engine.core.BatchedCore` and their action masks straight into
 their output arrays, with no temporaries of size ``obs_dim``: at ``B = 1024``,
 ``N = 30`` the observation is ~33 MB per step, so the number of passes over it is what
-costs (issue 8). :func:`slot_messages` is the message table as a public function (the
+costs. :func:`netsense.kernels.slot_messages` is the message table as a public function (the
 core builds it in :func:`netsense.kernels.drivers.load_all`, from the same row rule).
 
 Values (per agent ``i`` of member ``b``; ``H`` the horizon):

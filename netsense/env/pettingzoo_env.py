@@ -149,7 +149,7 @@ Version History
 * The scenario key ``substates = "sources"`` (first used by ``large_n20_N100-v2``): actions,
   masks and observations over the M sources instead of all N agents; existing scenarios
   keep ``"all"`` and their spaces.
-* The update rules run compiled (numba) since issue 8: every scenario keeps its graphs,
+* The update rules run compiled (numba) since v0.1: every scenario keeps its graphs,
   noise, drops and decisions; estimates differ from earlier versions in the last bits
   (the products' summation order changed), and so do rewards (the norm and the team mean
   are summed in order since the reward pass was compiled).
