@@ -485,8 +485,8 @@ class BatchedCore:
                                      self.source.L_pad, self.source.gain_rows)}
         else:
             choice = np.empty((B, self.N, self.M), dtype=np.int64)
-            self._refuse(kernels.check_actions(a, self.msg, choice,
-                                               np.empty(choice.shape, bool), self.own), a)
+            self._refuse(kernels._check_actions(a, self.msg, choice,
+                                                np.empty(choice.shape, bool), self.own), a)
             corr = self.source.correction(self.k, Z, self.y, self.y_arrived)
             src_kw = {"corr": np.ascontiguousarray(corr, dtype=float)}
         if not self._step_bufs:
@@ -501,7 +501,7 @@ class BatchedCore:
         # substate, eqs. (6)-(14), source correction (eq. (7)), errors; every member is
         # computed alone, exactly as in a B = 1 run. (kernels.keep_own_blocks is not
         # needed: validation leaves every own substate at 0 = keep.)
-        out = kernels.apply_actions(
+        out = kernels._apply_actions(
             Z, tau, a, self.nbr, self.msg, self._block_of, self._ALT, self._ADT, x=self.x,
             A_T=self._A_T, T=self._TT, w=w, W_T=self._W_T, own=self.own,
             work=self._step_bufs[self._turn], **src_kw)
