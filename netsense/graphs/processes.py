@@ -46,6 +46,10 @@ def as_adjacency(graph, num_nodes: int | None = None) -> np.ndarray:
             raise ValueError("num_nodes is required for an edge list")
         adj = np.zeros((num_nodes, num_nodes), dtype=bool)
         for e in graph:
+            if (isinstance(e, (str, bytes)) or not hasattr(e, "__len__") or len(e) != 2
+                    or any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer))
+                           for v in e)):
+                raise ValueError(f"edges must be pairs [l, i] of node ids (l -> i), got {e!r}")
             l, i = (int(v) for v in e)
             if not (0 <= l < num_nodes and 0 <= i < num_nodes):
                 raise ValueError(f"edge {e} names a node outside 0..{num_nodes - 1}")

@@ -107,7 +107,12 @@ def choice(name: str, v: Any, options: Sequence) -> Any:
 def seed_value(name: str, v: Any, count: int = 1) -> int:
     """A seed: an integer ``>= 0`` such that ``v + count - 1`` fits an int64 (members are
     seeded ``v + b``)."""
-    return integer(name, v, 0, 2**63 - count)
+    hi = 2**63 - count
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Integral) \
+            or not 0 <= int(v) <= hi:
+        top = "2^63 - 1" if count == 1 else f"2^63 - {count}"
+        raise ValueError(f"{name} must be an integer in [0, {top}] or None, got {_got(v)}")
+    return int(v)
 
 
 def _bounds(lo, hi) -> str:

@@ -16,6 +16,9 @@ import numpy as np
 
 from netsense.sensing.noise import NoiseModel, NoNoise
 
+#: Largest magnitude of a plant matrix entry (squares of larger numbers overflow float64).
+MAX_ENTRY = 1e150
+
 
 def _as_matrix(name: str, M, rows: int | None, cols: int | None) -> np.ndarray:
     M = np.asarray(M, dtype=float)
@@ -28,6 +31,10 @@ def _as_matrix(name: str, M, rows: int | None, cols: int | None) -> np.ndarray:
         raise ValueError(f"{name} must have shape {want}, got {M.shape}")
     if not np.all(np.isfinite(M)):
         raise ValueError(f"{name} contains NaN or infinite entries")
+    if M.size and np.abs(M).max() > MAX_ENTRY:
+        raise ValueError(f"{name} has entries up to {np.abs(M).max():.3g}; |entries| must be "
+                         f"<= {MAX_ENTRY:g} (norms of states and errors would overflow "
+                         "float64): rescale the state or the outputs")
     return M
 
 
