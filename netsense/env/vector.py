@@ -75,6 +75,7 @@ from gymnasium.vector.utils import batch_space
 
 from netsense.engine.core import BatchedCore, CoreModel
 from netsense.env.pettingzoo_env import FlatMaskMultiDiscrete
+from netsense.kernels import checks
 
 __all__ = ["AgentVectorEnv", "BatchedEnv", "load_model", "make_sb3_vec_env"]
 
@@ -138,8 +139,7 @@ class BatchedEnv:
     def __init__(self, scenario: str | CoreModel, num_envs: int, *,
                  invalid_actions: str = "raise", auto_reset: bool = True,
                  **overrides) -> None:
-        if isinstance(num_envs, bool) or int(num_envs) != num_envs or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        num_envs = checks.integer("num_envs", num_envs, 1)
         model, self.scenario_id = load_model(scenario, **overrides)
         self.core = BatchedCore(model, int(num_envs), invalid_actions=invalid_actions)
         c = self.core
@@ -165,10 +165,8 @@ class BatchedEnv:
         info : dict
             ``action_mask`` (B, N, M) int8.
         """
-        if seed is not None and (isinstance(seed, bool) or not np.isscalar(seed)
-                                 or int(seed) != seed or seed < 0):
-            raise ValueError(f"seed must be an integer >= 0 or None (member b gets seed + b), "
-                             f"got {seed!r}")
+        if seed is not None:  # member b gets seed + b
+            seed = checks.seed_value("seed", seed, self.num_envs)
         self._seed_rng = np.random.default_rng(seed)
         if seed is None:
             seeds = self._draw_seeds(self.num_envs)
@@ -192,6 +190,8 @@ class BatchedEnv:
         if self._seed_rng is None:
             raise ValueError("reset() must be called before reset_at()")
         sel = np.zeros(self.num_envs, dtype=bool)
+        if seed is not None:
+            seed = checks.seed_value("seed", seed, self.num_envs)
         m = np.asarray(members)
         if m.dtype == bool:
             if m.shape != (self.num_envs,):
@@ -199,6 +199,9 @@ class BatchedEnv:
                                  f"got {m.shape}")
             sel = m.copy()
         else:
+            if m.dtype.kind not in "iu":
+                raise ValueError(f"members must be member indices or a ({self.num_envs},) "
+                                 f"bool mask, got dtype {m.dtype}")
             idx = m.astype(np.int64).reshape(-1)
             if idx.size and (idx.min() < 0 or idx.max() >= self.num_envs):
                 raise ValueError(f"member indices must be in 0..{self.num_envs - 1}, got "
@@ -310,6 +313,8 @@ class AgentVectorEnv(VectorEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every copy (copy ``b`` gets ``seed + b``) or those in ``reset_mask``."""
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         if options:
@@ -317,7 +322,9 @@ class AgentVectorEnv(VectorEnv):
         if mask is None:
             obs, info = self.batched.reset(seed)
         else:
-            m = np.asarray(mask, dtype=bool)
+            m = np.asarray(mask)
+            if m.dtype != bool:
+                raise ValueError(f"reset_mask must be a bool array, got dtype {m.dtype}")
             if m.shape == (self.num_envs,):
                 per_copy = m.reshape(self.batch_size, self.num_agents)
                 if not (per_copy == per_copy[:, :1]).all():
@@ -476,6 +483,9 @@ def make_sb3_vec_env(scenario: str | CoreModel, batch_size: int, *, seed: int | 
     >>> venv = make_sb3_vec_env("fig1_scalar-v0", 64, seed=0)    # doctest: +SKIP
     >>> MaskablePPO("MlpPolicy", venv).learn(10_000)              # doctest: +SKIP
     """
+    if seed is not None:
+        seed = checks.seed_value("seed", seed, batch_size if isinstance(batch_size, int)
+                                 else 1)
     cls = _sb3_class()
     venv = cls(AgentVectorEnv(scenario, batch_size, invalid_actions=invalid_actions,
                               **overrides))

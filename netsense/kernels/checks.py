@@ -125,7 +125,7 @@ def _bounds(lo, hi) -> str:
     return ""
 
 
-_KINDS = {"i": "integer", "b": "bool", "f": "float", "if": "numeric", "ib": "integer or bool",
+_KINDS = {"i": "integer", "b": "bool", "f": "numeric", "if": "numeric", "ib": "integer or bool",
           "ibf": "numeric"}
 
 
