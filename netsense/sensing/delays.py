@@ -47,8 +47,9 @@ MAX_WORDS = 100_000
 
 def _check_size(count: int, what: str) -> None:
     if count > MAX_WORDS:
-        raise ValueError(f"{what} holds {count:.3g} words; at most {MAX_WORDS} are supported "
-                         "(smaller m or T)")
+        digits = len(str(count))
+        raise ValueError(f"{what} holds {count if digits < 10 else f'~1e{digits - 1}'} words; "
+                         f"at most {MAX_WORDS} are supported (smaller m or T)")
 
 
 def _parse_word(word: str | Sequence[int], T: int | None) -> tuple[int, ...]:
