@@ -64,13 +64,15 @@ whose message did not arrive, or anything but 0 on the own substate) raise too w
 ``invalid_actions="raise"`` (default) and are replaced by 0 (keep) with
 ``invalid_actions="keep"``. Validation happens before any state changes.
 
-Numerical health: a step checks that every agent's error ``||z_hat_i - z||`` (finite iff
-the plant state and the estimates are) and every reward is finite (two reductions over
-``(B, N)``). When one is not, with ``nonfinite="terminate"`` (default) the member is
+Numerical health: a step checks that every agent's error ``||z_hat_i - z||`` is finite
+(it is iff the plant state and the estimates are, up to an overflow of the distance; one
+reduction over ``(B, N)``). Rewards are finite by construction (errors are clipped, NaN
+included, and :class:`RewardConfig` bounds them). When an error is not finite, with
+``nonfinite="terminate"`` (default) the member is
 terminated at that step (``terminated[b] = True``), :attr:`BatchedCore.nonfinite` ``[b]``
-records ``{"step", "what", "agent"}`` (``what``: ``"state"``, ``"estimate"``, ``"error"``
-(finite state and estimate whose distance overflows) or ``"reward"``; ``agent`` is
-``None`` for the plant state) and a :class:`~netsense.kernels.
+records ``{"step", "what", "agent"}`` (``what``: ``"state"``, ``"estimate"`` or ``"error"``
+(finite state and estimate whose distance overflows); ``agent`` is ``None`` for the plant
+state) and a :class:`~netsense.kernels.
 checks.NumericalWarning` names member, agent and step (once per member and episode); with
 ``nonfinite="raise"`` the step raises :class:`~netsense.kernels.checks.NumericalError`
 instead, before the plant and estimates are committed (a stateful source estimator has
@@ -162,7 +164,7 @@ class BatchedCore:
     transmit : (B, N)      who transmitted at ``k``; ``msg`` (B, N, D): message arrived.
     errors : (B, N)        normalised errors of the last step (0 after reset).
     nonfinite : list of B  ``None``, or ``{"step", "what", "agent"}`` from the step at which
-                           member ``b``'s state, estimates or rewards stopped being finite.
+                           member ``b``'s state or estimates stopped being finite.
 
     The state arrays are the core's working buffers, written in place by its threaded
     passes: ``x``, ``Z`` and ``tau`` alternate between two sets (the arrays of step ``k``
@@ -546,8 +548,9 @@ class BatchedCore:
             A_T=self._A_T, T=self._TT, w=w, W_T=self._W_T, own=self.own,
             work=self._step_bufs[self._turn], **src_kw)
         self._refuse(out.status, a)  # nothing committed yet (the outputs are the set
-        # numerical health: ||z_hat - z|| is finite iff the state and the estimates are
-        bad = None if np.isfinite(out.err).all() else self._diagnose(out)
+        # numerical health: ||z_hat - z|| is finite iff the state and the estimates are (a
+        # finite error is <= sqrt(DBL_MAX), so their sum is finite iff every one is)
+        bad = None if np.isfinite(out.err.sum()) else self._diagnose(out)
         self._turn ^= 1  # of buffers the state is not in)
         self.last_invalid = out.masked
         self.x, self.Z, self.tau = out.x_next, out.Z_next, out.tau_next
@@ -561,8 +564,6 @@ class BatchedCore:
             self.horizon, self.messages_sent, rewards.StepTail(
                 np.empty((B, N)), self._raw_buf, self._err_buf, self._tx_buf,
                 np.empty(B, bool), np.empty(B, bool)))
-        if not np.isfinite(tail.reward).all():
-            bad = self._diagnose(out, tail.reward, bad)
         if bad:
             self._flag_nonfinite(bad, tail)
         self.transmit = tail.transmit
@@ -579,27 +580,22 @@ class BatchedCore:
         if not self._seeded:
             raise ValueError(f"reset() must be called before {what}()")
 
-    def _diagnose(self, out, reward: np.ndarray | None = None,
-                  found: dict | None = None) -> dict[int, dict]:
-        """The members whose state, estimates (or ``reward``) are not finite after this
-        step: ``{b: {"step", "what", "agent"}}``; raises under ``nonfinite="raise"``."""
-        found = dict(found or {})
-        for b in (np.flatnonzero(~np.isfinite(out.err).all(1)) if reward is None else
-                  np.flatnonzero(~np.isfinite(reward).all(1))):
+    def _diagnose(self, out) -> dict[int, dict]:
+        """The members whose state or estimates are not finite after this step: ``{b:
+        {"step", "what", "agent"}}``; raises under ``nonfinite="raise"``. (Rewards need no
+        check: errors are clipped, NaN included, and :class:`RewardConfig` bounds
+        ``|reward| <= error_weight * error_clip + message_cost``.)"""
+        found = {}
+        for b in np.flatnonzero(~np.isfinite(out.err).all(1)):
             b = int(b)
-            if b in found:
-                continue
-            if reward is not None:
-                what, agent = "reward", int(np.flatnonzero(~np.isfinite(reward[b]))[0])
-            elif not np.isfinite(out.x_next[b]).all():
+            if not np.isfinite(out.x_next[b]).all():
                 what, agent = "state", None
             elif not np.isfinite(out.Z_next[b]).all():
                 bad_i = ~np.isfinite(out.Z_next[b]).all(1)
                 what, agent = "estimate", int(np.flatnonzero(bad_i)[0])
             else:  # finite, but ||z_hat_i - z|| overflowed
                 what, agent = "error", int(np.flatnonzero(~np.isfinite(out.err[b]))[0])
-            found[b] = {"step": int(self.k[b]) + (reward is None), "what": what,
-                        "agent": agent}
+            found[b] = {"step": int(self.k[b]) + 1, "what": what, "agent": agent}
             if self.nonfinite_mode == "raise":
                 r = found[b]
                 raise NumericalError(self._nonfinite_message(b, r), member=b,
@@ -610,8 +606,7 @@ class BatchedCore:
         who = {"state": "the plant state x is inf or NaN",
                "estimate": f"the estimate of agent {r['agent']} is inf or NaN",
                "error": f"the estimation error of agent {r['agent']} overflowed (finite "
-                        "state and estimate, |x_hat - x| > 1e308)",
-               "reward": f"the reward of agent {r['agent']} is inf or NaN"}[r["what"]]
+                        "state and estimate, |x_hat - x| > 1e154)"}[r["what"]]
         return (f"non-finite {r['what']}: {who} at step {r['step']} (batch member {b}); "
                 "the member's episode is over, reset it")
 

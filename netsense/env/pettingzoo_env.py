@@ -105,16 +105,16 @@ Episode End
 -----------
 Truncation after ``horizon`` steps. Termination when the scenario sets
 ``divergence_limit`` and some agent's normalised error exceeds it, or when the plant
-state, an estimate or a reward stops being finite (numerical health, below). Then
-``agents`` is empty until :meth:`reset`.
+state or an estimate stops being finite (numerical health, below). Then ``agents`` is
+empty until :meth:`reset`.
 
 Numerical health: an unstable plant run long, or an estimate that blows up, reaches inf or
 NaN; that never passes silently. By default (``nonfinite="terminate"``) the episode ends
 at that step with ``terminated`` true for every agent, ``infos[agent]["nonfinite"] =
 {"step": k, "what": w, "agent": i}`` (``w``: ``"state"`` (the plant state, ``i`` is
-``None``), ``"estimate"`` (agent ``i``'s), ``"error"`` (finite state and estimate whose
-distance overflows) or ``"reward"``) and a :class:`netsense.NumericalWarning` that says
-the same; ``nonfinite="raise"`` raises :class:`netsense.NumericalError` from ``step``
+``None``), ``"estimate"`` (agent ``i``'s) or ``"error"`` (finite state and estimate whose
+distance overflows); rewards stay finite by construction) and a
+:class:`netsense.NumericalWarning` that says the same; ``nonfinite="raise"`` raises :class:`netsense.NumericalError` from ``step``
 instead (see ``docs/errors.md``).
 
 Arguments
@@ -136,7 +136,7 @@ Infos
 ``action_mask`` with ``action_mask_in="info"`` and ``invalid_actions`` (count) in
 ``"keep"`` mode; ``faulty`` (bool) when the scenario has ``[[faults]]`` (crashed agents
 and liars are faulty: their errors are left out of the team error and of their rewards);
-``nonfinite`` at the step where the state, an estimate or a reward stopped being finite
+``nonfinite`` at the step where the state or an estimate stopped being finite
 (see Episode End).
 
 Bad arguments (``reset(seed=-1)``, ``seed=1.5``, ``seed="abc"``, an action of the wrong
@@ -170,7 +170,7 @@ Version History
   noise, drops and decisions; estimates differ from earlier versions in the last bits
   (the products' summation order changed), and so do rewards (the norm and the team mean
   are summed in order since the reward pass was compiled).
-* Numerical health (hardening): a member whose plant state, estimates or rewards stop
+* Numerical health (hardening): a member whose plant state or estimates stop
   being finite terminates with ``infos[agent]["nonfinite"]`` (before, it stepped on with
   clipped rewards and nothing flagged); bad arguments raise ``ValueError`` naming them.
 """
@@ -276,7 +276,7 @@ class NetSenseEnv(ParallelEnv):
     aoi_info : bool
         Add ``infos[agent]["aoi"]`` (age-of-information statistics, see the module doc).
     nonfinite : {"terminate", "raise"}
-        Behaviour when the state, an estimate or a reward becomes non-finite (module doc).
+        Behaviour when the state or an estimate becomes non-finite (module doc).
     """
 
     metadata = {"name": "netsense_v0", "render_modes": list(RENDER_MODES),

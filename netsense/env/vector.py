@@ -119,6 +119,9 @@ class BatchedEnv:
         Behaviour on masked actions (see :mod:`netsense.engine.core`).
     auto_reset : bool
         Restart finished members inside :meth:`step` (see the module docstring).
+    nonfinite : {"terminate", "raise"}
+        A member whose state or estimates stop being finite terminates (with
+        ``info["nonfinite"]``) or the step raises :class:`netsense.NumericalError`.
     **overrides
         Scenario overrides for :func:`netsense.make` (``horizon=10``, ...).
 
@@ -138,10 +141,11 @@ class BatchedEnv:
 
     def __init__(self, scenario: str | CoreModel, num_envs: int, *,
                  invalid_actions: str = "raise", auto_reset: bool = True,
-                 **overrides) -> None:
+                 nonfinite: str = "terminate", **overrides) -> None:
         num_envs = checks.integer("num_envs", num_envs, 1)
         model, self.scenario_id = load_model(scenario, **overrides)
-        self.core = BatchedCore(model, int(num_envs), invalid_actions=invalid_actions)
+        self.core = BatchedCore(model, int(num_envs), invalid_actions=invalid_actions,
+                                nonfinite=nonfinite)
         c = self.core
         self.model = model
         self.auto_reset = bool(auto_reset)
@@ -237,7 +241,9 @@ class BatchedEnv:
             ``action_mask`` (B, N, M) int8 of ``obs``; ``error`` (B, N) normalised errors
             and ``transmitted`` (B, N) bool of this step; with auto-reset and some member
             finished also ``final_obs`` (B, N, obs_dim), ``final_action_mask`` and the
-            flags ``_final_obs`` (B,) bool.
+            flags ``_final_obs`` (B,) bool; when a member terminated because its state or
+            estimates stopped being finite, ``nonfinite`` (B,) object array with that
+            member's ``{"step", "what", "agent"}`` (``None`` for the others).
         """
         if self.action_mask is None:
             raise ValueError("reset() must be called before step()")
@@ -246,6 +252,11 @@ class BatchedEnv:
                                 "transmitted": self.core.transmit}
         obs = out.obs
         done = out.terminated | out.truncated
+        if out.terminated.any() and any(r is not None for r in self.core.nonfinite):
+            flags = np.empty(self.num_envs, dtype=object)
+            flags[:] = [r if t else None for r, t in zip(self.core.nonfinite,
+                                                         out.terminated, strict=True)]
+            info["nonfinite"] = flags
         if self.auto_reset and done.any():
             # the partial reset writes into the core's per-member arrays: keep this step's
             info["error"] = self.core.errors.copy()
@@ -352,6 +363,8 @@ class AgentVectorEnv(VectorEnv):
         infos: dict[str, Any] = {"action_mask": self._flat(info["action_mask"]),
                                  "error": info["error"].reshape(-1),
                                  "transmitted": info["transmitted"].reshape(-1)}
+        if "nonfinite" in info:
+            infos["nonfinite"] = np.repeat(info["nonfinite"], self.num_agents)
         if "final_obs" in info:
             infos["final_obs"] = self._flat(info["final_obs"])
             infos["final_action_mask"] = self._flat(info["final_action_mask"])
@@ -414,6 +427,8 @@ def _sb3_class() -> type:
                 fo = info["final_obs"]
                 for s in np.flatnonzero(dones):
                     infos[s]["terminal_observation"] = fo[s]
+                    if "nonfinite" in info and info["nonfinite"][s] is not None:
+                        infos[s]["nonfinite"] = info["nonfinite"][s]
                     infos[s]["TimeLimit.truncated"] = bool(trunc[s] and not term[s])
             return obs, rew.astype(np.float32), dones, infos
 

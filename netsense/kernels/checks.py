@@ -6,7 +6,7 @@ message starts with the argument's name (``"batch_size must be an integer >= 1, 
 '4'"``). The helpers here make those checks short and their messages uniform; compiled
 code without bounds checks stays behind them.
 
-Numerical trouble (a plant state, estimate or reward that stopped being finite) is not bad
+Numerical trouble (a plant state or estimate that stopped being finite) is not bad
 input: :class:`NumericalError` and :class:`NumericalWarning` report it, naming the batch
 member, the agent and the step (see :class:`netsense.engine.core.BatchedCore`).
 
@@ -30,12 +30,13 @@ MAX_STEPS = 2**53
 
 
 class NumericalError(ArithmeticError):
-    """A plant state, an estimate or a reward became non-finite (inf or NaN).
+    """A plant state or an estimate became non-finite (inf or NaN), or their distance
+    overflowed.
 
     Raised by :meth:`netsense.engine.core.BatchedCore.step` with ``nonfinite="raise"``
     (before the step is committed); the message names the member, agent and step, which
     are also the attributes ``member``, ``agent`` (``None`` for the plant state), ``step``
-    and ``what`` (``"state"``, ``"estimate"`` or ``"reward"``).
+    and ``what`` (``"state"``, ``"estimate"`` or ``"error"``).
     """
 
     def __init__(self, message: str, *, member: int = -1, agent: int | None = None,
@@ -46,7 +47,7 @@ class NumericalError(ArithmeticError):
 
 class NumericalWarning(RuntimeWarning):
     """Issued once per member and episode when a member is terminated for a non-finite
-    state, estimate or reward (``nonfinite="terminate"``, the default)."""
+    state or estimate (``nonfinite="terminate"``, the default)."""
 
 
 def _got(v: Any) -> str:
