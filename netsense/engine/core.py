@@ -475,7 +475,7 @@ class BatchedCore:
                 if bad.any():
                     pos = tuple(int(v[0]) for v in np.nonzero(bad))
                     raise ValueError(f"actions must be integers; entry {list(pos)} (member, "
-                                     f"agent, column) is {a[pos]!r}")
+                                     f"agent, column) is {float(a[pos])!r}")
             a = a.astype(np.int64)
         elif a.dtype == np.uint64:  # uint64 + int64 offsets would promote to float
             if a.size and a.max() >= 2**62:

@@ -114,8 +114,8 @@ at that step with ``terminated`` true for every agent, ``infos[agent]["nonfinite
 {"step": k, "what": w, "agent": i}`` (``w``: ``"state"`` (the plant state, ``i`` is
 ``None``), ``"estimate"`` (agent ``i``'s) or ``"error"`` (finite state and estimate whose
 distance overflows); rewards stay finite by construction) and a
-:class:`netsense.NumericalWarning` that says the same; ``nonfinite="raise"`` raises :class:`netsense.NumericalError` from ``step``
-instead (see ``docs/errors.md``).
+:class:`netsense.NumericalWarning` that says the same; ``nonfinite="raise"`` raises
+:class:`netsense.NumericalError` from ``step`` instead (see ``docs/errors.md``).
 
 Arguments
 ---------

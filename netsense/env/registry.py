@@ -662,7 +662,9 @@ def build_model(sc: Scenario) -> CoreModel:
                          source_estimator=source_estimator, faults=faults,
                          substates=sc.substates)
     except ValueError as exc:
-        raise _err(sc.source, "<scenario>", str(exc)) from exc
+        name = _field_of(str(exc), {"faults", "horizon", "x0_std", "initial_transmit",
+                                    "divergence_limit", "design", "substates", "reward"})
+        raise _err(sc.source, name or "<scenario>", str(exc)) from exc
 
 
 def _merge(base: dict, over: dict) -> dict:
