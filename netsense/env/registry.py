@@ -502,8 +502,8 @@ def _arrival(spec: dict, path: str, source: str):
 def _field_of(msg: str, fields: set[str]) -> str:
     """The first field name of ``fields`` that an estimator's error message mentions."""
     for word in msg.replace("[", " ").replace("(", " ").replace(".", " ").split():
-        if word.strip("'\",.:") in fields:
-            return word.strip("'\",.:")
+        if word.strip("'\",.:;])") in fields:
+            return word.strip("'\",.:;])")
     return ""
 
 

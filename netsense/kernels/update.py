@@ -191,6 +191,8 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
 def gain_rows(L_pad: np.ndarray) -> np.ndarray:
     """``(N, 2)``: rows ``lo <= c < hi`` that hold the non-zeros of each agent's gain
     (its own block); ``lo = hi = 0`` for an agent with no gain (not a source)."""
+    if np.ndim(L_pad) < 3:
+        raise ValueError(f"L_pad must have shape (..., N, n, r), got {np.shape(L_pad)}")
     nz = np.asarray(L_pad) != 0  # (..., N, n, r)
     rows = nz.any(-1)
     while rows.ndim > 2:
@@ -283,6 +285,9 @@ class StepBuffers:
 
     def __init__(self, B: int, N: int, n: int, M: int, D: int, p: int, r: int,
                  tau_dtype=np.int64, share_scratch: StepBuffers | None = None) -> None:
+        for name, v in zip(("B", "N", "n", "M", "D", "p", "r"), (B, N, n, M, D, p, r),
+                           strict=True):
+            checks.integer(name, v, 0)
         tau_dtype = np.dtype(tau_dtype)
         self.key = (B, N, n, M, D, p, r, tau_dtype)
         self.Z_next = np.empty((B, N, n))
@@ -541,6 +546,9 @@ def keep_own_blocks(Z_sel: np.ndarray, Z: np.ndarray, own_block: np.ndarray) -> 
 
     ``own_block`` is the ``(N, n)`` mask ``block_of[c] == i``.
     """
+    Z = checks.array("Z", Z, (None, None, None))
+    checks.array("Z_sel", Z_sel, Z.shape)
+    checks.array("own_block", own_block, Z.shape[1:])
     return np.where(own_block[None], Z, Z_sel)
 
 
