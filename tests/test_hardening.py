@@ -121,6 +121,14 @@ LIBRARY = [
      "field 'design.deadbeat'"),
     ("make-liar-claim", lambda: make("fault_liar-v0", faults=[
         {"kind": "liar", "agents": [1], "claim": 2**63 - 1}]), "field 'faults\\[0\\].claim'"),
+    ("TrainConfig-steps-float", lambda: __import__("netsense.rl.sb3").rl.sb3.TrainConfig(
+        "fig1_scalar-v0", steps=1.5), "TrainConfig.steps must be an integer"),
+    ("benchmark-make_jobs-seed-float", lambda: __import__("netsense.benchmark").benchmark
+     .make_jobs(["fig1_scalar-v0"], ["freshness"], [1.5]), "seeds\\[\\] must be an integer"),
+    ("SweepCase-N-str", lambda: __import__("netsense.studies.sweep").studies.sweep.SweepCase(
+        "ring", "3"), "N must be an integer"),
+    ("MaskedFlatObs-not-an-env", lambda: __import__("netsense.rl.wrappers").rl.wrappers
+     .MaskedFlatObs(3), "env must be a PettingZoo ParallelEnv"),
     ("make-stale-delay", lambda: make("fig1_scalar-v0", faults=[
         {"kind": "stuck_sensor", "agents": [0], "mode": "stale", "delay": 10**12}]),
      "StuckSensor.delay = 1000000000000 exceeds the horizon"),

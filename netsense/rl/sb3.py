@@ -211,9 +211,21 @@ class TrainConfig:
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        from netsense.kernels import checks
+
+        if not isinstance(self.scenario, str):
+            raise ValueError(f"TrainConfig.scenario must be a scenario id (str), got "
+                             f"{self.scenario!r}")
         for name in ("steps", "num_vec_envs", "n_steps", "batch_size", "n_epochs"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
+            checks.integer(f"TrainConfig.{name}", getattr(self, name), 1)
+        checks.seed_value("TrainConfig.seed", self.seed)
+        checks.number("TrainConfig.learning_rate", self.learning_rate, 0, lo_open=True)
+        for name in ("gamma", "gae_lambda"):
+            checks.number(f"TrainConfig.{name}", getattr(self, name), 0, 1)
+        checks.number("TrainConfig.ent_coef", self.ent_coef)
+        if not isinstance(self.overrides, dict):
+            raise ValueError(f"TrainConfig.overrides must be a dict, got "
+                             f"{type(self.overrides).__name__}")
 
 
 @dataclass
