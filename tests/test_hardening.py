@@ -90,6 +90,9 @@ LIBRARY = [
      "batch_size must be an integer"),
     ("observer-errors-shape", lambda: ns.FreshnessObserver(DESIGN).errors(np.zeros(5)),
      "x must have shape"),
+    ("observer-step-transmit-not-a-mask", lambda: ns.FreshnessObserver(DESIGN).step(
+        np.zeros((3, 1)), ns.fig1_graphs().sequence(1)[0], transmit=[0, 2, 1]),
+     "transmit must be a bool mask"),
     ("graphs-sequence-negative", lambda: ns.fig1_graphs().sequence(-1), "num_steps must be"),
     ("RandomJointlyConnected-N-float", lambda: ns.RandomJointlyConnected(3.5, 2),
      "num_nodes must be an integer"),

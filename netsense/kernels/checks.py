@@ -159,9 +159,9 @@ def array(name: str, a: Any, shape: Sequence[int | None] | None = None, *,
 
 
 def mask(name: str, a: Any, shape: Sequence[int | None] | None = None) -> np.ndarray:
-    """``a`` as a bool array of ``shape``: bools, or integers that are all 0 or 1; else
+    """``a`` as a bool array of ``shape``: bools, or numbers that are all 0 or 1; else
     ``ValueError`` (``[0, 2]`` is not a mask)."""
-    out = array(name, a, shape, kind="ib")
+    out = array(name, a, shape, kind="ibf")
     if out.dtype.kind != "b":
         if out.size and not np.isin(out, (0, 1)).all():
             raise ValueError(f"{name} must be a bool mask (or 0/1), got values "

@@ -91,7 +91,8 @@ class DistributedObserver:
 
     # ----------------------------------------------------------------- inputs
     def _batch(self, name: str, value, tail: tuple[int, ...], dtype) -> np.ndarray:
-        arr = checks.array(name, value, kind="ibf").astype(dtype, copy=False)
+        arr = (checks.mask(name, value) if dtype is bool
+               else checks.array(name, value, kind="ibf").astype(dtype, copy=False))
         if not self.batched:
             if arr.shape != tail:
                 raise ValueError(f"{name} must have shape {tail}, got {arr.shape}")
