@@ -632,6 +632,7 @@ class BatchedCore:
         """Freshness indices as the network sees them, ``(B, N, N)``: ``tau`` with a liar's
         rows replaced by its claim from its start step (:meth:`netsense.observers.faults.LyingAgent.
         reported`); ``tau`` itself without a liar."""
+        self._require_reset("reported_indices")
         if self._liar is None:
             return self.tau
         return self._liar.reported(self.tau, self.k)
