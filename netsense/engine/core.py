@@ -81,6 +81,7 @@ already taken its step: reset before stepping on).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import NamedTuple
@@ -550,7 +551,7 @@ class BatchedCore:
         self._refuse(out.status, a)  # nothing committed yet (the outputs are the set
         # numerical health: ||z_hat - z|| is finite iff the state and the estimates are (a
         # finite error is <= sqrt(DBL_MAX), so their sum is finite iff every one is)
-        bad = None if np.isfinite(out.err.sum()) else self._diagnose(out)
+        bad = None if math.isfinite(np.add.reduce(out.err, None)) else self._diagnose(out)
         self._turn ^= 1  # of buffers the state is not in)
         self.last_invalid = out.masked
         self.x, self.Z, self.tau = out.x_next, out.Z_next, out.tau_next
