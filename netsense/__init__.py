@@ -8,7 +8,9 @@ Core entry points (see the README for an example):
 * graph processes and the Assumption 1 checker in :mod:`netsense.graphs`;
 * plants in :mod:`netsense.systems`;
 * :func:`make` / :func:`list_scenarios` — the PettingZoo environment's scenario registry;
-* :class:`BatchedCore` / :class:`BatchedEnv` — ``B`` environments stepped at once.
+* :class:`BatchedCore` / :class:`BatchedEnv` — ``B`` environments stepped at once;
+* :class:`NumericalError` / :class:`NumericalWarning` — a state or estimate that stopped
+  being finite (``docs/errors.md``: what raises what).
 
 The package is layered (README, "Architecture"): ``kernels`` < ``sensing`` < ``systems`` <
 ``graphs`` < ``estimators`` < ``observers`` < ``engine`` < ``env`` < the tools. The names
@@ -26,6 +28,8 @@ __version__ = "0.1.0"
 #: Public name -> module that defines it.
 _EXPORTS = {
     "OMEGA": "netsense.kernels.rules",
+    "NumericalError": "netsense.kernels.checks",
+    "NumericalWarning": "netsense.kernels.checks",
     "Decomposition": "netsense.systems.decomposition",
     "decompose": "netsense.systems.decomposition",
     "is_observable": "netsense.systems.decomposition",
@@ -91,6 +95,7 @@ if TYPE_CHECKING:  # static checkers see the eager form
         fig1_graphs,
         smallest_period,
     )
+    from netsense.kernels.checks import NumericalError, NumericalWarning
     from netsense.kernels.rules import OMEGA
     from netsense.observers.consensus import ConsensusObserver
     from netsense.observers.freshness import FreshnessObserver

@@ -3,6 +3,13 @@
 Sub-commands live one per module in :mod:`netsense.commands`; each module defines
 ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``. Discovery is by
 module listing, so adding a command never edits this file.
+
+Errors: a bad argument or input (an unknown scenario, a malformed file, a value out of
+range) ends the command with exit code 2 and one line on stderr, ``netsense CMD: error:
+MESSAGE``, never a traceback: argparse's own errors (printed without the usage block), and
+the ``ValueError``, ``OSError``, :class:`netsense.NumericalError`, ``ImportError`` (a
+missing extra) and ``MemoryError`` a command raises. Anything else is a bug and keeps its
+traceback.
 """
 
 from __future__ import annotations
@@ -15,10 +22,25 @@ from collections.abc import Sequence
 
 import netsense.commands as _commands
 
+#: What a command may raise for bad input (reported in one line, exit code 2).
+USER_ERRORS = (ValueError, OSError, ArithmeticError, ImportError, MemoryError)
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line on stderr (exit code 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if isinstance(exc, ValueError) else f"{type(exc).__name__}: {text}"
+
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser with every discovered sub-command attached."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="netsense",
         description="Networked state estimation: distributed observers, environments, benchmarks.",
     )
@@ -40,7 +62,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "_run", None) is None:
         parser.print_help()
         return 2
-    return int(args._run(args) or 0)
+    try:
+        return int(args._run(args) or 0)
+    except USER_ERRORS as exc:
+        print(f"netsense {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except SystemExit as exc:  # a command's own "raise SystemExit('message')"
+        if isinstance(exc.code, str):
+            print(f"netsense {args.command}: error: {exc.code}", file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -94,12 +94,12 @@ def test_execute_refuses_workers_it_would_ignore_or_misread(backend, workers, ms
     assert ran == []  # refused before any job ran
 
 
-def test_benchmark_command_refuses_workers_without_the_process_backend(tmp_path):
+def test_benchmark_command_refuses_workers_without_the_process_backend(tmp_path, capsys):
     from netsense.cli import main
 
-    with pytest.raises(SystemExit, match="needs --backend process"):
-        main(["benchmark", "fig1_scalar-v0", "--out", str(tmp_path / "o"),
-              "--workers", "2", "--no-progress"])
+    assert main(["benchmark", "fig1_scalar-v0", "--out", str(tmp_path / "o"),
+                 "--workers", "2", "--no-progress"]) == 2  # a usage error, one line
+    assert "needs --backend process" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
 
 

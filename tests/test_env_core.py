@@ -22,7 +22,8 @@ def env_arrays(env, obs, infos=None):
             np.stack([obs[x]["action_mask"] for x in a]))
 
 
-@pytest.mark.parametrize("sid", ["link_failures-v0", "random_structured_n20_N10-v0"])
+@pytest.mark.parametrize("sid", ["link_failures-v0", "random_structured_n20_N10-v0",
+                                 "drops_kfio-v0"])  # (KFIO sources: products row by row)
 def test_each_member_equals_an_independent_single_run(sid):
     B, seed = 3, 11
     model = model_of(sid, horizon=70)  # crosses a CHUNK boundary (64)

@@ -684,7 +684,7 @@ def test_freshness_choice_rejects_slots_that_do_not_fit(what):
         transmit = np.ones((2, 1), bool)
     else:
         nbr[valid] = tau.shape[1]  # one past the last agent
-    match = {"batch": "same B, N", "valid": "shape of nbr", "transmit": "transmit must",
-             "node": "names no agent"}[what]
+    match = {"batch": "nbr must have shape", "valid": "valid must have shape",
+             "transmit": "transmit must", "node": "nbr must hold indices in 0..9"}[what]
     with pytest.raises(ValueError, match=match):
         kernels.freshness_choice(tau, nbr, valid, transmit)

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from netsense.commands._args import positive_float, positive_int
+
 NAME = "bench"
 HELP = "Speed benchmarks (netsense bench env: env steps/s vs MPE2 simple_spread)."
 
@@ -56,11 +58,11 @@ ENV_HELP = ("Env steps/s and agent-steps/s through the PettingZoo API for severa
 
 
 def add_env_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--N", type=int, nargs="+", default=[3, 10, 30, 100],
+    parser.add_argument("--N", type=positive_int, nargs="+", default=[3, 10, 30, 100],
                         help="numbers of agents (default: 3 10 30 100)")
-    parser.add_argument("--seconds", type=float, default=2.0,
+    parser.add_argument("--seconds", type=positive_float, default=2.0,
                         help="wall time per measurement (default 2)")
-    parser.add_argument("--horizon", type=int, default=100,
+    parser.add_argument("--horizon", type=positive_int, default=100,
                         help="episode length for both environments (resets are timed)")
     parser.add_argument("--no-mpe", action="store_true", help="skip MPE2")
     parser.add_argument("--csv", type=Path, default=None, help="also write the rows here")

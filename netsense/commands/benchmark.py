@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from netsense.commands._args import nonnegative_int, positive_float, positive_int
+
 NAME = "benchmark"
 HELP = ("Benchmark learned and scripted policies and a centralized KF oracle on scenarios "
         "(seeds as one batched run, or in processes or on Ray); writes CSV, a Markdown table "
@@ -19,11 +21,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"policies among {', '.join(POLICY_NAMES)}; a learned policy is "
                              "learned:PATH where {scenario} in PATH is replaced by the "
                              f"scenario id (default: {' '.join(DEFAULT_POLICIES)})")
-    parser.add_argument("--seeds", type=int, default=5, help="number of seeds (default: 5)")
-    parser.add_argument("--seed0", type=int, default=1000,
+    parser.add_argument("--seeds", type=positive_int, default=5,
+                        help="number of seeds (default: 5)")
+    parser.add_argument("--seed0", type=nonnegative_int, default=1000,
                         help="first seed; seeds are seed0..seed0+seeds-1 (default: 1000, "
                              "away from training seeds)")
-    parser.add_argument("--eps", type=float, default=1e-2,
+    parser.add_argument("--eps", type=positive_float, default=1e-2,
                         help="relative-error threshold of 'steps to eps' (default: 0.01)")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--backend", choices=BACKENDS, default="batched",
@@ -31,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "run in this process (learned policies episode by episode); "
                              "process / serial / ray: one episode per job in worker "
                              "processes / this process / Ray tasks (default: batched)")
-    parser.add_argument("--workers", type=int, default=None,
+    parser.add_argument("--workers", type=positive_int, default=None,
                         help="worker processes of --backend process (default: number of "
                              "cores)")
     parser.add_argument("--address", default=None,
@@ -40,6 +43,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--override", action="append", default=[], metavar="KEY=JSON",
                         help="scenario override for every scenario (repeatable)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+
+
+def _check_inputs(scenarios: list[str], policies: list[str]) -> None:
+    """Unknown scenarios, policies and missing policy files fail before anything runs."""
+    from pathlib import Path
+
+    from netsense.benchmark import POLICY_NAMES
+    from netsense.env.registry import list_scenarios
+
+    known = list_scenarios()
+    for sc in scenarios:
+        if sc not in known:
+            raise ValueError(f"unknown scenario {sc!r} (see `netsense list`)")
+    for p in policies:
+        name, _, path = p.partition(":")
+        if name not in POLICY_NAMES:
+            raise ValueError(f"--policies: unknown policy {p!r}; choose from "
+                             f"{', '.join(POLICY_NAMES)}")
+        for sc in scenarios if name == "learned" and path else ():
+            f = Path(path.replace("{scenario}", sc))
+            if not f.is_file():
+                raise ValueError(f"--policies {p}: no policy file {f}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None and (args.workers < 1 or args.backend != "process"):
         raise SystemExit(f"--workers must be >= 1 and needs --backend process "
                          f"(got --workers {args.workers} with --backend {args.backend})")
+    _check_inputs(args.scenarios, args.policies)
     seeds = range(args.seed0, args.seed0 + args.seeds)
     _, rows = run_benchmark(args.scenarios, args.policies, seeds, out=args.out,
                             overrides=parse_overrides(args.override), eps=args.eps,

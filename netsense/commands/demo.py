@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import argparse
 
+from netsense.commands._args import nonnegative_int, positive_int
+
 NAME = "demo"
 HELP = "Run the Fig. 1/2 example (consensus diverges, freshness converges) and write its figure."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--steps", type=int, default=30, help="time steps to simulate")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the initial estimates")
+    parser.add_argument("--steps", type=positive_int, default=30, help="time steps to simulate")
+    parser.add_argument("--seed", type=nonnegative_int, default=0,
+                        help="seed of the initial estimates")
     parser.add_argument("--out", default="netsense_demo", help="output directory")
 
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
+
+from netsense.commands._args import json_value, nonnegative_float, positive_float
 
 NAME = "equalized"
 HELP = ("Design the prefix-based equalized-recovery observer (Proposition 1 of the "
@@ -12,16 +13,18 @@ HELP = ("Design the prefix-based equalized-recovery observer (Proposition 1 of t
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--A", required=True, help="system matrix as JSON, e.g. '[[2.0]]'")
-    parser.add_argument("--C", required=True, help="output matrix as JSON, e.g. '[[1.0]]'")
+    parser.add_argument("--A", required=True, type=json_value,
+                        help="system matrix as JSON, e.g. '[[2.0]]'")
+    parser.add_argument("--C", required=True, type=json_value,
+                        help="output matrix as JSON, e.g. '[[1.0]]'")
     parser.add_argument("--language", required=True,
                         help="'each:M:T' (each datum delayed by at most M over horizon T), "
                              "'missing:M:T' (at most M of T missing) or a comma-separated "
                              "word list such as '21210' or '060000,006000' ('x' = missing)")
-    parser.add_argument("--eta-v", type=float, default=0.0, help="bound on ||v||_inf")
-    parser.add_argument("--eta-w", type=float, default=0.0,
+    parser.add_argument("--eta-v", type=nonnegative_float, default=0.0, help="bound on ||v||_inf")
+    parser.add_argument("--eta-w", type=nonnegative_float, default=0.0,
                         help="bound on ||w||_inf (W = I when > 0)")
-    parser.add_argument("--mu1", type=float, default=None,
+    parser.add_argument("--mu1", type=positive_float, default=None,
                         help="fixed recovery level (default: searched)")
 
 
@@ -46,9 +49,21 @@ def run(args: argparse.Namespace) -> int:
 
     from netsense.estimators.equalized_design import EqualizedProblem, design
 
-    A = np.asarray(json.loads(args.A), dtype=float)
+    try:
+        A = np.asarray(args.A, dtype=float)
+    except (ValueError, TypeError):
+        raise ValueError(f"--A must be a matrix of numbers, got {args.A!r}") from None
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or not A.size:
+        raise ValueError(f"--A must be a square matrix, got shape {A.shape}")
+    try:
+        C = np.asarray(args.C, dtype=float)
+    except (ValueError, TypeError):
+        raise ValueError(f"--C must be a matrix of numbers, got {args.C!r}") from None
+    if C.ndim != 2 or C.shape[1] != A.shape[0]:
+        raise ValueError(f"--C must be a matrix with n = {A.shape[0]} columns (the size of "
+                         f"--A), got shape {C.shape}")
     lang = parse_language(args.language)
-    P = EqualizedProblem(A=A, C=json.loads(args.C), language=lang, eta_v=args.eta_v,
+    P = EqualizedProblem(A=A, C=C, language=lang, eta_v=args.eta_v,
                          eta_w=args.eta_w, W=np.eye(A.shape[0]) if args.eta_w else None)
     d = design(P, mu1=args.mu1)
     s = d.stats

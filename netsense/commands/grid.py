@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from netsense.commands._args import nonnegative_float
+
 NAME = "grid"
 HELP = ("IEEE 37-node feeder: write the OpenDSS script generated from netsense's own data, "
         "or compare the linear power-flow model (eq. (39)) with an OpenDSS solve.")
@@ -13,7 +15,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("action", choices=("script", "validate"),
                         help="script: print the OpenDSS script; validate: linear model vs "
                              "OpenDSS (needs the grid extra)")
-    parser.add_argument("--load-scale", type=float, default=1.0,
+    parser.add_argument("--load-scale", type=nonnegative_float, default=1.0,
                         help="multiple of the nominal spot loads (default: 1.0)")
 
 

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import itertools
 
+from netsense.commands._args import nonnegative_int, positive_float, positive_int
+
 NAME = "sweep"
 HELP = ("Sweep graph families, N, T and plant size; measure trigger step, worst freshness "
         "index, steps to a relative error, messages, AoI against Lemma 3/5 and Corollary 1.")
@@ -42,12 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--param", type=_floats, default=None,
                         help="family parameter: extra_edge_prob (random_jsc), p_fail "
                              "(markov), radius (mobility); default 0.1 / 0.3 / 0.4")
-    parser.add_argument("--seeds", type=int, default=8, help="runs per case (batched)")
-    parser.add_argument("--steps", type=int, default=200, help="horizon K")
-    parser.add_argument("--eps", type=float, default=1e-6, help="relative-error tolerance")
+    parser.add_argument("--seeds", type=positive_int, default=8, help="runs per case (batched)")
+    parser.add_argument("--steps", type=positive_int, default=200, help="horizon K")
+    parser.add_argument("--eps", type=positive_float, default=1e-6, help="relative-error tolerance")
     parser.add_argument("--rho", type=float, default=0.5, help="Theorem 1 rate")
-    parser.add_argument("--seed", type=int, default=0, help="master seed")
-    parser.add_argument("--workers", type=int, default=1, help="processes")
+    parser.add_argument("--seed", type=nonnegative_int, default=0, help="master seed")
+    parser.add_argument("--workers", type=positive_int, default=1, help="processes")
     parser.add_argument("--out", default=None, help="CSV of per-seed rows (optional)")
     parser.add_argument("--summary", default=None, help="CSV of per-case medians (optional)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -5,6 +5,13 @@ from __future__ import annotations
 import argparse
 import json
 
+from netsense.commands._args import (
+    finite_float,
+    nonnegative_int,
+    positive_float,
+    positive_int,
+)
+
 NAME = "train"
 HELP = ("Train a shared MaskablePPO policy (SB3 + SuperSuit) on a scenario; saves the policy "
         "and its training curve (PNG + CSV). Needs the 'rl' extra.")
@@ -16,18 +23,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", help="scenario id, e.g. fig1_scalar-v0 (see `netsense list`)")
     parser.add_argument("--algo", choices=ALGOS, default="maskable_ppo",
                         help="learning algorithm (default: maskable_ppo)")
-    parser.add_argument("--steps", type=int, default=50_000,
+    parser.add_argument("--steps", type=positive_int, default=50_000,
                         help="total agent-steps of experience (default: 50000)")
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
-    parser.add_argument("--num-envs", type=int, default=4,
+    parser.add_argument("--seed", type=nonnegative_int, default=0, help="seed (default: 0)")
+    parser.add_argument("--num-envs", type=positive_int, default=4,
                         help="environment copies stepped together (default: 4)")
-    parser.add_argument("--n-steps", type=int, default=128,
+    parser.add_argument("--n-steps", type=positive_int, default=128,
                         help="PPO rollout length per vector slot (default: 128)")
-    parser.add_argument("--batch-size", type=int, default=256, help="PPO minibatch (default: 256)")
-    parser.add_argument("--lr", type=float, default=3e-4, help="learning rate (default: 3e-4)")
-    parser.add_argument("--gamma", type=float, default=0.95, help="discount (default: 0.95)")
-    parser.add_argument("--ent-coef", type=float, default=0.01,
+    parser.add_argument("--batch-size", type=positive_int, default=256,
+                        help="PPO minibatch (default: 256)")
+    parser.add_argument("--lr", type=positive_float, default=3e-4,
+                        help="learning rate (default: 3e-4)")
+    parser.add_argument("--gamma", type=finite_float, default=0.95, help="discount (default: 0.95)")
+    parser.add_argument("--ent-coef", type=finite_float, default=0.01,
                         help="entropy bonus (default: 0.01)")
     parser.add_argument("--override", action="append", default=[], metavar="KEY=JSON",
                         help="scenario override passed to netsense.make, e.g. horizon=40 "

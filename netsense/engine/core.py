@@ -63,10 +63,25 @@ raise ``ValueError``; masked choices (adopting from an empty slot or from a neig
 whose message did not arrive, or anything but 0 on the own substate) raise too when
 ``invalid_actions="raise"`` (default) and are replaced by 0 (keep) with
 ``invalid_actions="keep"``. Validation happens before any state changes.
+
+Numerical health: a step checks that every agent's error ``||z_hat_i - z||`` is finite
+(it is iff the plant state and the estimates are, up to an overflow of the distance; one
+reduction over ``(B, N)``). Rewards are finite by construction (errors are clipped, NaN
+included, and :class:`RewardConfig` bounds them). When an error is not finite, with
+``nonfinite="terminate"`` (default) the member is
+terminated at that step (``terminated[b] = True``), :attr:`BatchedCore.nonfinite` ``[b]``
+records ``{"step", "what", "agent"}`` (``what``: ``"state"``, ``"estimate"`` or ``"error"``
+(finite state and estimate whose distance overflows); ``agent`` is ``None`` for the plant
+state) and a :class:`~netsense.kernels.
+checks.NumericalWarning` names member, agent and step (once per member and episode); with
+``nonfinite="raise"`` the step raises :class:`~netsense.kernels.checks.NumericalError`
+instead, before the plant and estimates are committed (a stateful source estimator has
+already taken its step: reset before stepping on).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import NamedTuple
@@ -77,15 +92,16 @@ from netsense.engine import observation, rewards
 from netsense.engine.model import SUBSTATES, CoreModel, ObsLayout, RewardConfig, symlog
 from netsense.engine.observation import FillBuffers
 from netsense.graphs.processes import slot_adjacency
-from netsense.kernels import drivers
+from netsense.kernels import checks, drivers
 from netsense.kernels import update as kernels
+from netsense.kernels.checks import NumericalError, NumericalWarning
 from netsense.observers.source import LuenbergerSource
 from netsense.sensing.arrivals import AlwaysArrive
 from netsense.sensing.noise import NoNoise
 
 # the model classes live in netsense.engine.model; this module re-exports them
-__all__ = ["CHUNK", "CHUNK_BUDGET", "INVALID_ACTIONS", "SUBSTATES", "BatchedCore", "CoreModel",
-           "ObsLayout", "RewardConfig", "StepResult", "symlog"]
+__all__ = ["CHUNK", "CHUNK_BUDGET", "INVALID_ACTIONS", "NONFINITE", "SUBSTATES", "BatchedCore",
+           "CoreModel", "NumericalError", "ObsLayout", "RewardConfig", "StepResult", "symlog"]
 
 #: Most steps of graphs, noise and arrivals drawn at once per member.
 CHUNK = 64
@@ -96,6 +112,8 @@ CHUNK_BUDGET = 48 * 2**20
 _STREAMS = ("init", "graph", "process_noise", "measurement_noise", "measurement_arrivals",
             "message_arrivals", "source")
 INVALID_ACTIONS = ("raise", "keep")
+#: What a step does when a plant state, estimate or reward becomes non-finite.
+NONFINITE = ("terminate", "raise")
 
 
 @contextmanager
@@ -131,6 +149,10 @@ class BatchedCore:
         ``B``.
     invalid_actions : {"raise", "keep"}
         Behaviour on masked actions (see the module docstring).
+    chunk : int, optional
+        Steps of graphs, noise and arrivals drawn at once per member.
+    nonfinite : {"terminate", "raise"}
+        Behaviour when a state, estimate or reward becomes non-finite (module docstring).
 
     Attributes (state at the current time ``k``; read-only for callers)
     ------------------------------------------------------------------------
@@ -142,6 +164,8 @@ class BatchedCore:
     y : (B, N, r_max)      measurements ``y[k]``; ``y_arrived`` (B, N).
     transmit : (B, N)      who transmitted at ``k``; ``msg`` (B, N, D): message arrived.
     errors : (B, N)        normalised errors of the last step (0 after reset).
+    nonfinite : list of B  ``None``, or ``{"step", "what", "agent"}`` from the step at which
+                           member ``b``'s state or estimates stopped being finite.
 
     The state arrays are the core's working buffers, written in place by its threaded
     passes: ``x``, ``Z`` and ``tau`` alternate between two sets (the arrays of step ``k``
@@ -166,16 +190,15 @@ class BatchedCore:
     """
 
     def __init__(self, model: CoreModel, batch_size: int = 1, *,
-                 invalid_actions: str = "raise", chunk: int | None = None) -> None:
+                 invalid_actions: str = "raise", chunk: int | None = None,
+                 nonfinite: str = "terminate") -> None:
         if not isinstance(model, CoreModel):
             raise ValueError("model must be a CoreModel (see netsense.env.registry)")
-        if int(batch_size) < 1:
-            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-        if invalid_actions not in INVALID_ACTIONS:
-            raise ValueError(f"invalid_actions must be one of {INVALID_ACTIONS}, "
-                             f"got {invalid_actions!r}")
-        if chunk is not None and int(chunk) < 1:
-            raise ValueError(f"chunk must be >= 1, got {chunk}")
+        batch_size = checks.integer("batch_size", batch_size, 1)
+        checks.choice("invalid_actions", invalid_actions, INVALID_ACTIONS)
+        if chunk is not None:
+            chunk = checks.integer("chunk", chunk, 1)
+        self.nonfinite_mode = checks.choice("nonfinite", nonfinite, NONFINITE)
         self.model = model
         self.B = int(batch_size)
         self.invalid_actions = invalid_actions
@@ -252,21 +275,27 @@ class BatchedCore:
             Reset only these members (default all). The first reset must be a full one.
         """
         B = self.B
-        sel = np.ones(B, bool) if members is None else np.asarray(members, dtype=bool)
-        if sel.shape != (B,):
-            raise ValueError(f"members must have shape ({B},), got {sel.shape}")
+        if members is None:
+            sel = np.ones(B, bool)
+        else:
+            sel = np.asarray(members)
+            if sel.dtype != bool or sel.shape != (B,):
+                raise ValueError(f"members must be a bool mask of shape ({B},), got "
+                                 f"{sel.dtype} {sel.shape} (for member indices idx pass "
+                                 f"np.isin(np.arange({B}), idx))")
         if not self._seeded and not sel.all():
             raise ValueError("the first reset must reset every member")
         if seed is None:
             seeds = [int(s) for s in np.random.SeedSequence().generate_state(B, np.uint64)]
-        elif np.ndim(seed) == 0:
-            if int(seed) < 0:
-                raise ValueError(f"seed must be >= 0, got {seed}")
-            seeds = [int(seed) + b for b in range(B)]
+        elif isinstance(seed, (str, bytes)) or np.ndim(seed) == 0:
+            seeds = [checks.seed_value("seed", seed, B) + b for b in range(B)]
         else:
-            seeds = [int(s) for s in seed]
-            if len(seeds) != B:
-                raise ValueError(f"seed must hold {B} entries, got {len(seeds)}")
+            if not isinstance(seed, (Sequence, np.ndarray)) or np.ndim(seed) != 1:
+                raise ValueError(f"seed must be an int, a sequence of {B} ints or None, got "
+                                 f"{type(seed).__name__}")
+            if len(seed) != B:
+                raise ValueError(f"seed must hold {B} entries, got {len(seed)}")
+            seeds = [checks.seed_value(f"seed[{b}]", s) for b, s in enumerate(seed)]
         if not self._seeded:
             self._alloc()
         idx = np.flatnonzero(sel)
@@ -296,6 +325,7 @@ class BatchedCore:
         self.errors = self._err_buf = np.zeros((B, N))  # at every step
         self.raw_errors = self._raw_buf = np.zeros((B, N))
         self.messages_sent = np.zeros(B, dtype=np.int64)
+        self.nonfinite: list[dict | None] = [None] * B
         self.ptr = np.zeros(B, dtype=np.int64)
         # graphs are kept as their slot tables only (-1 = empty slot; G[k] is rebuilt
         # from them on demand), in the smallest integer type that holds a node id
@@ -337,6 +367,7 @@ class BatchedCore:
         self.transmit[b] &= ~self._silenced(np.zeros(1, np.int64))[0]
         self.errors[b] = 0.0
         self.raw_errors[b] = 0.0
+        self.nonfinite[b] = None
         self.messages_sent[b] = 0
         self.graph_state[b] = m.graphs.initial_state(rngs["graph"])
         if not self._meas_always:
@@ -423,6 +454,7 @@ class BatchedCore:
         The block of substate ``j`` is ``[keep, slot 0 .. slot D-1, average]``; slots
         allow only a message that arrived, and an agent's own substate allows only keep.
         """
+        self._require_reset("action_mask")
         if self._mask is None:
             self._mask = np.empty((self.B, self.N, self.mask_size), dtype=np.int8)
             self._fill(None, self._mask)
@@ -437,10 +469,20 @@ class BatchedCore:
             raise ValueError(f"actions must have shape (B, N, M + 1) = {(B, N, M + 1)}, "
                              f"got {a.shape}")
         if a.dtype.kind not in "iu":
-            if a.dtype.kind not in "fb" or np.any(a != np.round(a)):
+            if a.dtype.kind not in "fb":
                 raise ValueError(f"actions must be integers, got dtype {a.dtype}")
+            if a.dtype.kind == "f":  # integral and exact in int64, else named with its value
+                bad = ~(np.abs(a) < 2**62) | (a != np.round(a))
+                if bad.any():
+                    pos = tuple(int(v[0]) for v in np.nonzero(bad))
+                    raise ValueError(f"actions must be integers; entry {list(pos)} (member, "
+                                     f"agent, column) is {float(a[pos])!r}")
             a = a.astype(np.int64)
         elif a.dtype == np.uint64:  # uint64 + int64 offsets would promote to float
+            if a.size and a.max() >= 2**62:
+                pos = np.unravel_index(int(a.argmax()), a.shape)
+                raise ValueError(f"action of agent {pos[1]} (batch member {pos[0]}) for "
+                                 f"column {pos[2]} is {int(a[pos])}, outside 0..{self.D + 1}")
             a = a.astype(np.int64)
         return a
 
@@ -474,6 +516,7 @@ class BatchedCore:
         step on demand, equal to what ``observe=True`` would have returned. Validation of
         the next actions never needs them.
         """
+        self._require_reset("step")
         a = self._as_actions(actions)
         B = self.B
         Z, tau = self.Z, self.reported_indices()  # a liar's claims are what others adopt
@@ -485,8 +528,8 @@ class BatchedCore:
                                      self.source.L_pad, self.source.gain_rows)}
         else:
             choice = np.empty((B, self.N, self.M), dtype=np.int64)
-            self._refuse(kernels.check_actions(a, self.msg, choice,
-                                               np.empty(choice.shape, bool), self.own), a)
+            self._refuse(kernels._check_actions(a, self.msg, choice,
+                                                np.empty(choice.shape, bool), self.own), a)
             corr = self.source.correction(self.k, Z, self.y, self.y_arrived)
             src_kw = {"corr": np.ascontiguousarray(corr, dtype=float)}
         if not self._step_bufs:
@@ -501,11 +544,14 @@ class BatchedCore:
         # substate, eqs. (6)-(14), source correction (eq. (7)), errors; every member is
         # computed alone, exactly as in a B = 1 run. (kernels.keep_own_blocks is not
         # needed: validation leaves every own substate at 0 = keep.)
-        out = kernels.apply_actions(
+        out = kernels._apply_actions(
             Z, tau, a, self.nbr, self.msg, self._block_of, self._ALT, self._ADT, x=self.x,
             A_T=self._A_T, T=self._TT, w=w, W_T=self._W_T, own=self.own,
             work=self._step_bufs[self._turn], **src_kw)
         self._refuse(out.status, a)  # nothing committed yet (the outputs are the set
+        # numerical health: ||z_hat - z|| is finite iff the state and the estimates are (a
+        # finite error is <= sqrt(DBL_MAX), so their sum is finite iff every one is)
+        bad = None if math.isfinite(np.add.reduce(out.err, None)) else self._diagnose(out)
         self._turn ^= 1  # of buffers the state is not in)
         self.last_invalid = out.masked
         self.x, self.Z, self.tau = out.x_next, out.Z_next, out.tau_next
@@ -519,6 +565,8 @@ class BatchedCore:
             self.horizon, self.messages_sent, rewards.StepTail(
                 np.empty((B, N)), self._raw_buf, self._err_buf, self._tx_buf,
                 np.empty(B, bool), np.empty(B, bool)))
+        if bad:
+            self._flag_nonfinite(bad, tail)
         self.transmit = tail.transmit
         self.raw_errors, self.errors = tail.raw_errors, tail.errors
         self.ptr += 1
@@ -527,6 +575,51 @@ class BatchedCore:
         self._load_step()
         obs, mask = self.observe() if observe else (None, None)
         return StepResult(obs, mask, tail.reward, tail.terminated, tail.truncated)
+
+    # ------------------------------------------------------------------ health
+    def _require_reset(self, what: str) -> None:
+        if not self._seeded:
+            raise ValueError(f"reset() must be called before {what}()")
+
+    def _diagnose(self, out) -> dict[int, dict]:
+        """The members whose state or estimates are not finite after this step: ``{b:
+        {"step", "what", "agent"}}``; raises under ``nonfinite="raise"``. (Rewards need no
+        check: errors are clipped, NaN included, and :class:`RewardConfig` bounds
+        ``|reward| <= error_weight * error_clip + message_cost``.)"""
+        found = {}
+        for b in np.flatnonzero(~np.isfinite(out.err).all(1)):
+            b = int(b)
+            if not np.isfinite(out.x_next[b]).all():
+                what, agent = "state", None
+            elif not np.isfinite(out.Z_next[b]).all():
+                bad_i = ~np.isfinite(out.Z_next[b]).all(1)
+                what, agent = "estimate", int(np.flatnonzero(bad_i)[0])
+            else:  # finite, but ||z_hat_i - z|| overflowed
+                what, agent = "error", int(np.flatnonzero(~np.isfinite(out.err[b]))[0])
+            found[b] = {"step": int(self.k[b]) + 1, "what": what, "agent": agent}
+            if self.nonfinite_mode == "raise":
+                r = found[b]
+                raise NumericalError(self._nonfinite_message(b, r), member=b,
+                                     agent=r["agent"], step=r["step"], what=what)
+        return found
+
+    def _nonfinite_message(self, b: int, r: dict) -> str:
+        who = {"state": "the plant state x is inf or NaN",
+               "estimate": f"the estimate of agent {r['agent']} is inf or NaN",
+               "error": f"the estimation error of agent {r['agent']} overflowed (finite "
+                        "state and estimate, |x_hat - x| > 1e154)"}[r["what"]]
+        return (f"non-finite {r['what']}: {who} at step {r['step']} (batch member {b}); "
+                "the member's episode is over, reset it")
+
+    def _flag_nonfinite(self, bad: dict[int, dict], tail) -> None:
+        """Terminate the members of ``bad``; record and warn once per member and episode."""
+        import warnings
+
+        for b, r in bad.items():
+            tail.terminated[b], tail.truncated[b] = True, False
+            if self.nonfinite[b] is None:
+                self.nonfinite[b] = r
+                warnings.warn(self._nonfinite_message(b, r), NumericalWarning, stacklevel=3)
 
     # ------------------------------------------------------------------ faults
     def _silenced(self, k: np.ndarray) -> np.ndarray:
@@ -540,6 +633,7 @@ class BatchedCore:
         """Freshness indices as the network sees them, ``(B, N, N)``: ``tau`` with a liar's
         rows replaced by its claim from its start step (:meth:`netsense.observers.faults.LyingAgent.
         reported`); ``tau`` itself without a liar."""
+        self._require_reset("reported_indices")
         if self._liar is None:
             return self.tau
         return self._liar.reported(self.tau, self.k)
@@ -548,6 +642,7 @@ class BatchedCore:
     def observe(self) -> tuple[np.ndarray, np.ndarray]:
         """Observations ``(B, N, obs_dim)`` float32 and masks of the current step
         (:func:`netsense.engine.observation.fill`; computed once per step)."""
+        self._require_reset("observe")
         if self._obs is None:
             self._obs = np.empty((self.B, self.N, self.layout.size), dtype=np.float32)
             if self._mask is None:
@@ -572,6 +667,7 @@ class BatchedCore:
     @property
     def adjacency(self) -> np.ndarray:
         """``G[k]`` as ``(B, N, N)`` bool (``[b, i, l]``: ``l -> i``), from the slots."""
+        self._require_reset("adjacency")
         if self._adjacency is None:
             self._adjacency = slot_adjacency(self.nbr, self.N)
         return self._adjacency
@@ -579,10 +675,12 @@ class BatchedCore:
     @property
     def estimates(self) -> np.ndarray:
         """Every agent's estimate of ``x``, ``(B, N, n)`` (``x_hat = T z_hat``)."""
+        self._require_reset("estimates")
         return self.Z @ self.T.T
 
     def state_vector(self) -> np.ndarray:
         """Global state per member ``(B, n + N n + N N)``: ``x``, estimates, ``G[k]``."""
+        self._require_reset("state_vector")
         B = self.B
         return np.concatenate([self.x, self.estimates.reshape(B, -1),
                                self.adjacency.reshape(B, -1).astype(float)], axis=1)

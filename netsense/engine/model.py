@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from netsense.graphs.processes import GraphProcess
+from netsense.kernels.checks import MAX_STEPS
 from netsense.observers.source import SourceEstimator
 from netsense.sensing.arrivals import AlwaysArrive, ArrivalModel
 from netsense.systems.design import ObserverDesign
@@ -68,7 +69,9 @@ class RewardConfig:
         for name in ("error_weight", "team_weight", "message_cost", "error_floor",
                      "error_clip"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+            if (isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer,
+                                                                      np.floating))
+                    or not np.isfinite(v)):
                 raise ValueError(f"reward.{name} must be a finite number, got {v!r}")
         if not 0.0 <= self.team_weight <= 1.0:
             raise ValueError(f"reward.team_weight must be in [0, 1], got {self.team_weight}")
@@ -78,6 +81,10 @@ class RewardConfig:
             raise ValueError(f"reward.error_clip must be > 0, got {self.error_clip}")
         if self.message_cost < 0 or self.error_weight < 0:
             raise ValueError("reward.message_cost and reward.error_weight must be >= 0")
+        if not np.isfinite(float(self.error_weight) * float(self.error_clip)
+                           + float(self.message_cost)):
+            raise ValueError("reward.error_weight * reward.error_clip + reward.message_cost "
+                             "must be finite (it bounds |reward|)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,6 +145,7 @@ class CoreModel:
     def __post_init__(self) -> None:
         from netsense.observers.faults import CrashedAgents, LyingAgent, StuckSensor
 
+        self._check_types()
         object.__setattr__(self, "faults", tuple(self.faults))
         for f in self.faults:
             if not isinstance(f, (CrashedAgents, StuckSensor, LyingAgent)):
@@ -154,18 +162,60 @@ class CoreModel:
         if sum(isinstance(f, LyingAgent) for f in self.faults) > 1:
             raise ValueError("faults may hold at most one LyingAgent (list all liars in it)")
         if (not isinstance(self.horizon, (int, np.integer)) or isinstance(self.horizon, bool)
-                or self.horizon < 1):
-            raise ValueError(f"horizon must be an integer >= 1, got {self.horizon!r}")
+                or not 1 <= self.horizon <= MAX_STEPS):
+            raise ValueError(f"horizon must be an integer in [1, 2^53], got {self.horizon!r}")
+        for f in self.faults:
+            if isinstance(f, StuckSensor) and f.mode == "stale" and f.delay > self.horizon:
+                raise ValueError(f"faults: StuckSensor.delay = {f.delay} exceeds the horizon "
+                                 f"{self.horizon} (the sensor would report y[0] all episode; "
+                                 "use mode = 'stuck', at = 0 for that)")
         if self.graphs.num_nodes != self.plant.num_agents:
             raise ValueError(f"graph process has {self.graphs.num_nodes} nodes but the plant "
                              f"has {self.plant.num_agents} agents")
         if self.design.num_agents != self.plant.num_agents:
             raise ValueError("design and plant disagree on the number of agents")
-        if not np.isfinite(self.x0_std) or self.x0_std < 0:
+        if (isinstance(self.x0_std, (bool, np.bool_))
+                or not isinstance(self.x0_std, (int, float, np.integer, np.floating))
+                or not np.isfinite(self.x0_std) or self.x0_std < 0):
             raise ValueError(f"x0_std must be a finite number >= 0, got {self.x0_std!r}")
+        if not isinstance(self.initial_transmit, (bool, np.bool_)):
+            raise ValueError(f"initial_transmit must be True or False, got "
+                             f"{self.initial_transmit!r}")
         lim = self.divergence_limit
-        if lim is not None and (np.isnan(lim) or lim <= 0):
-            raise ValueError(f"divergence_limit must be None or > 0, got {lim!r}")
+        if lim is not None and (isinstance(lim, (bool, np.bool_))
+                                or not isinstance(lim, (int, float, np.integer, np.floating))
+                                or np.isnan(lim) or lim <= 0):
+            raise ValueError(f"divergence_limit must be None or a number > 0, got {lim!r}")
+
+    def _check_types(self) -> None:
+        """Every field of the right type, and the design made for this plant."""
+        for name, cls in (("plant", Plant), ("design", ObserverDesign),
+                          ("graphs", GraphProcess), ("measurement_arrivals", ArrivalModel),
+                          ("message_arrivals", ArrivalModel), ("reward", RewardConfig)):
+            v = getattr(self, name)
+            if not isinstance(v, cls):
+                raise ValueError(f"{name} must be a {cls.__name__}, got {type(v).__name__}")
+        if self.source_estimator is not None and not callable(self.source_estimator):
+            raise ValueError("source_estimator must be None or a callable returning a "
+                             "SourceEstimator")
+        if not isinstance(self.faults, (tuple, list)):
+            raise ValueError(f"faults must be a tuple of faults, got {type(self.faults).__name__}")
+        p, dec = self.plant, self.design.decomposition
+        if dec.n != p.n or dec.num_agents != p.num_agents or any(
+                Cb.shape != Ci.shape for Cb, Ci in zip(dec.C_bar, p.C, strict=True)):
+            raise ValueError(f"design was made for another plant: its decomposition has n = "
+                             f"{dec.n}, N = {dec.num_agents} and outputs "
+                             f"{[c.shape[0] for c in dec.C_bar]}; the plant has n = {p.n}, "
+                             f"N = {p.num_agents} and outputs {list(p.output_sizes)}")
+        T = dec.T  # x = T z: the design's model of the plant is T A_bar T^T, C_bar_i T^T
+        scale = max(1.0, float(np.abs(p.A).max()), max(float(np.abs(c).max(initial=0.0))
+                                                       for c in p.C))
+        if not (np.allclose(T @ dec.A_bar @ T.T, p.A, rtol=0, atol=1e-6 * scale)
+                and all(np.allclose(Cb @ T.T, Ci, rtol=0, atol=1e-6 * scale)
+                        for Cb, Ci in zip(dec.C_bar, p.C, strict=True))):
+            raise ValueError("design was made for another plant: T A_bar T^T or C_bar_i T^T "
+                             "differ from the plant's A or C_i (design the observer for "
+                             "this plant: netsense.design_observer(plant))")
 
 
 #: Fields of the per-agent observation, in their order in the flat vector.

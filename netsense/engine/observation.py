@@ -87,6 +87,10 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
     touched). ``own[i]``: column of agent ``i``'s own substate (``-1``: none; default
     ``i``), when the substates are the sources only (``tau (B, N, M)``). ``work``:
     :class:`FillBuffers` of this size for the scratch rows (default fresh ones).
+
+    Internal to the engine: the outputs' shapes are checked, but not the index ranges of
+    ``nbr``, ``own`` and ``starts`` (the core's own arrays; checking them would cost every
+    step). Observations for users come from :meth:`netsense.engine.core.BatchedCore.observe`.
     """
     for name, a, dtype in (("obs", obs, np.float32), ("mask", mask, np.int8)):
         if a.dtype != dtype or a.ndim != 3 or not a.flags.c_contiguous:

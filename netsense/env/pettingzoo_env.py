@@ -103,9 +103,19 @@ transmit flags ``initial_transmit``; ``G[0]`` is the graph process's first graph
 
 Episode End
 -----------
-Truncation after ``horizon`` steps. Termination only when the scenario sets
-``divergence_limit`` and some agent's normalised error exceeds it. Then ``agents`` is
+Truncation after ``horizon`` steps. Termination when the scenario sets
+``divergence_limit`` and some agent's normalised error exceeds it, or when the plant
+state or an estimate stops being finite (numerical health, below). Then ``agents`` is
 empty until :meth:`reset`.
+
+Numerical health: an unstable plant run long, or an estimate that blows up, reaches inf or
+NaN; that never passes silently. By default (``nonfinite="terminate"``) the episode ends
+at that step with ``terminated`` true for every agent, ``infos[agent]["nonfinite"] =
+{"step": k, "what": w, "agent": i}`` (``w``: ``"state"`` (the plant state, ``i`` is
+``None``), ``"estimate"`` (agent ``i``'s) or ``"error"`` (finite state and estimate whose
+distance overflows); rewards stay finite by construction) and a
+:class:`netsense.NumericalWarning` that says the same; ``nonfinite="raise"`` raises
+:class:`netsense.NumericalError` from ``step`` instead (see ``docs/errors.md``).
 
 Arguments
 ---------
@@ -116,6 +126,7 @@ Arguments
 * ``action_mask_in``: ``"observation"`` (default) or ``"info"``;
 * ``aoi_info``: ``False`` (default) or ``True`` to add the age-of-information field
   ``infos[agent]["aoi"]`` (see Infos; it costs ~30-60 us per step, so it is opt-in);
+* ``nonfinite``: ``"terminate"`` (default) or ``"raise"`` (see Episode End);
 * scenario overrides (``horizon=``, ``reward={"message_cost": 0.1}``, ...), see
   :func:`netsense.env.registry.make`.
 
@@ -124,7 +135,13 @@ Infos
 ``infos[agent]``: ``error`` (normalised, clipped), ``transmitted`` (bool), plus
 ``action_mask`` with ``action_mask_in="info"`` and ``invalid_actions`` (count) in
 ``"keep"`` mode; ``faulty`` (bool) when the scenario has ``[[faults]]`` (crashed agents
-and liars are faulty: their errors are left out of the team error and of their rewards).
+and liars are faulty: their errors are left out of the team error and of their rewards);
+``nonfinite`` at the step where the state or an estimate stopped being finite
+(see Episode End).
+
+Bad arguments (``reset(seed=-1)``, ``seed=1.5``, ``seed="abc"``, an action of the wrong
+shape or value, unknown agents) raise ``ValueError`` naming the argument before anything
+changes; the env keeps stepping exactly as before the call.
 
 With ``aoi_info=True``, ``infos[agent]["aoi"]`` (also after :meth:`reset`) holds the
 agent's age of information over the steps ``0..k`` of the episode so far, exactly
@@ -153,6 +170,9 @@ Version History
   noise, drops and decisions; estimates differ from earlier versions in the last bits
   (the products' summation order changed), and so do rewards (the norm and the team mean
   are summed in order since the reward pass was compiled).
+* Numerical health (hardening): a member whose plant state or estimates stop
+  being finite terminates with ``infos[agent]["nonfinite"]`` (before, it stepped on with
+  clipped rewards and nothing flagged); bad arguments raise ``ValueError`` naming them.
 """
 
 from __future__ import annotations
@@ -166,6 +186,7 @@ from pettingzoo import ParallelEnv
 
 from netsense.engine.core import BatchedCore, CoreModel
 from netsense.graphs.aoi import aoi_stats
+from netsense.kernels import checks
 
 RENDER_MODES = ("ansi", "rgb_array", "human")
 MASK_LOCATIONS = ("observation", "info")
@@ -254,6 +275,8 @@ class NetSenseEnv(ParallelEnv):
     action_mask_in : {"observation", "info"}
     aoi_info : bool
         Add ``infos[agent]["aoi"]`` (age-of-information statistics, see the module doc).
+    nonfinite : {"terminate", "raise"}
+        Behaviour when the state or an estimate becomes non-finite (module doc).
     """
 
     metadata = {"name": "netsense_v0", "render_modes": list(RENDER_MODES),
@@ -261,7 +284,8 @@ class NetSenseEnv(ParallelEnv):
 
     def __init__(self, model: CoreModel, *, scenario_id: str = "custom",
                  render_mode: str | None = None, invalid_actions: str = "raise",
-                 action_mask_in: str = "observation", aoi_info: bool = False) -> None:
+                 action_mask_in: str = "observation", aoi_info: bool = False,
+                 nonfinite: str = "terminate") -> None:
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be None or one of {RENDER_MODES}, "
                              f"got {render_mode!r}")
@@ -270,7 +294,9 @@ class NetSenseEnv(ParallelEnv):
                              f"got {action_mask_in!r}")
         if not isinstance(aoi_info, bool):
             raise ValueError(f"aoi_info must be True or False, got {aoi_info!r}")
-        self.core = BatchedCore(model, 1, invalid_actions=invalid_actions)
+        if not isinstance(scenario_id, str):
+            raise ValueError(f"scenario_id must be a str, got {type(scenario_id).__name__}")
+        self.core = BatchedCore(model, 1, invalid_actions=invalid_actions, nonfinite=nonfinite)
         self.aoi_info = aoi_info
         self._aoi: RunningAoI | None = None
         self.model = model
@@ -314,7 +340,14 @@ class NetSenseEnv(ParallelEnv):
     # ------------------------------------------------------------------ API
     def reset(self, seed: int | None = None, options: dict | None = None
               ) -> tuple[dict[str, Any], dict[str, dict]]:
-        """Start an episode; ``seed`` makes it reproducible (``options`` is unused)."""
+        """Start an episode; ``seed`` makes it reproducible (``options`` is unused).
+
+        ``seed``: an integer ``>= 0`` or None (checked before anything changes).
+        """
+        if seed is not None:
+            seed = checks.seed_value("seed", seed)
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
         if seed is not None:
             self._seed_rng = np.random.default_rng(seed)
             core_seed = int(seed)
@@ -358,6 +391,9 @@ class NetSenseEnv(ParallelEnv):
             if self.model.faults:
                 for a, ok in zip(agents, self.core.alive.tolist(), strict=True):
                     infos[a]["faulty"] = not ok
+            if extra.get("nonfinite") is not None:
+                for a in agents:
+                    infos[a]["nonfinite"] = dict(extra["nonfinite"])
         if self.action_mask_in == "info":
             for i, a in enumerate(agents):
                 infos[a]["action_mask"] = mask[i]
@@ -397,6 +433,8 @@ class NetSenseEnv(ParallelEnv):
                  "transmitted": self.core.transmit[0].tolist()}
         if self.core.invalid_actions == "keep":
             extra["invalid"] = self.core.last_invalid[0].sum(1).tolist()
+        if out.terminated[0] and self.core.nonfinite[0] is not None:
+            extra["nonfinite"] = self.core.nonfinite[0]
         obs, infos = self._package(out.obs[0], out.action_mask[0], extra)
         if self.aoi_info:
             self._aoi.update(self.core.tau[0])

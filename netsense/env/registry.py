@@ -89,11 +89,12 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 from netsense.engine.model import CoreModel, RewardConfig
+from netsense.kernels import checks
 
 _TOP = {"description", "horizon", "x0_std", "initial_transmit", "divergence_limit",
         "plant", "graph", "design", "noise", "arrivals", "reward", "source_estimator",
         "faults", "substates"}
-_ENV_KWARGS = {"render_mode", "invalid_actions", "action_mask_in", "aoi_info"}
+_ENV_KWARGS = {"render_mode", "invalid_actions", "action_mask_in", "aoi_info", "nonfinite"}
 _PLANT_FIELDS = {
     "fig1_scalar": ({"kind"}, {"a"}),
     "random_structured": ({"kind", "n", "num_agents", "seed"},
@@ -115,6 +116,17 @@ _FAULT_KINDS = ("crash", "stuck_sensor", "liar")
 
 def _err(source: str, path: str, msg: str) -> ValueError:
     return ValueError(f"{source}: field '{path}': {msg}")
+
+
+def _field(source: str, path: str, check, *args, **kwargs):
+    """``check(path, *args)`` (a :mod:`netsense.kernels.checks` helper), its error naming
+    ``source`` and ``path``."""
+    try:
+        return check(path, *args, **kwargs)
+    except ValueError as exc:
+        msg = str(exc)
+        raise _err(source, path, msg[len(path) + 1:] if msg.startswith(path) else msg) \
+            from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,6 +190,8 @@ class Scenario:
         horizon = raw["horizon"]
         if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
             raise _err(source, "horizon", f"must be an integer >= 1, got {horizon!r}")
+        if horizon > checks.MAX_STEPS:
+            raise _err(source, "horizon", f"must be <= 2^53, got {horizon!r}")
         for sec in ("plant", "graph", "design", "noise", "arrivals", "reward",
                     "source_estimator"):
             if sec in raw and not isinstance(raw[sec], dict):
@@ -195,6 +209,13 @@ class Scenario:
         design = dict(raw.get("design", {}))
         for k in sorted(set(design) - {"deadbeat", "rho", "seed"}):
             raise _err(source, f"design.{k}", "unknown key; allowed: deadbeat, rho, seed")
+        if "deadbeat" in design:
+            _field(source, "design.deadbeat", checks.boolean, design["deadbeat"])
+        if "rho" in design:
+            _field(source, "design.rho", checks.number, design["rho"], 0, 1, lo_open=True,
+                   hi_open=True)
+        if "seed" in design:
+            _field(source, "design.seed", checks.seed_value, design["seed"])
         noise = dict(raw.get("noise", {}))
         for k in sorted(set(noise) - {"process", "measurement"}):
             raise _err(source, f"noise.{k}", "unknown key; allowed: process, measurement")
@@ -205,16 +226,17 @@ class Scenario:
         names = {f.name for f in dataclasses.fields(RewardConfig)}
         for k in sorted(set(rw) - names):
             raise _err(source, f"reward.{k}", f"unknown key; allowed: {sorted(names)}")
+        for k, v in rw.items():
+            _field(source, f"reward.{k}", checks.number, v)
         try:
             reward = RewardConfig(**{k: float(v) for k, v in rw.items()})
         except (TypeError, ValueError) as exc:
             raise _err(source, "reward", str(exc)) from exc
         lim = raw.get("divergence_limit")
-        if lim is not None and (not isinstance(lim, (int, float)) or lim <= 0):
-            raise _err(source, "divergence_limit", f"must be a number > 0, got {lim!r}")
+        if lim is not None:
+            _field(source, "divergence_limit", checks.number, lim, 0, lo_open=True)
         x0 = raw.get("x0_std", 1.0)
-        if not isinstance(x0, (int, float)) or isinstance(x0, bool) or x0 < 0:
-            raise _err(source, "x0_std", f"must be a number >= 0, got {x0!r}")
+        _field(source, "x0_std", checks.number, x0, 0)
         it = raw.get("initial_transmit", True)
         if not isinstance(it, bool):
             raise _err(source, "initial_transmit", f"must be true or false, got {it!r}")
@@ -341,7 +363,14 @@ def load_file(path, scenario_id: str | None = None) -> Scenario:
     """Parse and validate a scenario TOML file (any path, e.g. a user's own file)."""
     name = getattr(path, "name", str(path))
     sid = scenario_id or _id_of(Path(name).name) or Path(name).stem
-    text = path.read_text() if hasattr(path, "read_text") else Path(path).read_text()
+    try:
+        text = path.read_text() if hasattr(path, "read_text") else Path(path).read_text()
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a TOML text file (not UTF-8: {exc.reason} at byte "
+                         f"{exc.start})") from None
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the scenario file: "
+                         f"{exc.strerror or exc}") from None
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -357,17 +386,30 @@ def build_plant(sc: Scenario):
 
     p = dict(sc.plant)
     kind = p.pop("kind")
+    src = sc.source
     try:
         if kind == "fig1_scalar":
-            plant = fig1_scalar(float(p.get("a", 2.0)))
+            plant = fig1_scalar(_field(src, "plant.a", checks.number, p.get("a", 2.0)))
         elif kind == "random_structured":
-            plant = random_structured(int(p.pop("n")), int(p.pop("num_agents")),
-                                      rng=int(p.pop("seed")), **p)
+            n = _field(src, "plant.n", checks.integer, p.pop("n"), 1)
+            N = _field(src, "plant.num_agents", checks.integer, p.pop("num_agents"), 1)
+            seed = _field(src, "plant.seed", checks.seed_value, p.pop("seed"))
+            for k in ("num_sources", "outputs_per_source"):
+                if k in p:
+                    p[k] = _field(src, f"plant.{k}", checks.integer, p[k], 1)
+            if "spectral_radius" in p:
+                p["spectral_radius"] = _field(src, "plant.spectral_radius", checks.number,
+                                              p["spectral_radius"], 0, lo_open=True)
+            plant = random_structured(n, N, rng=seed, **p)
         else:
-            A = np.asarray(p["A"], dtype=float)
-            Cs = tuple(np.asarray(Ci, dtype=float).reshape(-1, A.shape[0]) for Ci in p["C"])
+            A, Cs = _matrices(p["A"], p["C"], src)
             plant = Plant(A=A, C=Cs, name=sc.id)
+    except MemoryError:
+        raise _err(src, "plant", "too large: building it needs more memory than is "
+                   "available") from None
     except (ValueError, TypeError) as exc:
+        if isinstance(exc, ValueError) and str(exc).startswith(f"{src}: field"):
+            raise
         raise _err(sc.source, "plant", str(exc)) from exc
     noise = {}
     for key in ("process", "measurement"):
@@ -379,12 +421,44 @@ def build_plant(sc: Scenario):
     return dataclasses.replace(plant, **noise) if noise else plant
 
 
+def _numbers(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _matrices(A: Any, C: Any, source: str) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """``plant.A`` (a non-empty square table of numbers) and ``plant.C`` (one entry per
+    agent: ``[]``, a list of rows of length ``n``, or one row of length ``n``)."""
+    if (not isinstance(A, list) or not A or not all(isinstance(r, list) for r in A)
+            or any(len(r) != len(A) for r in A)):
+        raise _err(source, "plant.A", f"must be a non-empty square matrix (a list of n rows "
+                   f"of n numbers), got {A!r:.80}")
+    if not all(_numbers(v) for r in A for v in r):
+        raise _err(source, "plant.A", "must hold numbers only")
+    n = len(A)
+    if not isinstance(C, list) or not C:
+        raise _err(source, "plant.C", "must be a list with one output matrix per agent")
+    Cs = []
+    for i, Ci in enumerate(C):
+        if not isinstance(Ci, list):
+            raise _err(source, f"plant.C[{i}]", f"must be a list of rows, got {Ci!r:.40}")
+        rows = [Ci] if Ci and not isinstance(Ci[0], list) else Ci  # one row may be flat
+        if any(not isinstance(r, list) or len(r) != n for r in rows):
+            raise _err(source, f"plant.C[{i}]", f"every row must hold n = {n} numbers (the "
+                       f"width of A), got {Ci!r:.80}")
+        if not all(_numbers(v) for r in rows for v in r):
+            raise _err(source, f"plant.C[{i}]", "must hold numbers only")
+        Cs.append(np.array(rows, dtype=float).reshape(len(rows), n))
+    return np.array(A, dtype=float), tuple(Cs)
+
+
 def _base_edges(spec: dict, N: int, source: str) -> list[list[int]]:
     kind = spec.get("kind")
     if kind == "circulant":
         offs = spec.get("offsets")
         if set(spec) != {"kind", "offsets"} or not isinstance(offs, list) or not offs:
             raise _err(source, "graph.base", "circulant needs exactly 'offsets' (a list)")
+        for o in offs:
+            _field(source, "graph.base.offsets", checks.integer, o)
         return [[l, (l + int(o)) % N] for o in offs for l in range(N) if int(o) % N]
     if kind == "complete":
         if set(spec) != {"kind"}:
@@ -407,11 +481,13 @@ def build_graphs(sc: Scenario):
         base = g.pop("base")
         if not isinstance(base, dict):
             raise _err(sc.source, "graph.base", "must be a table")
-        g["base_edges"] = _base_edges(base, int(g.get("num_nodes", 0)), sc.source)
+        N = _field(sc.source, "graph.num_nodes", checks.integer, g.get("num_nodes"), 1)
+        g["base_edges"] = _base_edges(base, N, sc.source)
     try:
         return graph_process_from_dict(g)
     except (ValueError, TypeError, KeyError) as exc:
-        raise _err(sc.source, "graph", str(exc)) from exc
+        name = _field_of(str(exc), set(g) - {"kind"})
+        raise _err(sc.source, f"graph.{name}" if name else "graph", str(exc)) from exc
 
 
 def _arrival(spec: dict, path: str, source: str):
@@ -426,15 +502,22 @@ def _arrival(spec: dict, path: str, source: str):
 def _field_of(msg: str, fields: set[str]) -> str:
     """The first field name of ``fields`` that an estimator's error message mentions."""
     for word in msg.replace("[", " ").replace("(", " ").replace(".", " ").split():
-        if word.strip("'\",.:") in fields:
-            return word.strip("'\",.:")
+        if word.strip("'\",.:;])") in fields:
+            return word.strip("'\",.:;])")
     return ""
 
 
-def _number_or_array(v: Any) -> float | np.ndarray:
-    if isinstance(v, (int, float)) and not isinstance(v, bool):
+def _number_or_array(v: Any, path: str = "value", source: str = "<memory>"
+                     ) -> float | np.ndarray:
+    if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
         return float(v)
-    return np.asarray(v, dtype=float)
+    if not isinstance(v, (list, tuple, np.ndarray)):
+        raise _err(source, path, f"must be a number or an array of numbers, got {v!r:.60}")
+    try:
+        return np.asarray(v, dtype=float)
+    except (ValueError, TypeError):
+        raise _err(source, path, "must be a number or a (rectangular) array of numbers, got "
+                   f"{v!r:.60}") from None
 
 
 def build_language(spec: dict, source: str = "<memory>"):
@@ -482,7 +565,8 @@ def build_source_estimator(sc: Scenario, design):
             raise _err(src, f"source_estimator.{k}", f"must be a number, got {v!r}")
     try:
         if kind in ("kfio", "rseio"):
-            arrays = {k: _number_or_array(v) for k, v in spec.items() if k != "mu"}
+            arrays = {k: _number_or_array(v, f"source_estimator.{k}", src)
+                      for k, v in spec.items() if k != "mu"}
             for k in ("R", "dC"):  # per-agent lists (R may also be one number)
                 if isinstance(spec.get(k), list):
                     arrays[k] = [np.zeros((0, 0)) if isinstance(v, list) and not v
@@ -532,6 +616,17 @@ def build_faults(sc: Scenario, num_agents: int) -> tuple:
     return tuple(out)
 
 
+def _scale_hint(plant) -> str:
+    """A hint for a plant whose entries span many orders of magnitude (the rank decisions
+    of Lemma 1 are relative to the largest norm, so small outputs look like zero)."""
+    vals = np.abs(np.concatenate([plant.A.ravel(), *[c.ravel() for c in plant.C]]))
+    vals = vals[vals > 0]
+    if vals.size and vals.max() / vals.min() > 1e8:
+        return (f" (the plant is badly scaled: its entries range from {vals.min():.3g} to "
+                f"{vals.max():.3g}; rescale the state or the outputs)")
+    return ""
+
+
 def build_model(sc: Scenario) -> CoreModel:
     """Everything the batched core needs: plant, gains, graphs, arrivals, rewards."""
     from netsense.sensing.arrivals import AlwaysArrive
@@ -545,10 +640,10 @@ def build_model(sc: Scenario) -> CoreModel:
     d = sc.design
     try:
         design = design_observer(plant, rho=float(d.get("rho", 0.5)),
-                                 deadbeat=bool(d.get("deadbeat", False)),
+                                 deadbeat=d.get("deadbeat", False),
                                  rng=int(d.get("seed", 0)))
     except (ValueError, TypeError) as exc:
-        raise _err(sc.source, "design", str(exc)) from exc
+        raise _err(sc.source, "design", str(exc) + _scale_hint(plant)) from exc
     arr = {k: _arrival(v, f"arrivals.{k}", sc.source) for k, v in sc.arrivals.items()}
     for k, model in arr.items():
         S = getattr(model, "num_sensors", plant.num_agents)  # multirate: one per agent
@@ -567,7 +662,9 @@ def build_model(sc: Scenario) -> CoreModel:
                          source_estimator=source_estimator, faults=faults,
                          substates=sc.substates)
     except ValueError as exc:
-        raise _err(sc.source, "<scenario>", str(exc)) from exc
+        name = _field_of(str(exc), {"faults", "horizon", "x0_std", "initial_transmit",
+                                    "divergence_limit", "design", "substates", "reward"})
+        raise _err(sc.source, name or "<scenario>", str(exc)) from exc
 
 
 def _merge(base: dict, over: dict) -> dict:

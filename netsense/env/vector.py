@@ -75,6 +75,7 @@ from gymnasium.vector.utils import batch_space
 
 from netsense.engine.core import BatchedCore, CoreModel
 from netsense.env.pettingzoo_env import FlatMaskMultiDiscrete
+from netsense.kernels import checks
 
 __all__ = ["AgentVectorEnv", "BatchedEnv", "load_model", "make_sb3_vec_env"]
 
@@ -118,6 +119,9 @@ class BatchedEnv:
         Behaviour on masked actions (see :mod:`netsense.engine.core`).
     auto_reset : bool
         Restart finished members inside :meth:`step` (see the module docstring).
+    nonfinite : {"terminate", "raise"}
+        A member whose state or estimates stop being finite terminates (with
+        ``info["nonfinite"]``) or the step raises :class:`netsense.NumericalError`.
     **overrides
         Scenario overrides for :func:`netsense.make` (``horizon=10``, ...).
 
@@ -137,11 +141,11 @@ class BatchedEnv:
 
     def __init__(self, scenario: str | CoreModel, num_envs: int, *,
                  invalid_actions: str = "raise", auto_reset: bool = True,
-                 **overrides) -> None:
-        if isinstance(num_envs, bool) or int(num_envs) != num_envs or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+                 nonfinite: str = "terminate", **overrides) -> None:
+        num_envs = checks.integer("num_envs", num_envs, 1)
         model, self.scenario_id = load_model(scenario, **overrides)
-        self.core = BatchedCore(model, int(num_envs), invalid_actions=invalid_actions)
+        self.core = BatchedCore(model, int(num_envs), invalid_actions=invalid_actions,
+                                nonfinite=nonfinite)
         c = self.core
         self.model = model
         self.auto_reset = bool(auto_reset)
@@ -165,10 +169,8 @@ class BatchedEnv:
         info : dict
             ``action_mask`` (B, N, M) int8.
         """
-        if seed is not None and (isinstance(seed, bool) or not np.isscalar(seed)
-                                 or int(seed) != seed or seed < 0):
-            raise ValueError(f"seed must be an integer >= 0 or None (member b gets seed + b), "
-                             f"got {seed!r}")
+        if seed is not None:  # member b gets seed + b
+            seed = checks.seed_value("seed", seed, self.num_envs)
         self._seed_rng = np.random.default_rng(seed)
         if seed is None:
             seeds = self._draw_seeds(self.num_envs)
@@ -192,6 +194,8 @@ class BatchedEnv:
         if self._seed_rng is None:
             raise ValueError("reset() must be called before reset_at()")
         sel = np.zeros(self.num_envs, dtype=bool)
+        if seed is not None:
+            seed = checks.seed_value("seed", seed, self.num_envs)
         m = np.asarray(members)
         if m.dtype == bool:
             if m.shape != (self.num_envs,):
@@ -199,6 +203,9 @@ class BatchedEnv:
                                  f"got {m.shape}")
             sel = m.copy()
         else:
+            if m.dtype.kind not in "iu":
+                raise ValueError(f"members must be member indices or a ({self.num_envs},) "
+                                 f"bool mask, got dtype {m.dtype}")
             idx = m.astype(np.int64).reshape(-1)
             if idx.size and (idx.min() < 0 or idx.max() >= self.num_envs):
                 raise ValueError(f"member indices must be in 0..{self.num_envs - 1}, got "
@@ -234,7 +241,9 @@ class BatchedEnv:
             ``action_mask`` (B, N, M) int8 of ``obs``; ``error`` (B, N) normalised errors
             and ``transmitted`` (B, N) bool of this step; with auto-reset and some member
             finished also ``final_obs`` (B, N, obs_dim), ``final_action_mask`` and the
-            flags ``_final_obs`` (B,) bool.
+            flags ``_final_obs`` (B,) bool; when a member terminated because its state or
+            estimates stopped being finite, ``nonfinite`` (B,) object array with that
+            member's ``{"step", "what", "agent"}`` (``None`` for the others).
         """
         if self.action_mask is None:
             raise ValueError("reset() must be called before step()")
@@ -243,6 +252,11 @@ class BatchedEnv:
                                 "transmitted": self.core.transmit}
         obs = out.obs
         done = out.terminated | out.truncated
+        if out.terminated.any() and any(r is not None for r in self.core.nonfinite):
+            flags = np.empty(self.num_envs, dtype=object)
+            flags[:] = [r if t else None for r, t in zip(self.core.nonfinite,
+                                                         out.terminated, strict=True)]
+            info["nonfinite"] = flags
         if self.auto_reset and done.any():
             # the partial reset writes into the core's per-member arrays: keep this step's
             info["error"] = self.core.errors.copy()
@@ -310,6 +324,8 @@ class AgentVectorEnv(VectorEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None
               ) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every copy (copy ``b`` gets ``seed + b``) or those in ``reset_mask``."""
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict or None, got {type(options).__name__}")
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         if options:
@@ -317,7 +333,9 @@ class AgentVectorEnv(VectorEnv):
         if mask is None:
             obs, info = self.batched.reset(seed)
         else:
-            m = np.asarray(mask, dtype=bool)
+            m = np.asarray(mask)
+            if m.dtype != bool:
+                raise ValueError(f"reset_mask must be a bool array, got dtype {m.dtype}")
             if m.shape == (self.num_envs,):
                 per_copy = m.reshape(self.batch_size, self.num_agents)
                 if not (per_copy == per_copy[:, :1]).all():
@@ -345,6 +363,8 @@ class AgentVectorEnv(VectorEnv):
         infos: dict[str, Any] = {"action_mask": self._flat(info["action_mask"]),
                                  "error": info["error"].reshape(-1),
                                  "transmitted": info["transmitted"].reshape(-1)}
+        if "nonfinite" in info:
+            infos["nonfinite"] = np.repeat(info["nonfinite"], self.num_agents)
         if "final_obs" in info:
             infos["final_obs"] = self._flat(info["final_obs"])
             infos["final_action_mask"] = self._flat(info["final_action_mask"])
@@ -407,6 +427,8 @@ def _sb3_class() -> type:
                 fo = info["final_obs"]
                 for s in np.flatnonzero(dones):
                     infos[s]["terminal_observation"] = fo[s]
+                    if "nonfinite" in info and info["nonfinite"][s] is not None:
+                        infos[s]["nonfinite"] = info["nonfinite"][s]
                     infos[s]["TimeLimit.truncated"] = bool(trunc[s] and not term[s])
             return obs, rew.astype(np.float32), dones, infos
 
@@ -476,6 +498,9 @@ def make_sb3_vec_env(scenario: str | CoreModel, batch_size: int, *, seed: int | 
     >>> venv = make_sb3_vec_env("fig1_scalar-v0", 64, seed=0)    # doctest: +SKIP
     >>> MaskablePPO("MlpPolicy", venv).learn(10_000)              # doctest: +SKIP
     """
+    if seed is not None:
+        seed = checks.seed_value("seed", seed, batch_size if isinstance(batch_size, int)
+                                 else 1)
     cls = _sb3_class()
     venv = cls(AgentVectorEnv(scenario, batch_size, invalid_actions=invalid_actions,
                               **overrides))

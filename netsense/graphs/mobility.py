@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from netsense.graphs.processes import GraphProcess
+from netsense.kernels import checks
 
 __all__ = ["MobilityState", "RandomWalk", "RandomWaypoint", "disk_graph", "mobility_from_dict"]
 
@@ -69,6 +70,12 @@ class _Mobility(GraphProcess):
     area: float
 
     def _check_common(self) -> None:
+        checks.integer("num_nodes", self.num_nodes)
+        checks.number("area", self.area)
+        for name in ("speed_min", "speed_max", "pause", "step_std"):
+            if hasattr(self, name):
+                checks.number(name, getattr(self, name))
+        r = checks.array("radius", self.radius, kind="f")
         if self.num_nodes < 2:
             raise ValueError(f"num_nodes must be >= 2, got {self.num_nodes}")
         r = np.asarray(self.radius, dtype=float)

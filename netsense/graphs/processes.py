@@ -25,6 +25,7 @@ import numpy as np
 from numba import prange
 from numba.np.random.generator_core import next_double
 
+from netsense.kernels import checks
 from netsense.kernels.jit import NO_STREAMS, Driver, bit_generator, bit_streams
 
 
@@ -46,6 +47,10 @@ def as_adjacency(graph, num_nodes: int | None = None) -> np.ndarray:
             raise ValueError("num_nodes is required for an edge list")
         adj = np.zeros((num_nodes, num_nodes), dtype=bool)
         for e in graph:
+            if (isinstance(e, (str, bytes)) or not hasattr(e, "__len__") or len(e) != 2
+                    or any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer))
+                           for v in e)):
+                raise ValueError(f"edges must be pairs [l, i] of node ids (l -> i), got {e!r}")
             l, i = (int(v) for v in e)
             if not (0 <= l < num_nodes and 0 <= i < num_nodes):
                 raise ValueError(f"edge {e} names a node outside 0..{num_nodes - 1}")
@@ -208,6 +213,7 @@ class GraphProcess:
     def sequence(self, num_steps: int, rng: np.random.Generator | int | None = None
                  ) -> np.ndarray:
         """Convenience: ``num_steps`` graphs from a fresh start."""
+        num_steps = checks.integer("num_steps", num_steps, 0)
         rng = np.random.default_rng(rng)
         seq, _ = self.sample(rng, num_steps, self.initial_state(rng))
         return seq
@@ -286,6 +292,9 @@ class RandomJointlyConnected(GraphProcess):
     extra_edge_prob: float = 0.0
 
     def __post_init__(self) -> None:
+        checks.integer("num_nodes", self.num_nodes)
+        checks.integer("period", self.period)
+        checks.number("extra_edge_prob", self.extra_edge_prob, 0, 1)
         if self.num_nodes < 2:
             raise ValueError(f"num_nodes must be >= 2, got {self.num_nodes}")
         if self.period < 1:
@@ -344,9 +353,9 @@ class MarkovLinkFailures(GraphProcess):
     num_nodes: int = field(init=False)
 
     def __post_init__(self) -> None:
-        base = as_adjacency(np.asarray(self.base))
+        base = as_adjacency(checks.array("base", self.base, (None, None), kind="ibf"))
         for name in ("p_fail", "p_recover"):
-            v = getattr(self, name)
+            v = checks.number(name, getattr(self, name), 0, 1)
             if not 0 <= v <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {v}")
         if self.p_fail + self.p_recover == 0:
@@ -466,7 +475,7 @@ class Gossip(GraphProcess):
     num_nodes: int = field(init=False)
 
     def __post_init__(self) -> None:
-        base = as_adjacency(np.asarray(self.base))
+        base = as_adjacency(checks.array("base", self.base, (None, None), kind="ibf"))
         if not base.any():
             raise ValueError("Gossip needs a base graph with at least one edge")
         object.__setattr__(self, "base", base)

@@ -8,6 +8,13 @@ random streams to compiled code), and the checked array functions every caller u
 (:mod:`.update`). The scripted observers, the environment and the benchmarks all call
 this code, so it sits below every other layer.
 
+Safety: the names exported here (and every public function of :mod:`.update`) check
+shapes, dtypes and index ranges before any compiled code runs, and raise ``ValueError``
+naming the argument (helpers in :mod:`.checks`). :mod:`.rules`, :mod:`.lanes`,
+:mod:`.drivers` and :mod:`.jit` are internal: compiled without bounds checks, for callers
+that guarantee their arrays (the batched core calls ``update._apply_actions`` and
+``update._check_actions``, the unchecked forms of the public functions).
+
 May import: numpy, numba. Nothing else from netsense.
 """
 

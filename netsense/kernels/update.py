@@ -29,7 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from netsense.kernels import drivers
+from netsense.kernels import checks, drivers
 from netsense.kernels.rules import OMEGA  # noqa: F401  (re-exported: kernels.OMEGA)
 
 
@@ -52,15 +52,7 @@ def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     slot : (B, N, N) int
         Chosen slot ``d`` (``-1`` when keeping the own estimate).
     """
-    tau, nbr = np.asarray(tau), np.asarray(nbr)
-    if tau.ndim != 3 or nbr.ndim != 3 or nbr.shape[:2] != tau.shape[:2]:
-        raise ValueError(f"tau must be (B, N, M) and nbr (B, N, D) with the same B, N; got "
-                         f"{tau.shape} and {nbr.shape}")
-    if np.shape(valid) != nbr.shape:
-        raise ValueError(f"valid must have the shape of nbr {nbr.shape}, got "
-                         f"{np.shape(valid)}")
-    if transmit is not None and np.shape(transmit) != tau.shape[:2]:
-        raise ValueError(f"transmit must have shape {tau.shape[:2]}, got {np.shape(transmit)}")
+    tau, nbr, valid, transmit = _slots_in(tau, nbr, valid, transmit)
     use = usable_slots(nbr, valid, transmit)
     B, N, M = tau.shape
     if use.any() and not (0 <= nbr[use].min() and nbr[use].max() < N):
@@ -81,7 +73,9 @@ def advance_indices(tau: np.ndarray, src: np.ndarray, own: np.ndarray | None = N
     keeps ``tau_j^{(j)} = 0``. ``own[i]`` is the substate (column) of agent ``i``, ``-1``
     if it owns none; the default is ``own[i] = i`` (one column per agent).
     """
-    tau = np.asarray(tau)
+    tau = checks.array("tau", tau, (None, None, None), kind="i")
+    src = _sources_in(src, tau.shape)
+    own = _own_in(own, tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
     drivers.advance_all.at(tau.size)(tau, _own(own, tau), np.asarray(src), out)
     return out
@@ -97,7 +91,8 @@ def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     index is omega. Every source keeps ``tau_j^{(j)} = 0``. Companion of
     :func:`uniform_mix` (the consensus baseline's bookkeeping of the age of information).
     """
-    tau = np.asarray(tau)
+    tau, nbr, valid, transmit = _slots_in(tau, nbr, valid, transmit)
+    own = _own_in(own, tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
     drivers.average_all.at(tau.size)(tau, _own(own, tau), np.asarray(nbr),
                               usable_slots(nbr, valid, transmit), out)
@@ -105,8 +100,15 @@ def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
 
 
 def gather_substates(Z: np.ndarray, src: np.ndarray, block_of: np.ndarray) -> np.ndarray:
-    """``Zg[b, i, c] = Z[b, src[b, i, block_of[c]], c]``: each substate from its chosen agent."""
-    Z = np.asarray(Z, dtype=float)
+    """``Zg[b, i, c] = Z[b, src[b, i, block_of[c]], c]``: each substate from its chosen agent.
+
+    ``Z (B, N, n)``; ``src (B, N, M)`` agents ``0..N-1``; ``block_of (n,)`` substates
+    ``0..M-1``.
+    """
+    Z = checks.array("Z", Z, (None, None, None), kind="f")
+    src = _sources_in(src, Z.shape[:2] + (None,))
+    block_of = checks.array("block_of", block_of, (Z.shape[2],), kind="i")
+    checks.index_range("block_of", block_of, 0, src.shape[2])
     out = np.empty(Z.shape)
     drivers.gather_all.at(Z.size)(Z, np.asarray(src), np.asarray(block_of), out)
     return out
@@ -118,7 +120,9 @@ def uniform_mix(Z: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
 
     Weights are uniform over ``N_i[k] ∪ {i}`` restricted to neighbours that transmitted.
     """
-    Z = np.asarray(Z, dtype=float)
+    Z = checks.array("Z", Z, (None, None, None), kind="f")
+    _, nbr, valid, transmit = _slots_in(np.empty(Z.shape[:2] + (0,), np.int64), nbr, valid,
+                                        transmit)
     out = np.empty(Z.shape)
     drivers.mix_all.at(Z.size)(Z, np.asarray(nbr), usable_slots(nbr, valid, transmit), out)
     return out
@@ -168,7 +172,8 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
         :func:`gain_rows` of ``L_pad`` (computed when not given; fixed gains can pass it
         once computed).
     """
-    Z = np.asarray(Z, dtype=float)
+    Z, y, arrived, C_bar_pad, L_pad, rows = _luenberger_in(Z, y, arrived, C_bar_pad, L_pad,
+                                                           rows)
     B, N, n = Z.shape
     y = np.asarray(y, dtype=float)
     L = np.asarray(L_pad, dtype=float)
@@ -186,6 +191,8 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
 def gain_rows(L_pad: np.ndarray) -> np.ndarray:
     """``(N, 2)``: rows ``lo <= c < hi`` that hold the non-zeros of each agent's gain
     (its own block); ``lo = hi = 0`` for an agent with no gain (not a source)."""
+    if np.ndim(L_pad) < 3:
+        raise ValueError(f"L_pad must have shape (..., N, n, r), got {np.shape(L_pad)}")
     nz = np.asarray(L_pad) != 0  # (..., N, n, r)
     rows = nz.any(-1)
     while rows.ndim > 2:
@@ -204,6 +211,8 @@ def vecmat(x: np.ndarray, M: np.ndarray) -> np.ndarray:
     bit. The rule of the plant (eq. (1)), the outputs (eq. (2)) and ``z = T^T x``; the
     environment's compiled passes call its row function (``rules.vecmat_row``) directly.
     """
+    x = checks.array("x", x, (None, None), kind="f")
+    M = checks.array("M", M, (x.shape[1], None), kind="f")
     x = np.ascontiguousarray(x, dtype=float)
     M = np.ascontiguousarray(M, dtype=float)
     out = np.empty((x.shape[0], M.shape[1]))
@@ -228,7 +237,27 @@ def check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
     ``choice (B, N, M)`` and the masked flags into
     ``masked``, and returns the ``status`` vector of :data:`STATUS_FIELDS`: the first
     (in C order) out-of-range entry and the first masked one, ``-1`` where there is none.
+
+    ``choice`` must be a writable int64 array and ``masked`` a writable bool array, both
+    ``(B, N, M)``; ``msg (B, N, D)`` bool.
     """
+    choice = checks.array("choice", choice, (None, None, None), kind="i")
+    B, N, M = choice.shape
+    act = checks.array("act", act, (B, N, M + 1), kind="i")
+    msg = checks.mask("msg", msg, (B, N, None))
+    for name, a, dt in (("choice", choice, np.int64), ("masked", masked, np.bool_)):
+        if not (isinstance(a, np.ndarray) and a.dtype == dt and a.shape == (B, N, M)
+                and a.flags.writeable):
+            raise ValueError(f"{name} must be a writable {np.dtype(dt).name} array of shape "
+                             f"{(B, N, M)} (an output), got {getattr(a, 'dtype', type(a))} "
+                             f"{np.shape(a)}")
+    own = _own_in(own, choice)
+    return _check_actions(act, msg, choice, masked, own)
+
+
+def _check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
+                   masked: np.ndarray, own: np.ndarray | None = None) -> np.ndarray:
+    """:func:`check_actions` without checks (the core's path: its arrays are its own)."""
     first = np.empty((act.shape[0], 4), dtype=np.int64)  # (both set per member by the
     okt = np.empty((act.shape[0], msg.shape[2] + 2), dtype=np.bool_)  # driver's threads)
     drivers.check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first, okt)
@@ -256,6 +285,9 @@ class StepBuffers:
 
     def __init__(self, B: int, N: int, n: int, M: int, D: int, p: int, r: int,
                  tau_dtype=np.int64, share_scratch: StepBuffers | None = None) -> None:
+        for name, v in zip(("B", "N", "n", "M", "D", "p", "r"), (B, N, n, M, D, p, r),
+                           strict=True):
+            checks.integer(name, v, 0)
         tau_dtype = np.dtype(tau_dtype)
         self.key = (B, N, n, M, D, p, r, tau_dtype)
         self.Z_next = np.empty((B, N, n))
@@ -319,7 +351,65 @@ def apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarr
 
     ``work``: :class:`StepBuffers` of this size to write the outputs and scratch rows
     into (the returned arrays are then those buffers); default fresh arrays.
+
+    Shapes (checked, with index ranges, before anything runs): ``Z (B, N, n)``, ``tau (B,
+    N, M)`` and ``act (B, N, M + 1)`` integers, ``nbr (B, N, D)`` agents ``-1..N-1``,
+    ``msg (B, N, D)`` bool (only on slots that hold a neighbour), ``block_of (n,)``
+    substates ``0..M-1``, ``A_lower_T, A_diag_T (n, n)``, ``x (B, p)``, ``A_T (p, p)``,
+    ``T (p, n)``, ``w (B, q)`` with ``W_T (q, p)``, ``corr (B, N, n)``, ``own (N,)``
+    substates ``-1..M-1``, ``luenberger`` as :func:`innovation_correction` takes them.
     """
+    Z = checks.array("Z", Z, (None, None, None), kind="f")
+    B, N, n = Z.shape
+    tau = checks.array("tau", tau, (B, N, None), kind="i")
+    M = tau.shape[2]
+    act = checks.array("act", act, (B, N, M + 1), kind="i")
+    nbr = checks.array("nbr", nbr, (B, N, None), kind="i")
+    checks.index_range("nbr", nbr, -1, N)
+    msg = checks.mask("msg", msg, nbr.shape)
+    if (msg & (nbr < 0)).any():
+        raise ValueError("msg must be false on empty slots (nbr = -1)")
+    block_of = checks.array("block_of", block_of, (n,), kind="i")
+    checks.index_range("block_of", block_of, 0, M)
+    A_lower_T = checks.array("A_lower_T", A_lower_T, (n, n), kind="f")
+    A_diag_T = checks.array("A_diag_T", A_diag_T, (n, n), kind="f")
+    x = checks.array("x", x, (B, None), kind="f")
+    p = x.shape[1]
+    A_T = checks.array("A_T", A_T, (p, p), kind="f")
+    T = checks.array("T", T, (p, n), kind="f")
+    if w is not None:
+        if W_T is None:
+            raise ValueError("W_T is needed with w (the process noise's input matrix)")
+        w = checks.array("w", w, (B, None), kind="f")
+        W_T = checks.array("W_T", W_T, (w.shape[1], p), kind="f")
+    if (corr is None) == (luenberger is None):
+        raise ValueError("apply_actions needs exactly one of corr and luenberger")
+    if corr is not None:
+        corr = checks.array("corr", corr, (B, N, n), kind="f")
+    else:
+        if not isinstance(luenberger, tuple) or len(luenberger) not in (4, 5):
+            raise ValueError("luenberger must be a tuple (y, arrived, C_bar_pad, L_pad[, "
+                             "rows])")
+        y, arrived, C, L, rows = _luenberger_in(Z, *luenberger)[1:]
+        arrived = np.ones((B, N), bool) if arrived is None else arrived
+        luenberger = (y, arrived, C, L) if rows is None else (y, arrived, C, L, rows)
+    own = _own_in(own, tau)
+    if work is not None and not isinstance(work, StepBuffers):
+        raise ValueError(f"work must be StepBuffers or None, got {type(work).__name__}")
+    return _apply_actions(Z, tau, act, nbr, msg, block_of, A_lower_T, A_diag_T, x=x, A_T=A_T,
+                          T=T, w=w, W_T=W_T, corr=corr, luenberger=luenberger, own=own,
+                          work=work)
+
+
+def _apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndarray,
+                   msg: np.ndarray, block_of: np.ndarray, A_lower_T: np.ndarray,
+                   A_diag_T: np.ndarray, *, x: np.ndarray,
+                   A_T: np.ndarray, T: np.ndarray, w: np.ndarray | None = None,
+                   W_T: np.ndarray | None = None, corr: np.ndarray | None = None,
+                   luenberger: tuple | None = None, own: np.ndarray | None = None,
+                   work: StepBuffers | None = None) -> StepOut:
+    """:func:`apply_actions` without the checks of its arguments' index ranges: the
+    core's path (:class:`netsense.engine.core.BatchedCore` builds every array itself)."""
     Z = np.ascontiguousarray(Z, dtype=float)
     B, N, n = Z.shape
     M = tau.shape[2]
@@ -373,6 +463,58 @@ def _status(first: np.ndarray) -> np.ndarray:
     return status
 
 
+def _own_in(own, tau: np.ndarray) -> np.ndarray | None:
+    """Check ``own (N,)``: substates ``-1..M-1`` for ``tau (B, N, M)``."""
+    if own is None:
+        if tau.shape[1] > tau.shape[2]:
+            raise ValueError(f"own is needed when there are fewer substates ({tau.shape[2]}) "
+                             f"than agents ({tau.shape[1]})")
+        return None
+    own = checks.array("own", own, (tau.shape[1],), kind="i")
+    checks.index_range("own", own, -1, tau.shape[2])
+    return own
+
+
+def _sources_in(src, shape: tuple) -> np.ndarray:
+    """Check ``src`` (``shape``; ``None`` = any length): agents ``0..N-1``."""
+    src = checks.array("src", src, shape, kind="i")
+    checks.index_range("src", src, 0, src.shape[1])
+    return src
+
+
+def _slots_in(tau, nbr, valid, transmit):
+    """Check ``tau (B, N, M)``, ``nbr (B, N, D)`` (agents ``0..N-1`` where ``valid``),
+    ``valid`` like ``nbr`` and ``transmit (B, N)``, both bool."""
+    tau = checks.array("tau", tau, (None, None, None), kind="i")
+    B, N = tau.shape[:2]
+    nbr = checks.array("nbr", nbr, (B, N, None), kind="i")
+    valid = checks.mask("valid", valid, nbr.shape)
+    checks.index_range("nbr", nbr, 0, N, where=valid)
+    if transmit is not None:
+        transmit = checks.mask("transmit", transmit, (B, N))
+    return tau, nbr, valid, transmit
+
+
+def _luenberger_in(Z, y, arrived, C_bar_pad, L_pad, rows=None):
+    """Check the arguments of :func:`innovation_correction` (see there for the shapes)."""
+    Z = checks.array("Z", Z, (None, None, None), kind="f")
+    B, N, n = Z.shape
+    C = checks.array("C_bar_pad", C_bar_pad, (N, None, n), kind="f")
+    r = C.shape[1]
+    y = checks.array("y", y, (B, N, r), kind="f")
+    if arrived is not None:
+        arrived = checks.mask("arrived", arrived, (B, N))
+    L = checks.array("L_pad", L_pad, (N, n, r) if np.ndim(L_pad) == 3 else (None, N, n, r),
+                     kind="f")
+    if L.ndim == 4 and L.shape[0] not in (1, B):
+        raise ValueError(f"L_pad must have shape (N, n, r), (1, N, n, r) or (B, N, n, r) = "
+                         f"{(B, N, n, r)}, got {L.shape}")
+    if rows is not None:
+        rows = checks.array("rows", rows, (N, 2), kind="i")
+        checks.index_range("rows", rows, 0, n + 1)
+    return Z, y, arrived, C, L, rows
+
+
 def _own(own: np.ndarray | None, tau: np.ndarray) -> np.ndarray:
     """Column of each agent's own substate (``-1``: none); default ``own[i] = i``."""
     if own is None:
@@ -391,7 +533,9 @@ def usable_slots(nbr: np.ndarray, valid: np.ndarray,
     The message rule of :func:`netsense.kernels.rules.message_row` (without link drops) on the
     slots ``valid`` marks; ``transmit`` is ``(B, N)``.
     """
-    valid = np.asarray(valid, dtype=bool)
+    nbr = checks.array("nbr", nbr, (None, None, None), kind="i")
+    _, nbr, valid, transmit = _slots_in(np.empty(nbr.shape[:2] + (0,), np.int64), nbr, valid,
+                                        transmit)
     if transmit is None:
         return valid
     return slot_messages(np.where(valid, nbr, -1), np.asarray(transmit, bool))
@@ -402,6 +546,9 @@ def keep_own_blocks(Z_sel: np.ndarray, Z: np.ndarray, own_block: np.ndarray) -> 
 
     ``own_block`` is the ``(N, n)`` mask ``block_of[c] == i``.
     """
+    Z = checks.array("Z", Z, (None, None, None))
+    checks.array("Z_sel", Z_sel, Z.shape)
+    checks.array("own_block", own_block, Z.shape[1:])
     return np.where(own_block[None], Z, Z_sel)
 
 
@@ -413,6 +560,12 @@ def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
     (``transmit[b, l]``) and whose link ``l -> i`` delivered (``link[b, i, l]``, when
     given).
     """
+    nbr = checks.array("nbr", nbr, (None, None, None), kind="i")
+    B, N = nbr.shape[:2]
+    checks.index_range("nbr", nbr, -1, N)
+    transmit = checks.mask("transmit", transmit, (B, N))
+    if link is not None:
+        link = checks.mask("link", link, (B, N, N))
     out = np.empty(nbr.shape, dtype=bool)
     if link is None:
         drivers.messages_all.at(out.size)(nbr, transmit, np.ones((1, 1, 1, 1), bool), False,

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from netsense.graphs.processes import in_neighbor_slots
+from netsense.kernels import checks
 from netsense.kernels import update as kernels
 from netsense.observers.source import LuenbergerSource, SourceEstimator
 from netsense.systems.design import ObserverDesign, design_observer
@@ -38,8 +39,8 @@ class DistributedObserver:
                  input_matrix: np.ndarray | None = None) -> None:
         if not isinstance(design, ObserverDesign):
             raise ValueError("design must be an ObserverDesign (see netsense.design_observer)")
-        if batch_size is not None and batch_size < 1:
-            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        if batch_size is not None:
+            batch_size = checks.integer("batch_size", batch_size, 1)
         self.design = design
         self.batched = batch_size is not None
         self.B = batch_size or 1
@@ -90,7 +91,8 @@ class DistributedObserver:
 
     # ----------------------------------------------------------------- inputs
     def _batch(self, name: str, value, tail: tuple[int, ...], dtype) -> np.ndarray:
-        arr = np.asarray(value, dtype=dtype)
+        arr = (checks.mask(name, value) if dtype is bool
+               else checks.array(name, value, kind="ibf").astype(dtype, copy=False))
         if not self.batched:
             if arr.shape != tail:
                 raise ValueError(f"{name} must have shape {tail}, got {arr.shape}")
@@ -187,5 +189,8 @@ class DistributedObserver:
     def errors(self, x: np.ndarray) -> np.ndarray:
         """``||x_hat_i - x||`` per agent for the true state ``x`` (``(n,)`` or ``(B, n)``)."""
         X = self.Z @ self.design.decomposition.T.T
-        x = np.asarray(x, dtype=float)
+        x = checks.array("x", x, kind="f")
+        if x.shape not in ((self.n,), (self.B, self.n)):
+            raise ValueError(f"x must have shape ({self.n},) or ({self.B}, {self.n}), got "
+                             f"{x.shape}")
         return self._out(np.linalg.norm(X - (x[:, None, :] if x.ndim == 2 else x), axis=-1))

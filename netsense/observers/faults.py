@@ -52,6 +52,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from netsense.kernels.checks import MAX_STEPS
 from netsense.observers.consensus import ConsensusObserver
 from netsense.observers.freshness import FreshnessObserver
 from netsense.observers.run import StepHook, Trajectory, run_observer
@@ -73,10 +74,14 @@ def _agents(owner: str, agents: Any) -> tuple[int, ...]:
     if isinstance(agents, (int, np.integer)):
         agents = (int(agents),)
     try:
-        out = tuple(int(a) for a in agents)
+        items = tuple(agents)
     except TypeError as exc:
         raise ValueError(f"{owner}.agents must be an int or a sequence of ints, "
                          f"got {agents!r}") from exc
+    if any(isinstance(a, (bool, np.bool_)) or not isinstance(a, (int, np.integer))
+           for a in items):
+        raise ValueError(f"{owner}.agents must be an int or a sequence of ints, got {agents!r}")
+    out = tuple(int(a) for a in items)
     if not out or any(a < 0 for a in out) or len(set(out)) != len(out):
         raise ValueError(f"{owner}.agents must be distinct non-negative agent ids, got {out}")
     return out
@@ -85,6 +90,8 @@ def _agents(owner: str, agents: Any) -> tuple[int, ...]:
 def _check_start(owner: str, name: str, value: int) -> None:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
         raise ValueError(f"{owner}.{name} must be an int >= 0, got {value!r}")
+    if value > MAX_STEPS:  # steps and indices stay exact and int64 (k + claim)
+        raise ValueError(f"{owner}.{name} must be <= 2^53, got {value!r}")
 
 
 def _identity(k, x, y, adj, tx, arr):

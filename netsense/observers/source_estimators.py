@@ -31,7 +31,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from netsense.estimators.kalman import KFIO, StateSpaceModel, check_matrix
+from netsense.estimators.kalman import KFIO, StateSpaceModel, check_matrix, rowmul
 from netsense.estimators.robust import RSEIO
 from netsense.observers.source import Rngs, SourceEstimator
 from netsense.systems.design import ObserverDesign
@@ -123,15 +123,16 @@ class KFIOSource(SourceEstimator):
         for j, b, f, P0_j in self.sources:
             C_bar = d.C_bar[j]
             z_own = Z[:, j, b]
-            y_loc = (y[:, j, : C_bar.shape[0]] - Z[:, j] @ C_bar.T
-                     + z_own @ f.model.C.T)              # C_jj z^{(j)} + v_j
+            # (rowmul: each member's products alone, so a member equals a B = 1 run)
+            y_loc = (y[:, j, : C_bar.shape[0]] - rowmul(Z[:, j], C_bar.T)
+                     + rowmul(z_own, f.model.C.T))       # C_jj z^{(j)} + v_j
             gamma = np.ones(Z.shape[0], bool) if arrived is None else arrived[:, j]
             if not first.all():
-                f.step(y_loc, gamma, u=z_own - f.x @ f.model.A.T)
+                f.step(y_loc, gamma, u=z_own - rowmul(f.x, f.model.A.T))
             if first.any():
                 f.x[first], f.P[first] = z_own[first], P0_j
                 f.update(y_loc, gamma & first)
-            out[:, j, b] = (f.x - z_own) @ f.model.A.T
+            out[:, j, b] = rowmul(f.x - z_own, f.model.A.T)
         self._first = np.zeros_like(first)
         return out
 

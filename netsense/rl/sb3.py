@@ -211,9 +211,21 @@ class TrainConfig:
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        from netsense.kernels import checks
+
+        if not isinstance(self.scenario, str):
+            raise ValueError(f"TrainConfig.scenario must be a scenario id (str), got "
+                             f"{self.scenario!r}")
         for name in ("steps", "num_vec_envs", "n_steps", "batch_size", "n_epochs"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}")
+            checks.integer(f"TrainConfig.{name}", getattr(self, name), 1)
+        checks.seed_value("TrainConfig.seed", self.seed)
+        checks.number("TrainConfig.learning_rate", self.learning_rate, 0, lo_open=True)
+        for name in ("gamma", "gae_lambda"):
+            checks.number(f"TrainConfig.{name}", getattr(self, name), 0, 1)
+        checks.number("TrainConfig.ent_coef", self.ent_coef)
+        if not isinstance(self.overrides, dict):
+            raise ValueError(f"TrainConfig.overrides must be a dict, got "
+                             f"{type(self.overrides).__name__}")
 
 
 @dataclass
@@ -381,24 +393,60 @@ class LearnedPolicy:
         ``policy.zip`` written by :func:`train`.
     deterministic : bool
         Take the most likely allowed action (default) or sample.
+
+    Raises
+    ------
+    ValueError
+        If ``path`` does not exist, is not a file, or is not a readable MaskablePPO policy
+        (truncated, corrupted, another kind of file); :meth:`act` raises it when the
+        policy was trained for other observation or action spaces (another scenario).
     """
 
     def __init__(self, path: str | Path, *, deterministic: bool = True) -> None:
         import torch
+        from gymnasium import spaces
         from sb3_contrib import MaskablePPO
 
         torch.set_num_threads(1)  # inference on small MLPs; leave cores to other workers
         path = Path(path)
         if not path.exists():
             raise ValueError(f"no learned policy at {path} (train one with `netsense train`)")
-        self.model = MaskablePPO.load(path, device="cpu")
+        if not path.is_file():
+            raise ValueError(f"{path}: not a policy file (a directory?)")
+        try:
+            self.model = MaskablePPO.load(path, device="cpu")
+        except Exception as exc:  # noqa: BLE001 - any failure to load is a bad file
+            text = " ".join(str(exc).split())[:200]
+            raise ValueError(f"{path}: not a readable MaskablePPO policy file (truncated or "
+                             f"corrupted?): {type(exc).__name__}: {text}") from None
+        obs, act = self.model.observation_space, self.model.action_space
+        if not (isinstance(obs, spaces.Box) and len(obs.shape) == 1
+                and isinstance(act, spaces.MultiDiscrete)):
+            raise ValueError(f"{path}: a policy for {obs} -> {act}, not a netsense policy "
+                             "(flat Box observations, MultiDiscrete actions)")
+        self.path = path
         self.deterministic = deterministic
 
     def act(self, flat_obs: dict[str, np.ndarray], wrapper: MaskedFlatObs) -> dict:
         """Actions for every agent in ``flat_obs`` (observations of ``wrapper``)."""
+        self.check_env(wrapper)
         agents = list(flat_obs)
         stacked = np.stack([flat_obs[a] for a in agents])
         _, masks = wrapper.split(stacked)
         acts, _ = self.model.predict(stacked, action_masks=masks,
                                      deterministic=self.deterministic)
         return {a: np.asarray(acts[i]) for i, a in enumerate(agents)}
+
+    def check_env(self, wrapper: MaskedFlatObs) -> None:
+        """Raise ``ValueError`` unless the policy's spaces are ``wrapper``'s (the policy was
+        trained on this scenario's observation and action layout)."""
+        want_obs = self.model.observation_space.shape
+        want_nvec = np.asarray(self.model.action_space.nvec).tolist()
+        got_obs = wrapper.observation_space(wrapper.possible_agents[0]).shape
+        got_nvec = np.asarray(wrapper.nvec).tolist()
+        if tuple(got_obs) != tuple(want_obs) or got_nvec != want_nvec:
+            raise ValueError(f"the policy {getattr(self, 'path', '')} was trained for "
+                             f"observations of shape {tuple(want_obs)} and actions "
+                             f"MultiDiscrete({want_nvec}); this environment has "
+                             f"{tuple(got_obs)} and MultiDiscrete({got_nvec}) (a policy of "
+                             f"another scenario or overrides?)")

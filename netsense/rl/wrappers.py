@@ -88,6 +88,8 @@ class MaskedFlatObs(ParallelEnv):
     """
 
     def __init__(self, env: ParallelEnv, *, sanitize: bool = False) -> None:
+        if not hasattr(env, "possible_agents") or not hasattr(env, "action_space"):
+            raise ValueError(f"env must be a PettingZoo ParallelEnv, got {type(env).__name__}")
         self.env = env
         self.sanitize = bool(sanitize)
         self.possible_agents = list(env.possible_agents)

@@ -16,10 +16,13 @@ In strings, ``0``-``9`` are delays and ``x`` marks a measurement that never arri
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from netsense.kernels import checks
 
 __all__ = ["DelayChannel", "DelayLanguage", "EventLanguage", "PrefixTree", "event_set",
            "event_string"]
@@ -35,6 +38,18 @@ def event_string(k: int, j: int) -> str:
 def event_set(k: int) -> tuple[str, ...]:
     """Event set ``e_k`` of Definition 3: all ``2^(k+1)`` events of step ``k``."""
     return tuple(event_string(k, j) for j in range(2 ** (k + 1)))
+
+
+#: Most words a language may hold (its words are enumerated, and the equalized design
+#: grows with them).
+MAX_WORDS = 100_000
+
+
+def _check_size(count: int, what: str) -> None:
+    if count > MAX_WORDS:
+        digits = len(str(count))
+        raise ValueError(f"{what} holds {count if digits < 10 else f'~1e{digits - 1}'} words; "
+                         f"at most {MAX_WORDS} are supported (smaller m or T)")
 
 
 def _parse_word(word: str | Sequence[int], T: int | None) -> tuple[int, ...]:
@@ -109,8 +124,8 @@ class DelayLanguage:
     @classmethod
     def each_delayed_at_most(cls, m: int, T: int) -> DelayLanguage:
         """"Each observation is delayed by at most ``m`` steps": all of ``{0..m}^T``."""
-        if m < 0:
-            raise ValueError(f"m must be >= 0, got {m}")
+        m, T = checks.integer("m", m, 0), checks.integer("T", T, 1)
+        _check_size((m + 1) ** T, f"each_delayed_at_most(m={m}, T={T})")
         return cls(words=tuple(itertools.product(range(m + 1), repeat=T)), T=T, tau_bar=m)
 
     @classmethod
@@ -119,8 +134,10 @@ class DelayLanguage:
 
         A missing observation is written as the delay ``T`` (it never arrives in the horizon).
         """
-        if not 0 <= m <= T:
-            raise ValueError(f"m must be in [0, T] = [0, {T}], got {m}")
+        T = checks.integer("T", T, 1)
+        m = checks.integer("m", m, 0, T)
+        _check_size(sum(math.comb(T, i) for i in range(m + 1)), f"at_most_missing(m={m}, "
+                    f"T={T})")
         words = [w for w in itertools.product((0, T), repeat=T)
                  if sum(t > 0 for t in w) <= m]
         return cls(words=tuple(words), T=T, tau_bar=T)

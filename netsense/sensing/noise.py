@@ -16,6 +16,7 @@ import numpy as np
 from numba import prange
 from numba.np.random.distributions import random_standard_normal
 
+from netsense.kernels import checks
 from netsense.kernels.jit import Driver, bit_generator, bit_streams
 
 
@@ -67,8 +68,7 @@ class GaussianNoise(NoiseModel):
     std: float
 
     def __post_init__(self) -> None:
-        if not np.isfinite(self.std) or self.std < 0:
-            raise ValueError(f"GaussianNoise.std must be a finite number >= 0, got {self.std!r}")
+        checks.number("GaussianNoise.std", self.std, 0)
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         return self.std * rng.standard_normal(shape)
@@ -101,10 +101,7 @@ class UniformNoise(NoiseModel):
     half_width: float
 
     def __post_init__(self) -> None:
-        if not np.isfinite(self.half_width) or self.half_width < 0:
-            raise ValueError(
-                f"UniformNoise.half_width must be a finite number >= 0, got {self.half_width!r}"
-            )
+        checks.number("UniformNoise.half_width", self.half_width, 0)
 
     def sample(self, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
         return rng.uniform(-self.half_width, self.half_width, size=shape)
@@ -147,6 +144,8 @@ def noise_from_dict(spec: dict | None) -> NoiseModel:
     """
     if spec is None:
         return NoNoise()
+    if not isinstance(spec, dict):
+        raise ValueError(f"a noise spec must be a table {{kind = ...}}, got {spec!r:.60}")
     spec = dict(spec)
     kind = spec.pop("kind", None)
     allowed = {"none": (NoNoise, set()), "gaussian": (GaussianNoise, {"std"}),
@@ -157,4 +156,4 @@ def noise_from_dict(spec: dict | None) -> NoiseModel:
     if set(spec) != keys:
         raise ValueError(f"noise kind {kind!r} takes exactly the fields {sorted(keys)}, "
                          f"got {sorted(spec)}")
-    return cls(**{k: float(v) for k, v in spec.items()})
+    return cls(**{k: checks.number(k, v, 0) for k, v in spec.items()})

@@ -26,6 +26,7 @@ from netsense.graphs.bounds import (
 )
 from netsense.graphs.families import FAMILIES, guaranteed_period, make_graph_process
 from netsense.graphs.processes import GraphProcess, check_joint_connectivity, smallest_period
+from netsense.kernels import checks
 from netsense.observers.run import relative_error, run_observer, steps_to_tolerance
 
 __all__ = ["SweepCase", "run_case", "run_sweep", "sample_graphs", "summarize", "write_csv"]
@@ -80,8 +81,12 @@ class SweepCase:
         if self.family not in FAMILIES:
             raise ValueError(f"family must be one of {sorted(FAMILIES)}, got {self.family!r}")
         for name, low in (("N", 2), ("T", 1), ("n", 1), ("seeds", 1), ("steps", 1)):
+            checks.integer(name, getattr(self, name))
             if getattr(self, name) < low:
                 raise ValueError(f"{name} must be >= {low}, got {getattr(self, name)}")
+        checks.number("rho", self.rho)
+        checks.number("eps", self.eps)
+        checks.number("param", self.param)
         if not 0 < self.rho < 1:
             raise ValueError(f"rho must be in (0, 1), got {self.rho}")
         if self.eps <= 0:

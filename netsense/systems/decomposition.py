@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from netsense.kernels import checks
+
 #: Default relative tolerance for the rank decisions of the decomposition.
 DEFAULT_RTOL = 1e-7
 
@@ -160,6 +162,8 @@ def observable_subspace(A: np.ndarray, C: np.ndarray, tol: float) -> np.ndarray:
 
 def unobservable_subspace(A, C, rtol: float = DEFAULT_RTOL) -> np.ndarray:
     """Orthonormal basis of the unobservable subspace of ``(A, C)``."""
+    A = checks.array("A", A, (None, None), kind="f")
+    C = checks.array("C", C, kind="f")
     A = np.asarray(A, dtype=float)
     C = np.asarray(C, dtype=float).reshape(-1, A.shape[0])
     scale = max(np.linalg.norm(A, 2), np.linalg.norm(C, 2) if C.size else 0.0, 1.0)
@@ -191,6 +195,12 @@ def decompose(A, Cs: Sequence, *, rtol: float = DEFAULT_RTOL) -> Decomposition:
         If shapes are inconsistent, or if ``(A, C)`` is not observable (the message gives
         the dimension of the unobservable subspace).
     """
+    A = checks.array("A", A, kind="f")
+    if isinstance(Cs, (str, bytes)) or not isinstance(Cs, (Sequence, np.ndarray)):
+        raise ValueError(f"Cs must be a sequence of output matrices, one per agent, got "
+                         f"{type(Cs).__name__}")
+    Cs = [checks.array(f"C[{i}]", Ci, kind="f") for i, Ci in enumerate(Cs)]
+    checks.number("rtol", rtol, 0, 1, lo_open=True, hi_open=True)
     A = np.asarray(A, dtype=float)
     if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
         raise ValueError(f"A must be a non-empty square matrix, got shape {A.shape}")

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.linalg as sla
 from scipy.signal import place_poles
 
+from netsense.kernels import checks
 from netsense.systems.decomposition import Decomposition, decompose, observable_subspace
 
 
@@ -201,6 +202,13 @@ def design_observer(A, Cs: Sequence | None = None, *, rho: float | None = 0.5,
         If ``rho`` or ``rates`` are out of range or not increasing, or a block's design is
         impossible (the message names the agent).
     """
+    deadbeat = checks.boolean("deadbeat", deadbeat)  # ("false" is not False)
+    if rho is not None and not deadbeat:
+        checks.number("rho", rho, 0, 1, lo_open=True, hi_open=True)
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        checks.seed_value("rng", rng)
+    if rates is not None:
+        rates = checks.array("rates", rates, (None,), kind="f")
     if Cs is None:
         from netsense.systems.plants import Plant
 

@@ -14,11 +14,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from netsense.kernels import checks
 from netsense.sensing.noise import NoiseModel, NoNoise
+
+#: Largest magnitude of a plant matrix entry (squares of larger numbers overflow float64).
+MAX_ENTRY = 1e150
 
 
 def _as_matrix(name: str, M, rows: int | None, cols: int | None) -> np.ndarray:
-    M = np.asarray(M, dtype=float)
+    try:
+        M = np.asarray(M, dtype=float)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{name} must be a matrix of numbers: {exc}") from None
     if M.ndim == 1 and rows == 0:
         M = M.reshape(0, cols)
     if M.ndim != 2:
@@ -28,6 +35,10 @@ def _as_matrix(name: str, M, rows: int | None, cols: int | None) -> np.ndarray:
         raise ValueError(f"{name} must have shape {want}, got {M.shape}")
     if not np.all(np.isfinite(M)):
         raise ValueError(f"{name} contains NaN or infinite entries")
+    if M.size and np.abs(M).max() > MAX_ENTRY:
+        raise ValueError(f"{name} has entries up to {np.abs(M).max():.3g}; |entries| must be "
+                         f"<= {MAX_ENTRY:g} (norms of states and errors would overflow "
+                         "float64): rescale the state or the outputs")
     return M
 
 
@@ -66,6 +77,9 @@ class Plant:
         n = A.shape[0]
         if n == 0:
             raise ValueError("A must have at least one state (n >= 1)")
+        if isinstance(self.C, (str, bytes)) or not isinstance(self.C, (Sequence, np.ndarray)):
+            raise ValueError(f"C must be a sequence with one output matrix per agent, got "
+                             f"{type(self.C).__name__}")
         if isinstance(self.C, np.ndarray) and self.C.ndim == 2:
             raise ValueError("C must be a sequence with one output matrix per agent, "
                              "not a single stacked matrix")
@@ -175,6 +189,7 @@ class Plant:
 # --------------------------------------------------------------------- named plants
 def fig1_scalar(a: float = 2.0) -> Plant:
     """The scalar plant of Fig. 1: ``x[k+1] = a x[k]``, node 1 measures ``x``, 2-3 see nothing."""
+    a = checks.number("a", a)
     return Plant(A=[[a]], C=(np.ones((1, 1)), np.zeros((0, 1)), np.zeros((0, 1))),
                  name=f"fig1_scalar(a={a:g})")
 
@@ -205,8 +220,12 @@ def random_structured(n: int, num_agents: int, *, num_sources: int | None = None
     rng : Generator or int, optional
         Randomness source or seed.
     """
-    if n < 1 or num_agents < 1:
-        raise ValueError(f"need n >= 1 and num_agents >= 1, got n={n}, num_agents={num_agents}")
+    n, num_agents = checks.integer("n", n, 1), checks.integer("num_agents", num_agents, 1)
+    if num_sources is not None:
+        num_sources = checks.integer("num_sources", num_sources, 1)
+    if outputs_per_source is not None:
+        outputs_per_source = checks.integer("outputs_per_source", outputs_per_source, 1)
+    spectral_radius = checks.number("spectral_radius", spectral_radius, 0, lo_open=True)
     rng = np.random.default_rng(rng)
     if num_sources is None:
         num_sources = min(n, num_agents, max(2, num_agents // 2))

@@ -1,0 +1,750 @@
+"""The error contract of ``docs/errors.md``, held to a catalogue of bad inputs.
+
+Every public entry point kind is covered: library functions and classes, the compiled
+kernels of ``netsense.kernels``, scenario files, the PettingZoo env, the batched core, the
+vector envs, the command line and learned-policy files. For each bad input: the exception
+type, a message naming the argument or field, and — for stateful objects — that the object
+is unchanged (it keeps stepping bit for bit like a deep copy taken before the bad call).
+Inputs that used to crash the interpreter run in a subprocess. The numerical-health
+decision (non-finite states end the episode, flagged) is checked at the end.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import subprocess
+import sys
+import warnings
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import netsense as ns
+from netsense.cli import main
+from netsense.engine.core import BatchedCore, CoreModel
+from netsense.env.policies import make_policy
+from netsense.env.registry import build_model, load, load_file, make, with_overrides
+from netsense.env.vector import AgentVectorEnv, BatchedEnv, make_sb3_vec_env
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _python(code: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter that imports this checkout's netsense."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=ROOT, env=env, timeout=timeout)
+
+
+def _same(a, b, where="") -> None:
+    """``a`` and ``b`` equal bit for bit (nested dicts, tuples, arrays, numbers)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for k in a:
+            _same(a[k], b[k], f"{where}[{k!r}]")
+    elif isinstance(a, (tuple, list)) and not isinstance(a, np.ndarray):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _same(x, y, f"{where}[{i}]")
+    elif a is None or b is None:
+        assert a is b, where
+    else:
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=where)
+
+
+# ============================================================== library functions
+PLANT = ns.fig1_scalar()
+DESIGN = ns.design_observer(PLANT)
+
+LIBRARY = [
+    # (id, call, match): every one raises ValueError
+    ("design_observer-deadbeat-str", lambda: ns.design_observer(PLANT, deadbeat="false"),
+     "deadbeat must be true or false"),
+    ("design_observer-rho-str", lambda: ns.design_observer(PLANT, rho="0.5"), "rho must be"),
+    ("design_observer-rho-out", lambda: ns.design_observer(PLANT, rho=1.5), "rho must be"),
+    ("design_observer-rng-str", lambda: ns.design_observer(PLANT, rng="x"), "rng must be"),
+    ("design_observer-rates-str", lambda: ns.design_observer(PLANT, rates="ab"),
+     "rates must"),
+    ("decompose-Cs-None", lambda: ns.decompose([[1.0]], None), "Cs must be a sequence"),
+    ("decompose-A-str", lambda: ns.decompose("abc", [[[1.0]]]), "A must hold"),
+    ("decompose-rtol-str", lambda: ns.decompose([[1.0]], [[[1.0]]], rtol="a"),
+     "rtol must be"),
+    ("is_observable-ragged", lambda: ns.is_observable([[1.0, 2], [1]], [[1.0, 0]]),
+     "A must be an array"),
+    ("Plant-A-str", lambda: ns.Plant(A="abc", C=([[1.0]],)), "A must be a matrix"),
+    ("Plant-C-None", lambda: ns.Plant(A=[[1.0]], C=None), "C must be a sequence"),
+    ("Plant-C-width", lambda: ns.Plant(A=np.eye(2), C=([[1.0, 0.0, 0.0, 1.0]],)),
+     r"C\[0\] must have shape"),
+    ("Plant-A-1e200", lambda: ns.Plant(A=[[1e200, 0], [0, 1]], C=(np.eye(2),)),
+     "A has entries up to 1e\\+200"),
+    ("fig1_scalar-str", lambda: ns.fig1_scalar("2"), "a must be a finite number"),
+    ("random_structured-n-float", lambda: ns.random_structured(2.5, 3), "n must be an integer"),
+    ("random_structured-radius", lambda: ns.random_structured(3, 3, spectral_radius=-1),
+     "spectral_radius must be"),
+    ("GaussianNoise-str", lambda: ns.GaussianNoise("a"), "GaussianNoise.std must be"),
+    ("FreshnessObserver-batch-float", lambda: ns.FreshnessObserver(DESIGN, batch_size=1.5),
+     "batch_size must be an integer"),
+    ("observer-errors-shape", lambda: ns.FreshnessObserver(DESIGN).errors(np.zeros(5)),
+     "x must have shape"),
+    ("observer-step-transmit-not-a-mask", lambda: ns.FreshnessObserver(DESIGN).step(
+        np.zeros((3, 1)), ns.fig1_graphs().sequence(1)[0], transmit=[0, 2, 1]),
+     "transmit must be a bool mask"),
+    ("graphs-sequence-negative", lambda: ns.fig1_graphs().sequence(-1), "num_steps must be"),
+    ("RandomJointlyConnected-N-float", lambda: ns.RandomJointlyConnected(3.5, 2),
+     "num_nodes must be an integer"),
+    ("MarkovLinkFailures-p-str", lambda: ns.MarkovLinkFailures(np.ones((3, 3), bool), "a",
+                                                               0.5), "p_fail must be"),
+    ("Gossip-ragged", lambda: ns.Gossip([[1, 0], [1]]), "base must be an array"),
+    ("PeriodicGraphs-edge-triple", lambda: ns.PeriodicGraphs.from_edges(3, [[(0, 1, 2)]]),
+     r"edges must be pairs \[l, i\]"),
+    ("CoreModel-design-of-another-plant",
+     lambda: CoreModel(plant=ns.Plant(A=[[3.0]], C=(np.ones((1, 1)), np.zeros((0, 1)),
+                                                    np.zeros((0, 1)))),
+                       design=DESIGN, graphs=ns.fig1_graphs(), horizon=5),
+     "design was made for another plant"),
+    ("CoreModel-horizon-1e20",
+     lambda: CoreModel(plant=PLANT, design=DESIGN, graphs=ns.fig1_graphs(), horizon=10**20),
+     "horizon must be an integer in"),
+    ("LyingAgent-claim-2^63", lambda: ns.observers.faults.LyingAgent(1, claim=2**63 - 1),
+     "LyingAgent.claim must be <= 2\\^53"),
+    ("StuckSensor-agents-str", lambda: ns.observers.faults.StuckSensor(["1"]),
+     "StuckSensor.agents must be"),
+    ("DelayLanguage-huge", lambda: ns.sensing.delays.DelayLanguage.each_delayed_at_most(
+        1000, 1000), "holds ~1e3000 words"),
+    ("make-unknown-scenario", lambda: make("nope-v0"), "unknown scenario 'nope-v0'"),
+    ("make-nonfinite-mode", lambda: make("fig1_scalar-v0", nonfinite="ignore"),
+     "nonfinite must be one of"),
+    ("make-horizon-1e20", lambda: make("fig1_scalar-v0", horizon=10**20),
+     "field 'horizon': must be <= 2\\^53"),
+    ("make-deadbeat-str", lambda: make("fig1_scalar-v0", design={"deadbeat": "false"}),
+     "field 'design.deadbeat'"),
+    ("make-liar-claim", lambda: make("fault_liar-v0", faults=[
+        {"kind": "liar", "agents": [1], "claim": 2**63 - 1}]), "field 'faults\\[0\\].claim'"),
+    ("TrainConfig-steps-float", lambda: __import__("netsense.rl.sb3").rl.sb3.TrainConfig(
+        "fig1_scalar-v0", steps=1.5), "TrainConfig.steps must be an integer"),
+    ("benchmark-make_jobs-seed-float", lambda: __import__("netsense.benchmark").benchmark
+     .make_jobs(["fig1_scalar-v0"], ["freshness"], [1.5]), "seeds\\[\\] must be an integer"),
+    ("SweepCase-N-str", lambda: __import__("netsense.studies.sweep").studies.sweep.SweepCase(
+        "ring", "3"), "N must be an integer"),
+    ("MaskedFlatObs-not-an-env", lambda: __import__("netsense.rl.wrappers").rl.wrappers
+     .MaskedFlatObs(3), "env must be a PettingZoo ParallelEnv"),
+    ("make-stale-delay", lambda: make("fig1_scalar-v0", faults=[
+        {"kind": "stuck_sensor", "agents": [0], "mode": "stale", "delay": 10**12}]),
+     "StuckSensor.delay = 1000000000000 exceeds the horizon"),
+]
+
+
+def _import_submodules():
+    import netsense.observers.faults  # noqa: F401  (ns.observers.faults in the table)
+    import netsense.sensing.delays  # noqa: F401
+
+
+_import_submodules()
+
+
+@pytest.mark.parametrize("call, match", [c[1:] for c in LIBRARY], ids=[c[0] for c in LIBRARY])
+def test_library_rejects(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+# ============================================================== compiled kernels
+#: Calls that used to crash the interpreter or read outside their arrays: each runs in a
+#: subprocess (one for all), which must survive and report a ValueError naming the argument.
+KERNELS = [
+    ("gather_substates-src-1e9",  # the issue's example: segfaulted
+     "kernels.gather_substates(np.zeros((2,3,4)), np.full((2,3,3),10**9), "
+     "np.array([0,1,1,2]))", "src must hold indices"),
+    ("gather_substates-block_of", "kernels.gather_substates(np.zeros((1,3,4)), "
+     "np.zeros((1,3,3), int), np.array([0,1,1,7]))", "block_of must hold indices"),
+    ("vecmat-shapes", "update.vecmat(np.ones((2,3)), np.ones((50,4)))",  # read outside
+     r"M must have shape \(3, \*\)"),
+    ("advance_indices-src", "kernels.advance_indices(np.zeros((1,3,3),np.int64), "
+     "np.full((1,3,3),10**9))", "src must hold indices"),
+    ("advance_indices-own", "kernels.advance_indices(np.zeros((1,3,3),np.int64), "
+     "np.zeros((1,3,3),int), own=np.array([0,1,9]))", "own must hold indices"),
+    ("uniform_mix-nbr", "kernels.uniform_mix(np.zeros((1,3,2)), np.full((1,3,2),10**9), "
+     "np.ones((1,3,2),bool))", "nbr must hold indices"),
+    ("average_indices-nbr", "kernels.average_indices(np.zeros((1,3,3),np.int64), "
+     "np.full((1,3,2),-5), np.ones((1,3,2),bool))", "nbr must hold indices"),
+    ("innovation_correction-C", "kernels.innovation_correction(np.zeros((1,3,2)), "
+     "np.zeros((1,3,1)), None, np.zeros((1,1,2)), np.zeros((1,2,1)))",
+     r"C_bar_pad must have shape \(3, \*, 2\)"),
+    ("innovation_correction-rows", "kernels.innovation_correction(np.zeros((1,3,2)), "
+     "np.zeros((1,3,1)), None, np.zeros((3,1,2)), np.zeros((3,2,1)), "
+     "rows=np.array([[0,99]]*3))", "rows must hold indices"),
+    ("slot_messages-nbr", "kernels.slot_messages(np.full((1,3,2),7), np.ones((1,3),bool))",
+     "nbr must hold indices"),
+    ("freshness_choice-transmit", "kernels.freshness_choice(np.zeros((1,3,3),np.int64), "
+     "np.full((1,3,2),50), np.ones((1,3,2),bool), np.ones((1,3),bool))",
+     "nbr must hold indices"),
+    ("apply_actions-nbr", "kernels.apply_actions(np.zeros((1,3,1)), "
+     "np.zeros((1,3,3),np.int64), np.zeros((1,3,4),np.int64), np.full((1,3,2),10**6), "
+     "np.ones((1,3,2),bool), np.zeros(1,np.int64), np.eye(1), np.eye(1), x=np.zeros((1,1)), "
+     "A_T=np.eye(1), T=np.eye(1), corr=np.zeros((1,3,1)))", "nbr must hold indices"),
+    ("apply_actions-block_of", "kernels.apply_actions(np.zeros((1,3,1)), "
+     "np.zeros((1,3,3),np.int64), np.zeros((1,3,4),np.int64), np.full((1,3,2),-1), "
+     "np.zeros((1,3,2),bool), np.array([5]), np.eye(1), np.eye(1), x=np.zeros((1,1)), "
+     "A_T=np.eye(1), T=np.eye(1), corr=np.zeros((1,3,1)))", "block_of must hold indices"),
+    ("check_actions-choice-shape", "update.check_actions(np.zeros((1,3,4),np.int64), "
+     "np.ones((1,3,2),bool), np.zeros((1,3,1),np.int64), np.zeros((1,3,1),bool))",
+     r"act must have shape \(1, 3, 2\)"),
+]
+
+_KERNEL_SCRIPT = """
+import json, sys
+import numpy as np
+from netsense import kernels
+from netsense.kernels import update
+for name, expr in json.loads(sys.argv[1]):
+    try:
+        eval(expr)
+        out = ["returned", ""]
+    except Exception as exc:
+        out = [type(exc).__name__, str(exc)]
+    print(json.dumps([name] + out), flush=True)
+"""
+
+
+@pytest.fixture(scope="module")
+def kernel_results():
+    cases = json.dumps([[c[0], c[1]] for c in KERNELS])
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    res = subprocess.run([sys.executable, "-c", _KERNEL_SCRIPT, cases], capture_output=True,
+                         text=True, cwd=ROOT, env=env, timeout=600)
+    got = {}
+    for line in res.stdout.splitlines():
+        name, kind, msg = json.loads(line)
+        got[name] = (kind, msg)
+    return res.returncode, got, res.stderr
+
+
+@pytest.mark.parametrize("name, match", [(c[0], c[2]) for c in KERNELS],
+                         ids=[c[0] for c in KERNELS])
+def test_kernels_reject_without_crashing(kernel_results, name, match):
+    rc, got, stderr = kernel_results
+    assert name in got, f"the subprocess died (return code {rc}) at or before {name}: " \
+                        f"{stderr[-500:]}"
+    kind, msg = got[name]
+    assert kind == "ValueError", (kind, msg)
+    assert __import__("re").search(match, msg), msg
+    assert rc == 0
+
+
+# ============================================================== scenario files
+BASE = 'horizon = 10\n[plant]\nkind = "fig1_scalar"\n[graph]\nkind = "fig1"\n'
+G = '[graph]\nkind = "fig1"\n'
+
+
+def _matrices(A: str, C: str) -> str:
+    return f'horizon = 10\n[plant]\nkind = "matrices"\nA = {A}\nC = {C}\n' + G
+
+
+SCENARIOS = [
+    # (id, file text, field named in the message)
+    ("C-row-width-4",  # the issue's example: reshaped into two outputs
+     _matrices("[[1.0, 0.0], [0.0, 1.0]]", "[[1.0, 0.0, 0.0, 1.0], [], []]"), "plant.C[0]"),
+    ("C-ragged", _matrices("[[1.0]]", "[[[1.0, 2.0], [1.0]], [], []]"), "plant.C[0]"),
+    ("C-wrong-width", _matrices("[[1.0, 0.0], [0.0, 1.0]]",
+                                "[[[1.0, 0.0, 1.0]], [[1.0, 0.0]], []]"), "plant.C[0]"),
+    ("A-empty", _matrices("[]", "[[], [], []]"), "plant.A"),
+    ("A-strings", _matrices('[["a"]]', "[[[1.0]], [], []]"), "plant.A"),
+    ("A-1e200", _matrices("[[1e200, 0.0], [0.0, 1.0]]", "[[[1.0, 0.0]], [[0.0, 1.0]], []]"),
+     "plant"),
+    ("edge-three-elements", 'horizon = 10\n[plant]\nkind = "fig1_scalar"\n[graph]\n'
+     'kind = "static"\nnum_nodes = 3\nedges = [[0, 1, 2], [1, 2], [2, 0]]\n', "graph.edges"),
+    ("offsets-non-numeric", 'horizon = 10\n[plant]\nkind = "fig1_scalar"\n[graph]\n'
+     'kind = "markov"\nnum_nodes = 3\np_fail = 0.1\np_recover = 0.5\n'
+     'base = {kind = "circulant", offsets = ["x"]}\n', "graph.base.offsets"),
+    ("num_nodes-float", 'horizon = 10\n[plant]\nkind = "fig1_scalar"\n[graph]\n'
+     'kind = "random_jsc"\nnum_nodes = 3.5\nperiod = 2\n', "graph.num_nodes"),
+    ("horizon-1e20", BASE.replace("horizon = 10", "horizon = 100000000000000000000"),
+     "horizon"),
+    ("deadbeat-string", BASE + '[design]\ndeadbeat = "false"\n', "design.deadbeat"),
+    ("rho-string", BASE + '[design]\nrho = "0.5"\n', "design.rho"),
+    ("reward-bool", BASE + "[reward]\nmessage_cost = true\n", "reward.message_cost"),
+    ("reward-overflow", BASE + "[reward]\nerror_weight = 1e308\n", "reward"),
+    ("divergence_limit-nan", BASE.replace("horizon = 10\n", "horizon = 10\n"
+                                          "divergence_limit = nan\n"), "divergence_limit"),
+    ("x0_std-inf", BASE.replace("horizon = 10\n", "horizon = 10\nx0_std = inf\n"), "x0_std"),
+    ("noise-not-a-table", BASE + "[noise]\nmeasurement = 3\n", "noise.measurement"),
+    ("fault-agents-float", BASE + '[[faults]]\nkind = "crash"\nagents = [1.5]\n',
+     "faults[0].agents"),
+    ("stale-delay-huge",  # 7 TiB of memory for the stale readings before
+     BASE + '[[faults]]\nkind = "stuck_sensor"\nagents = [0]\nmode = "stale"\n'
+     "delay = 1000000000000\n", "faults"),
+    ("kfio-Q-string", BASE + '[source_estimator]\nkind = "kfio"\nQ = "x"\nR = 1.0\n',
+     "source_estimator.Q"),
+    ("language-huge", _matrices("[[1.2, 0.0], [0.0, 1.1]]",
+                                "[[[1.0, 0.0]], [[0.0, 1.0]], []]")
+     + '[source_estimator]\nkind = "equalized"\neta_v = 0.05\n'
+     'language = {kind = "each_delayed_at_most", m = 1000, T = 1000}\n',
+     "source_estimator.language"),
+]
+
+
+@pytest.mark.parametrize("text, field", [c[1:] for c in SCENARIOS], ids=[c[0] for c in SCENARIOS])
+def test_scenario_files_name_file_and_field(tmp_path, text, field):
+    path = tmp_path / "bad_v0.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError) as err:
+        build_model(load_file(path))
+    msg = str(err.value)
+    assert str(path) in msg and f"field '{field}'" in msg, msg
+
+
+@pytest.mark.parametrize("content, match", [
+    (bytes(range(256)), "not a TOML text file"),  # a binary file
+    (b"horizon = 10\nhorizon = 11\n", "not valid TOML"),
+    (None, "cannot read the scenario file"),  # missing
+], ids=["binary", "duplicate-key", "missing"])
+def test_unreadable_scenario_files_name_the_file(tmp_path, content, match):
+    path = tmp_path / "bad_v0.toml"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(ValueError, match=match) as err:
+        load_file(path)
+    assert str(path) in str(err.value)
+
+
+# ============================================================== PettingZoo env
+def _env_mid_episode():
+    env = make("link_failures-v0", horizon=12)
+    obs, infos = env.reset(seed=3)
+    pol = make_policy("freshness", env)
+    for _ in range(2):
+        obs, _, _, _, infos = env.step(pol.act_dict(env, obs, infos))
+    return env, pol, obs, infos
+
+
+def _env_future(env, pol, obs, infos) -> list:
+    """Three steps, then an unseeded reset and two more: everything they return."""
+    out = []
+    for _ in range(3):
+        res = env.step(pol.act_dict(env, obs, infos))
+        obs, infos = res[0], res[4]
+        out.append(res)
+    obs, infos = env.reset()  # draws its seed from the env's generator
+    out.append((obs, infos))
+    for _ in range(2):
+        res = env.step(pol.act_dict(env, obs, infos))
+        obs, infos = res[0], res[4]
+        out.append(res)
+    return out
+
+
+def _action(env, **change):
+    act = {a: np.r_[np.zeros(env.core.M, np.int64), 1] for a in env.agents}
+    for a, v in change.items():
+        act[a] = v
+    return act
+
+
+ENV = [
+    # (id, bad call on the env, match)
+    ("reset-seed-negative", lambda e: e.reset(seed=-1), "seed must be an integer"),
+    ("reset-seed-float", lambda e: e.reset(seed=1.5), "seed must be an integer"),
+    ("reset-seed-str", lambda e: e.reset(seed="abc"), "seed must be an integer"),
+    ("reset-seed-list", lambda e: e.reset(seed=[1, 2]), "seed must be an integer"),
+    ("reset-seed-bool", lambda e: e.reset(seed=True), "seed must be an integer"),
+    ("reset-options-int", lambda e: e.reset(seed=0, options=3), "options must be a dict"),
+    ("step-missing-agent", lambda e: e.step({"sensor_0": [0] * 11}), "missing for agents"),
+    ("step-unknown-agent", lambda e: e.step({**_action(e), "spy": [0] * 11}),
+     "unknown agents"),
+    ("step-not-a-dict", lambda e: e.step([0] * 11), "actions must be a dict"),
+    ("step-short-action", lambda e: e.step(_action(e, sensor_0=[0, 1])),
+     "every action must be a vector of 11"),
+    ("step-inf-action",  # the issue's example: the message showed -2^63
+     lambda e: e.step(_action(e, sensor_0=[np.inf] + [0] * 10)), "is inf"),
+    ("step-fraction", lambda e: e.step(_action(e, sensor_0=[0.5] + [0] * 10)),
+     "actions must be integers"),
+    ("step-out-of-range", lambda e: e.step(_action(e, sensor_0=[0] * 10 + [7])),
+     "for transmit is 7, outside 0..1"),
+    ("step-masked-own-substate", lambda e: e.step(_action(e, sensor_0=[1] + [0] * 10)),
+     "masked action: agent 0"),
+    ("step-str-action", lambda e: e.step(_action(e, sensor_0="abcdefghijk")),
+     "every action must be a vector"),
+    ("observation_space-unknown", lambda e: e.observation_space("spy"), "unknown agent 'spy'"),
+]
+
+
+@pytest.mark.parametrize("call, match", [c[1:] for c in ENV], ids=[c[0] for c in ENV])
+def test_env_rejects_and_keeps_stepping_like_an_untouched_copy(call, match):
+    env, pol, obs, infos = _env_mid_episode()
+    twin = copy.deepcopy((env, obs, infos))
+    with pytest.raises(ValueError, match=match):
+        call(env)
+    _same(_env_future(env, pol, obs, infos), _env_future(twin[0], pol, twin[1], twin[2]))
+
+
+def test_the_untouched_copy_check_can_fail():
+    """The comparison above sees a changed env (here: a different unseeded reset)."""
+    env, pol, obs, infos = _env_mid_episode()
+    twin = copy.deepcopy((env, obs, infos))
+    env._seed_rng = np.random.default_rng(1)  # what reset(seed=[1, 2]) used to do
+    with pytest.raises(AssertionError):
+        _same(_env_future(env, pol, obs, infos), _env_future(twin[0], pol, twin[1], twin[2]))
+
+
+# ============================================================== batched core
+def _model(sid="link_failures-v0", **over):
+    return build_model(with_overrides(load(sid), **{"horizon": 12, **over}))
+
+
+MODEL = _model()
+
+
+def _core_mid_episode():
+    core = BatchedCore(MODEL, 3)
+    obs, mask = core.reset(5)
+    pol = make_policy("freshness", core)
+    for _ in range(2):
+        out = core.step(pol.act(obs, mask))
+        obs, mask = out.obs, out.action_mask
+    return core, pol, obs, mask
+
+
+def _core_future(core, pol, obs, mask) -> list:
+    out = []
+    for _ in range(3):
+        res = core.step(pol.act(obs, mask))
+        obs, mask = res.obs, res.action_mask
+        out.append(tuple(res) + (core.x.copy(), core.Z.copy(), core.tau.copy()))
+    obs, mask = core.reset(7, members=np.array([True, False, True]))
+    out.append((obs, mask))
+    res = core.step(pol.act(obs, mask))
+    return out + [tuple(res)]
+
+
+def _acts(core, **at):
+    a = np.zeros((3, core.N, core.M + 1))
+    a[..., -1] = 1
+    for v in at.values():
+        a[v[0]] = v[1]
+    return a
+
+
+CORE = [
+    ("reset-members-integers",  # the issue's example: read as a bool mask
+     lambda c: c.reset(0, members=np.array([0, 2, 1])), "members must be a bool mask"),
+    ("reset-members-shape", lambda c: c.reset(0, members=np.array([True, False])),
+     r"members must be a bool mask of shape \(3,\)"),
+    ("reset-seed-negative", lambda c: c.reset(-1), "seed must be an integer"),
+    ("reset-seed-float", lambda c: c.reset(1.5), "seed must be an integer"),
+    ("reset-seed-str", lambda c: c.reset("abc"), "seed must be an integer"),
+    ("reset-seed-short", lambda c: c.reset([1, 2]), "seed must hold 3 entries"),
+    ("reset-seed-entry", lambda c: c.reset([1, 2, 3.5]), r"seed\[2\] must be an integer"),
+    ("step-shape", lambda c: c.step(np.zeros((3, c.N, c.M))), "actions must have shape"),
+    ("step-inf", lambda c: c.step(_acts(c, x=((1, 2, 0), np.inf))), "is inf"),
+    ("step-nan", lambda c: c.step(_acts(c, x=((0, 0, 3), np.nan))), "actions must be integers"),
+    ("step-huge-float", lambda c: c.step(_acts(c, x=((0, 0, 3), 1e30))),
+     "actions must be integers"),
+    ("step-object", lambda c: c.step(np.full((3, c.N, c.M + 1), None)),
+     "actions must be integers"),
+    ("step-out-of-range", lambda c: c.step(_acts(c, x=((2, 1, 0), 99)).astype(int)),
+     "action of agent 1 \\(batch member 2\\) for substate 0 is 99"),
+    ("step-uint64-huge", lambda c: c.step(np.full((3, c.N, c.M + 1), 2**64 - 1, np.uint64)),
+     "is 18446744073709551615"),
+]
+
+
+@pytest.mark.parametrize("call, match", [c[1:] for c in CORE], ids=[c[0] for c in CORE])
+def test_core_rejects_and_keeps_stepping_like_an_untouched_copy(call, match):
+    core, pol, obs, mask = _core_mid_episode()
+    twin = copy.deepcopy(core)
+    with pytest.raises(ValueError, match=match):
+        call(core)
+    _same(_core_future(core, pol, obs, mask), _core_future(twin, pol, obs, mask))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"batch_size": 1.5}, "batch_size must be an integer"),  # the issue's examples:
+    ({"batch_size": "4"}, "batch_size must be an integer"),  # converted silently
+    ({"batch_size": 0}, "batch_size must be an integer >= 1"),
+    ({"invalid_actions": "ignore"}, "invalid_actions must be one of"),
+    ({"chunk": 0}, "chunk must be an integer >= 1"),
+    ({"nonfinite": "ignore"}, "nonfinite must be one of"),
+    ({"model": "link_failures-v0"}, "model must be a CoreModel"),
+], ids=["B-float", "B-str", "B-zero", "invalid_actions", "chunk", "nonfinite", "model"])
+def test_core_constructor_rejects(kwargs, match):
+    kw = {"model": MODEL, "batch_size": 2, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        BatchedCore(**kw)
+
+
+@pytest.mark.parametrize("call", ["step", "observe", "action_mask", "state_vector"])
+def test_core_before_reset_says_so(call):
+    core = BatchedCore(MODEL, 2)
+    args = (np.zeros((2, core.N, core.M + 1), np.int64),) if call == "step" else ()
+    with pytest.raises(ValueError, match=f"reset\\(\\) must be called before {call}"):
+        getattr(core, call)(*args)
+
+
+# ============================================================== vector envs
+def _batched_mid():
+    be = BatchedEnv("link_failures-v0", 3, horizon=6)
+    be.reset(seed=2)
+    for _ in range(2):
+        be.step(_fixed(be.core, 3))
+    return be
+
+
+def _fixed(core, B):
+    a = np.zeros((B, core.N, core.M + 1), np.int64)
+    a[..., -1] = 1
+    return a
+
+
+def _batched_future(be) -> list:  # crosses the horizon: an auto-reset from the generator
+    return [be.step(_fixed(be.core, 3)) for _ in range(6)]
+
+
+BATCHED = [
+    ("reset-seed-float", lambda b: b.reset(seed=1.5), "seed must be an integer"),
+    ("reset_at-float-indices", lambda b: b.reset_at([0.5]), "members must be member indices"),
+    ("reset_at-mask-shape", lambda b: b.reset_at(np.array([True])), "a member mask must have"),
+    ("reset_at-out-of-range", lambda b: b.reset_at([5]), "member indices must be in 0..2"),
+    ("reset_at-seed-negative", lambda b: b.reset_at([0], seed=-3), "seed must be an integer"),
+    ("step-shape", lambda b: b.step(np.zeros((3, b.num_agents, 2), np.int64)),
+     "actions must have shape"),
+]
+
+
+@pytest.mark.parametrize("call, match", [c[1:] for c in BATCHED], ids=[c[0] for c in BATCHED])
+def test_batched_env_rejects_and_keeps_stepping_like_an_untouched_copy(call, match):
+    be = _batched_mid()
+    twin = copy.deepcopy(be)
+    with pytest.raises(ValueError, match=match):
+        call(be)
+    _same(_batched_future(be), _batched_future(twin))
+
+
+def _agent_vec_mid():
+    av = AgentVectorEnv("link_failures-v0", 2, horizon=6)
+    av.reset(seed=4)
+    for _ in range(2):
+        av.step(_fixed(av.batched.core, 2).reshape(av.num_envs, -1))
+    return av
+
+
+AGENT_VEC = [
+    ("reset_mask-integers", lambda v: v.reset(options={"reset_mask": np.array([0, 1])}),
+     "reset_mask must be a bool array"),
+    ("options-not-a-dict", lambda v: v.reset(options="x"), "options must be a dict"),
+    ("options-unknown", lambda v: v.reset(options={"x": 1}), "unknown reset options"),
+    ("step-shape", lambda v: v.step(np.zeros((5, 11), np.int64)), "actions must have shape"),
+]
+
+
+@pytest.mark.parametrize("call, match", [c[1:] for c in AGENT_VEC],
+                         ids=[c[0] for c in AGENT_VEC])
+def test_agent_vector_env_rejects_and_keeps_stepping(call, match):
+    av = _agent_vec_mid()
+    twin = copy.deepcopy(av)
+
+    def future(v):
+        return [v.step(_fixed(v.batched.core, 2).reshape(v.num_envs, -1)) for _ in range(5)]
+
+    with pytest.raises(ValueError, match=match):
+        call(av)
+    _same(future(av), future(twin))
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: BatchedEnv("fig1_scalar-v0", 2.0), "num_envs must be an integer"),
+    (lambda: BatchedEnv("fig1_scalar-v0", "abc"), "num_envs must be an integer"),
+    (lambda: BatchedEnv(3, 2), "scenario must be a scenario id or a CoreModel"),
+    (lambda: AgentVectorEnv("fig1_scalar-v0", 2, render_mode="ansi"), "options of the"),
+    (lambda: make_sb3_vec_env("fig1_scalar-v0", 2, seed="a"), "seed must be an integer"),
+    (lambda: make_sb3_vec_env("fig1_scalar-v0", 0), "num_envs must be an integer >= 1"),
+], ids=["num_envs-float", "num_envs-str", "scenario-int", "env-only-option", "sb3-seed",
+        "sb3-batch-zero"])
+def test_vector_constructors_reject(call, match):
+    pytest.importorskip("stable_baselines3")
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+# ============================================================== command line
+CLI = [
+    # (id, argv, text the one stderr line must contain)
+    ("demo-steps-negative", ["demo", "--steps", "-5"], "argument --steps: must be >= 1"),
+    ("demo-steps-text", ["demo", "--steps", "abc"], "argument --steps: invalid integer"),
+    ("train-unknown-scenario", ["train", "nope-v0", "--out", "{tmp}/t"],
+     "unknown scenario 'nope-v0'"),
+    ("train-bad-override", ["train", "fig1_scalar-v0", "--out", "{tmp}/t", "--override",
+                            "horizon=abc"], "field 'horizon'"),
+    ("train-override-syntax", ["train", "fig1_scalar-v0", "--out", "{tmp}/t", "--override",
+                               "noequals"], "override must look like KEY=VALUE"),
+    ("benchmark-unknown-scenario", ["benchmark", "nope-v0", "--out", "{tmp}/b"],
+     "unknown scenario 'nope-v0'"),
+    ("benchmark-seeds-zero", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b", "--seeds",
+                              "0"], "argument --seeds: must be >= 1"),
+    ("benchmark-unknown-policy", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                  "--policies", "bogus"], "--policies: unknown policy"),
+    ("benchmark-missing-policy-file", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                       "--policies", "learned:{tmp}/none.zip"],
+     "no policy file"),
+    ("benchmark-workers", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b", "--workers",
+                           "2"], "needs --backend process"),
+    ("equalized-A-not-json", ["equalized", "--A", "notjson", "--C", "[[1.0]]", "--language",
+                              "each:1:3"], "argument --A: not valid JSON"),
+    ("equalized-C-width", ["equalized", "--A", "[[2.0]]", "--C", "[[1.0, 2.0]]",
+                           "--language", "each:1:3"], "--C must be a matrix with n = 1"),
+    ("equalized-language", ["equalized", "--A", "[[2.0]]", "--C", "[[1.0]]", "--language",
+                            "each:x:3"], "each:M:T"),
+    ("sweep-family", ["sweep", "--family", "torus", "--quiet"], "--family: unknown family"),
+    ("grid-load-scale-nan", ["grid", "script", "--load-scale", "nan"],
+     "argument --load-scale: must be a finite number"),
+    ("bench-env-N-zero", ["bench", "env", "--N", "0"], "argument --N: must be >= 1"),
+    ("demo-out-unwritable", ["demo", "--steps", "3", "--out", "/proc/netsense-nope"],
+     "netsense-nope"),
+    ("unknown-command", ["nosuchcmd"], "invalid choice: 'nosuchcmd'"),
+]
+
+
+@pytest.mark.parametrize("argv, text", [c[1:] for c in CLI], ids=[c[0] for c in CLI])
+def test_cli_exits_2_with_one_line(tmp_path, capsys, argv, text):
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    try:
+        rc = main(argv)
+    except SystemExit as exc:  # argparse's own errors exit through the parser
+        rc = exc.code
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 2 and len(lines) == 1, err
+    assert lines[0].startswith("netsense") and ": error: " in lines[0] and text in lines[0], err
+
+
+@pytest.mark.parametrize("argv, text", [
+    (["demo", "--steps", "-5"], "argument --steps"),
+    (["train", "nope-v0", "--out", "/tmp/x"], "unknown scenario 'nope-v0'"),
+], ids=["argparse", "command"])
+def test_cli_console_entry_exits_2_without_traceback(argv, text):
+    res = _python(f"import sys; from netsense.cli import main; sys.exit(main({argv!r}))")
+    assert res.returncode == 2, res.stderr
+    assert "Traceback" not in res.stderr and text in res.stderr
+    assert len([ln for ln in res.stderr.splitlines() if ln.startswith("netsense")]) == 1
+
+
+# ============================================================== learned-policy files
+@pytest.fixture(scope="module")
+def policy_files(tmp_path_factory):
+    sb3 = pytest.importorskip("sb3_contrib")
+    from netsense.rl.sb3 import make_vec_env
+
+    d = tmp_path_factory.mktemp("policies")
+    venv = make_vec_env("fig1_scalar-v0", num_vec_envs=1, seed=0, overrides={"horizon": 8})
+    model = sb3.MaskablePPO("MlpPolicy", venv, n_steps=8, batch_size=8, device="cpu")
+    good = d / "policy.zip"
+    model.save(good)
+    data = good.read_bytes()
+    (d / "truncated.zip").write_bytes(data[:3000])
+    flipped = bytearray(data)
+    for i in range(200, len(flipped), 97):
+        flipped[i] ^= 0xFF
+    (d / "corrupted.zip").write_bytes(bytes(flipped))
+    (d / "text.zip").write_text("hello\n")
+    (d / "dir.zip").mkdir()
+    with zipfile.ZipFile(good) as zin, zipfile.ZipFile(d / "inner.zip", "w") as zout:
+        for n in zin.namelist():  # a valid zip whose members are cut short
+            b = zin.read(n)
+            zout.writestr(n, b[:len(b) // 3] if n in ("data", "policy.pth") else b)
+    return d
+
+
+@pytest.mark.parametrize("name, match", [
+    ("truncated.zip", "not a readable MaskablePPO policy file"),
+    ("corrupted.zip", "not a readable MaskablePPO policy file"),
+    ("text.zip", "not a readable MaskablePPO policy file"),
+    ("inner.zip", "not a readable MaskablePPO policy file"),
+    ("dir.zip", "not a policy file"),
+    ("missing.zip", "no learned policy at"),
+])
+def test_bad_policy_files_raise_value_error_naming_the_file(policy_files, name, match):
+    from netsense.rl.sb3 import LearnedPolicy
+
+    with pytest.raises(ValueError, match=match) as err:
+        LearnedPolicy(policy_files / name)
+    assert name in str(err.value)
+
+
+def test_policy_of_another_scenario_is_refused(policy_files):
+    from netsense.rl.sb3 import LearnedPolicy
+    from netsense.rl.wrappers import MaskedFlatObs
+
+    pol = LearnedPolicy(policy_files / "policy.zip")
+    wrapped = MaskedFlatObs(make("link_failures-v0"))
+    obs, _ = wrapped.reset(seed=0)
+    with pytest.raises(ValueError, match="trained for observations of shape"):
+        pol.act(obs, wrapped)
+    ok = MaskedFlatObs(make("fig1_scalar-v0", horizon=8))  # its own scenario still works
+    obs, _ = ok.reset(seed=0)
+    assert set(pol.act(obs, ok)) == set(ok.possible_agents)
+
+
+# ============================================================== numerical health
+def _run_unstable(**kw):
+    env = make("fig1_scalar-v0", horizon=3000, **kw)  # x[k+1] = 2 x[k]: inf at k = 1024
+    obs, infos = env.reset(seed=0)
+    pol = make_policy("freshness", env)
+    steps, out = 0, None
+    while env.agents:
+        out = env.step(pol.act_dict(env, obs, infos))
+        obs, infos = out[0], out[4]
+        steps += 1
+    return env, steps, out
+
+
+def test_an_unstable_plant_run_long_is_flagged_and_ends_the_episode():
+    with pytest.warns(ns.NumericalWarning, match="plant state x is inf or NaN at step 1024 "
+                                                  r"\(batch member 0\)"):
+        env, steps, (obs, rew, term, trunc, infos) = _run_unstable()
+    assert steps == 1024 and all(term.values()) and not any(trunc.values())
+    for a in env.possible_agents:
+        assert infos[a]["nonfinite"] == {"step": 1024, "what": "state", "agent": None}
+        assert np.isfinite(rew[a])
+
+
+def test_nonfinite_raise_mode_raises_before_the_commit():
+    env = make("fig1_scalar-v0", horizon=3000, nonfinite="raise")
+    obs, infos = env.reset(seed=0)
+    pol = make_policy("freshness", env)
+    with pytest.raises(ns.NumericalError, match="at step 1024") as err:
+        for _ in range(3000):
+            obs, _, _, _, infos = env.step(pol.act_dict(env, obs, infos))
+    e = err.value
+    assert (e.member, e.agent, e.step, e.what) == (0, None, 1024, "state")
+    assert env.core.k[0] == 1023 and np.isfinite(env.core.x).all()  # not committed
+
+
+def test_an_overflowing_error_is_flagged_with_its_agent():
+    """Relays that never adopt keep estimate 0 while x grows as 2^k: their error's square
+    overflows at k = 512 although state and estimates are finite."""
+    env = make("fig1_scalar-v0", horizon=3000)
+    env.reset(seed=0)
+    keep = {a: np.array([0, 0, 0, 1]) for a in env.possible_agents}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ns.NumericalWarning)
+        while env.agents:
+            *_, infos = env.step(keep)
+    assert infos["sensor_1"]["nonfinite"] == {"step": 512, "what": "error", "agent": 1}
+
+
+def test_vector_envs_flag_nonfinite_members_and_auto_reset_them():
+    be = BatchedEnv("fig1_scalar-v0", 2, horizon=3000)
+    obs, info = be.reset(seed=0)
+    pol = make_policy("freshness", be.core)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ns.NumericalWarning)
+        for _ in range(1100):
+            obs, rew, term, trunc, info = be.step(pol.act(obs, info["action_mask"]))
+            if term.any():
+                break
+    flagged = [r for r in info["nonfinite"] if r is not None]
+    assert flagged and all(r["what"] == "state" for r in flagged)
+    assert np.isfinite(obs).all() and np.isfinite(rew).all()  # restarted members
