@@ -96,8 +96,8 @@ def run_path(path: str, args, scratch: Path, *, warm: bool = False) -> dict:
         B = 4 if warm else args.num_envs
         T = 4 if warm else args.rollout
         mb = args.set_minibatch if path == "torchrl-set" else args.minibatch
-        return _torchrl(args.scenario, path, B, T, 1 if warm else args.iters, N,
-                        min(mb, B * T), args.epochs)
+        iters = 1 if warm else (args.set_iters if path == "torchrl-set" else args.iters)
+        return _torchrl(args.scenario, path, B, T, iters, N, min(mb, B * T), args.epochs)
     if path == "sb3-batched":
         B = max(1, args.sb3_envs // N)
         return _sb3_batched(args.scenario, 256 * B * N if warm else args.sb3_steps, B)
@@ -118,8 +118,10 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("--iters", type=int, default=3, help="PPO iterations per measurement")
     p.add_argument("--epochs", type=int, default=2, help="PPO epochs (TorchRL paths)")
     p.add_argument("--minibatch", type=int, default=2048, help="env-steps per minibatch")
-    p.add_argument("--set-minibatch", type=int, default=256,
+    p.add_argument("--set-minibatch", type=int, default=512,
                    help="env-steps per minibatch of the set network")
+    p.add_argument("--set-iters", type=int, default=1,
+                   help="PPO iterations per measurement of the set network")
     p.add_argument("--sb3-steps", type=int, default=30_000,
                    help="agent-steps per SB3 measurement")
     p.add_argument("--sb3-envs", type=int, default=40,
@@ -181,7 +183,8 @@ def _report(rows: list[dict], args, path: Path) -> None:
              f"{'cuda' if torch.cuda.is_available() else 'cpu'}",
              f"# scenario {args.scenario}; TorchRL: B = {args.num_envs}, T = {args.rollout}, "
              f"{args.iters} iterations, {args.epochs} epochs, minibatch {args.minibatch} "
-             f"env-steps (set network {args.set_minibatch}); SB3: {args.sb3_steps} "
+             f"env-steps (set network: {args.set_minibatch}, {args.set_iters} iterations); "
+             f"SB3: {args.sb3_steps} "
              f"agent-steps; {args.rounds} interleaved rounds",
              "path                median agent-steps/s   (min - max)      learn share"]
     for p_, (med, lo, hi, share) in _summary(rows).items():
