@@ -220,7 +220,7 @@ def test_behaviour_cloning_learns_the_freshness_choices():
     cfg = PPOConfig(SCEN, network="set", num_envs=8, minibatch=32, set_hidden=16,
                     overrides=SHORT)
     net = actor_net(cfg, make_core(SCEN, 1, **SHORT))
-    stats = behaviour_clone(net, cfg, "freshness", steps=24, epochs=8, lr=3e-3)
+    stats = behaviour_clone(net, cfg, "freshness", steps=192, epochs=8, lr=3e-3)
     assert stats["ce_after"] < 0.5 * stats["ce_before"]
     assert stats["accuracy"] > stats["chance"] + 0.2
 

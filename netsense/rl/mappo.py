@@ -102,7 +102,8 @@ class PPOConfig:
     bc : str or None
         Scripted policy to clone before PPO (:func:`scripted_actions`).
     bc_steps, bc_epochs : int
-        Env-steps of scripted data (of ``num_envs`` members) and passes over it.
+        Env-steps of scripted data (split over ``num_envs`` members; each holds ``N``
+        agent-steps) and passes over it.
     critic_warmup : int
         First iterations that train only the critic.
     device : str
@@ -145,7 +146,7 @@ class PPOConfig:
     eval_interval: int = 10
     eval_envs: int = 16
     bc: str | None = None
-    bc_steps: int = 400
+    bc_steps: int = 8192
     bc_epochs: int = 5
     critic_warmup: int = 0
     device: str = "auto"
@@ -242,15 +243,15 @@ def scripted_actions(name: str, core):
 
 
 def _collect_scripted(config: PPOConfig, name: str, steps: int, seed: int):
-    """Observations, masks and scripted actions of ``steps`` env-steps of ``num_envs``
-    members, as tensors ``(steps * B, N, ...)``."""
+    """Observations, masks and scripted actions of about ``steps`` env-steps (``num_envs``
+    members, ``ceil(steps / num_envs)`` steps each), as tensors ``(rows, N, ...)``."""
     core = make_core(config.scenario, config.num_envs, control=config.control,
                      **config.overrides)
     act = scripted_actions(name, core)
     obs, mask = core.reset(seed)
     rng = np.random.default_rng(seed)
     O, Mk, A = [], [], []
-    for _ in range(int(steps)):
+    for _ in range(-(-int(steps) // core.B)):
         a = act(obs, mask)
         O.append(obs.copy())
         Mk.append(mask.astype(bool))
@@ -270,8 +271,9 @@ def behaviour_clone(net: torch.nn.Module, config: PPOConfig, scripted: str, *,
                     seed: int = 7, device=None) -> dict:
     """Warm start: minimise the cross-entropy of the masked policy on scripted actions.
 
-    Data: ``steps`` env-steps of ``config.num_envs`` members driven by ``scripted``
-    (training members seeded from ``seed``, held-out members from ``seed + 10**6``).
+    Data: about ``steps`` env-steps (default ``config.bc_steps``) of ``config.num_envs``
+    members driven by ``scripted`` (training members seeded from ``seed``, a quarter as
+    many held-out steps from members seeded from ``seed + 10**6``).
 
     Returns
     -------

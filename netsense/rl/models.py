@@ -32,12 +32,13 @@ a size that depends on ``N``, ``D``, ``M`` or ``n``):
   are left out of the pooling (padding mask ``slot_arrived``; their adopt choices are
   masked by the environment anyway).
 
-Pairs are embedded by one MLP shared over all ``(d, j)``, pooled over slots with masked
-mean and max (DeepSets), and combined with the substate and agent embeddings; one shared
-scoring head gives the adopt logit of every ``(substate, slot)`` pair, two heads the keep
-and average logits of every substate, one head the two transmit logits from the agent
-embedding and the substate pool. Parameters do not depend on the sizes: a state dict
-trained at one ``N`` loads into a :class:`SetPolicyNet` built for another layout.
+Pairs are embedded by one layer shared over all ``(d, j)`` (with the substate embedding
+added), pooled over slots with masked mean and max (DeepSets), and combined with the
+substate and agent embeddings; one shared scoring head gives the adopt logit of every
+``(substate, slot)`` pair, two heads the keep and average logits of every substate, one
+head the two transmit logits from the agent embedding and the substate pool. Parameters
+do not depend on the sizes: a state dict trained at one ``N`` loads into a
+:class:`SetPolicyNet` built for another layout.
 """
 
 from __future__ import annotations
@@ -222,9 +223,16 @@ class SetPolicyNet(nn.Module):
         self.hidden = h
         self.agent_enc = _mlp(6, h, h)
         self.sub_enc = _mlp(3, h, h)
-        self.pair_enc = _mlp(5, h, h)
+        # pair embedding tanh(W v + U u): one layer on the (slot, substate) grid, the
+        # substate's part added by broadcasting (the grid is the costly tensor)
+        self.pair_in = nn.Linear(5, h)
+        self.pair_sub = nn.Linear(h, h, bias=False)
         self.sub_mix = _mlp(4 * h, h, h)  # [u, mean-pool, max-pool, agent]
-        self.pair_score = _mlp(2 * h, h, 1)  # shared over every (substate, slot) pair
+        # scoring head shared over every (substate, slot) pair: w . tanh(A e + B s) + b,
+        # a layer on [e, s] with the substate's part broadcast instead of concatenated
+        self.pair_a = nn.Linear(h, h)
+        self.pair_b = nn.Linear(h, h, bias=False)
+        self.pair_out = nn.Linear(h, 1)
         self.keep_head = nn.Linear(h, 1)
         self.avg_head = nn.Linear(h, 1)
         self.tx_head = _mlp(3 * h, h, 2)  # [agent, mean and max over substates]
@@ -268,7 +276,7 @@ class SetPolicyNet(nn.Module):
         g, u, v, arrived = self.tokens(obs)
         ge = self.agent_enc(g)  # (..., N, h)
         ue = self.sub_enc(u)  # (..., N, M, h)
-        pe = self.pair_enc(v) + ue.unsqueeze(-3)  # (..., N, D, M, h)
+        pe = torch.tanh(self.pair_in(v) + self.pair_sub(ue).unsqueeze(-3))  # (..., N, D, M, h)
         pad = arrived.unsqueeze(-1).unsqueeze(-1)  # (..., N, D, 1, 1): padding mask
         count = pad.sum(-3).clamp(min=1.0)
         mean = (pe * pad).sum(-3) / count
@@ -279,6 +287,7 @@ class SetPolicyNet(nn.Module):
         tx = self.tx_head(torch.cat([ge, s.mean(-2), s.amax(-2)], -1))  # (..., N, 2)
         if self.mode == "transmit":
             return tx
-        pair = self.pair_score(torch.cat([pe, s.unsqueeze(-3).expand_as(pe)], -1))[..., 0]
+        hid = torch.tanh(self.pair_a(pe) + self.pair_b(s).unsqueeze(-3))
+        pair = self.pair_out(hid)[..., 0]  # (..., N, D, M)
         blocks = torch.cat([self.keep_head(s), pair.transpose(-1, -2), self.avg_head(s)], -1)
         return torch.cat([blocks.flatten(-2), tx], -1)  # [keep, slots, avg] * M, transmit
