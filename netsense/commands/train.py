@@ -127,7 +127,8 @@ def _run_torchrl(args: argparse.Namespace) -> int:
         res = train_ppo(cfg, out / f"seed_{seed}", progress=not args.no_progress)
         last = res.rows[-1]
         summary.append({"seed": seed, **{k: last.get(k) for k in (
-            "eval_return", "eval_error", "eval_messages")},
+            "eval_return", "eval_error", "eval_messages", "eval_sampled_return",
+            "eval_sampled_error", "eval_sampled_messages")},
             "agent_steps_per_s": round(res.agent_steps_per_s, 1),
             "mask_violations": res.mask_violations})
         print(f"seed {seed}: {algo}/{args.network} on {args.scenario}, {res.agent_steps} "

@@ -23,7 +23,8 @@ learning rate and the critic warm-up (actor frozen) used for that.
 
 Outputs per run (:func:`train_ppo`): ``log.csv`` (one row per iteration: agent-steps,
 wall time, throughput, training return, error, messages, losses, entropy, evaluation
-columns when evaluated), TensorBoard events under ``tb/`` when ``tensorboard`` or
+columns when evaluated: ``eval_*`` with the most likely actions, ``eval_sampled_*`` with
+sampled ones), TensorBoard events under ``tb/`` when ``tensorboard`` or
 ``tensorboardX`` is installed, ``checkpoint_<iter>.pt`` at every evaluation and
 ``policy.pt`` at the end (:func:`load_policy` reads them), ``config.json``. The learner
 runs on CUDA when ``torch.cuda.is_available()`` (``device="auto"``); the core always
@@ -553,8 +554,12 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
         last = it == iters - 1
         if out is not None and evaluate_every and (
                 last or (config.eval_interval and (it + 1) % config.eval_interval == 0)):
+            # greedy and sampled: a learned randomised schedule (transmit with some
+            # probability) collapses to all-or-nothing under the greedy action
             ev = evaluate(actor, config)
             row.update({f"eval_{k}": v for k, v in ev.items()})
+            ev = evaluate(actor, config, deterministic=False)
+            row.update({f"eval_sampled_{k}": v for k, v in ev.items()})
             _checkpoint(out / f"checkpoint_{it + 1:05d}.pt", config, net, critic, it + 1,
                         agent_steps)
         rows.append(row)
