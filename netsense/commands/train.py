@@ -13,20 +13,29 @@ from netsense.commands._args import (
 )
 
 NAME = "train"
-HELP = ("Train a shared MaskablePPO policy (SB3 + SuperSuit) on a scenario; saves the policy "
-        "and its training curve (PNG + CSV). Needs the 'rl' extra.")
+HELP = ("Train a parameter-shared, action-masked policy on a scenario: MaskablePPO through "
+        "SB3 + SuperSuit (--backend sb3, default; 'rl' extra) or batched MAPPO / IPPO on "
+        "TorchRL components (--backend torchrl; 'torchrl' extra). Saves policies, logs and "
+        "curves.")
 
-ALGOS = ("maskable_ppo",)
+ALGOS = ("maskable_ppo", "mappo", "ippo")
+BACKENDS = ("sb3", "torchrl")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", help="scenario id, e.g. fig1_scalar-v0 (see `netsense list`)")
-    parser.add_argument("--algo", choices=ALGOS, default="maskable_ppo",
-                        help="learning algorithm (default: maskable_ppo)")
+    parser.add_argument("--backend", choices=BACKENDS, default="sb3",
+                        help="sb3: MaskablePPO through SuperSuit (default); torchrl: batched "
+                             "MAPPO / IPPO over BatchedCore (netsense.rl.mappo)")
+    parser.add_argument("--algo", choices=ALGOS, default=None,
+                        help="maskable_ppo (sb3) or mappo / ippo (torchrl; default mappo)")
     parser.add_argument("--steps", type=positive_int, default=50_000,
                         help="total agent-steps of experience (default: 50000)")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--seed", type=nonnegative_int, default=0, help="seed (default: 0)")
+    parser.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, metavar="SEED",
+                        help="torchrl: train one run per seed into OUT/seed_<s> (default: "
+                             "--seed)")
     parser.add_argument("--num-envs", type=positive_int, default=4,
                         help="environment copies stepped together (default: 4)")
     parser.add_argument("--n-steps", type=positive_int, default=128,
@@ -42,6 +51,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scenario override passed to netsense.make, e.g. horizon=40 "
                              "(repeatable; the value is parsed as JSON)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    tr = parser.add_argument_group("torchrl backend")
+    tr.add_argument("--network", choices=("mlp", "set"), default="mlp",
+                    help="actor: shared MLP or the set network over message slots")
+    tr.add_argument("--control", choices=("full", "transmit"), default="full",
+                    help="full control or the transmit-only stand-in (freshness adopts)")
+    tr.add_argument("--reward", choices=("scenario", "team", "agent", "counterfactual"),
+                    default="scenario", help="credit assignment (docs/rl.md)")
+    tr.add_argument("--critic", choices=("state", "joint", "local"), default=None,
+                    help="mappo: state (default) or joint; ippo: local")
+    tr.add_argument("--rollout", type=positive_int, default=32,
+                    help="steps per environment per iteration (default: 32)")
+    tr.add_argument("--epochs", type=positive_int, default=4, help="PPO epochs (default: 4)")
+    tr.add_argument("--eval-interval", type=positive_int, default=10,
+                    help="evaluate + checkpoint every this many iterations (default: 10)")
+    tr.add_argument("--eval-envs", type=positive_int, default=16,
+                    help="evaluation episodes (default: 16)")
+    tr.add_argument("--bc", default=None, metavar="POLICY",
+                    help="behaviour-cloning warm start from a scripted policy (freshness, "
+                         "uniform, open_loop, random), then conservative fine-tuning")
+    tr.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
+                    help="learner device (auto: CUDA when available)")
 
 
 def parse_overrides(items: list[str]) -> dict:
@@ -59,6 +89,11 @@ def parse_overrides(items: list[str]) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.backend == "torchrl":
+        return _run_torchrl(args)
+    if args.algo not in (None, "maskable_ppo"):
+        raise ValueError(f"--algo {args.algo} needs --backend torchrl")
+    args.algo = "maskable_ppo"
     from netsense.benchmark.baselines import baseline_returns
     from netsense.rl.sb3 import TrainConfig, train
 
@@ -73,4 +108,42 @@ def run(args: argparse.Namespace) -> int:
           f"{res.wall_s:.1f} s; final mean episode return {last:.4g}; "
           f"masked actions taken: {res.mask_violations}/{res.actions_checked}")
     print(f"wrote {res.policy_path}, {res.curve_csv}, {res.curve_png}")
+    return 0
+
+
+def _run_torchrl(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from netsense.rl.mappo import PPOConfig, train_ppo
+
+    algo = args.algo or "mappo"
+    if algo == "maskable_ppo":
+        raise ValueError("--algo maskable_ppo needs --backend sb3")
+    seeds = args.seeds if args.seeds else [args.seed]
+    out = Path(args.out)
+    summary = []
+    for seed in seeds:
+        cfg = PPOConfig(scenario=args.scenario, algo=algo, network=args.network,
+                        control=args.control, reward=args.reward, critic=args.critic,
+                        steps=args.steps, seed=seed, num_envs=args.num_envs,
+                        rollout=args.rollout, epochs=args.epochs, minibatch=args.batch_size,
+                        lr=args.lr, gamma=args.gamma, entropy_coef=args.ent_coef,
+                        eval_interval=args.eval_interval, eval_envs=args.eval_envs,
+                        bc=args.bc, device=args.device,
+                        overrides=parse_overrides(args.override))
+        if args.bc:
+            cfg = cfg.conservative()
+        res = train_ppo(cfg, out / f"seed_{seed}", progress=not args.no_progress)
+        last = res.rows[-1]
+        summary.append({"seed": seed, **{k: last.get(k) for k in (
+            "eval_return", "eval_error", "eval_messages", "eval_sampled_return",
+            "eval_sampled_error", "eval_sampled_messages")},
+            "agent_steps_per_s": round(res.agent_steps_per_s, 1),
+            "mask_violations": res.mask_violations})
+        print(f"seed {seed}: {algo}/{args.network} on {args.scenario}, {res.agent_steps} "
+              f"agent-steps in {res.wall_s:.1f} s; eval return {last.get('eval_return'):.4g}, "
+              f"error {last.get('eval_error'):.3g}, messages/agent-step "
+              f"{last.get('eval_messages'):.3g}; masked actions taken: {res.mask_violations}")
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(f"wrote {out}/seed_*/(log.csv, policy.pt, checkpoints) and {out / 'summary.json'}")
     return 0

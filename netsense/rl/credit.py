@@ -1,0 +1,177 @@
+"""Credit assignment for messages: team, per-agent and counterfactual sender rewards.
+
+The core's reward (:class:`netsense.engine.model.RewardConfig`, scenario section
+``[reward]``) is, for agent ``i`` after the step ``k -> k + 1``,
+
+.. math:: r_i = -w_e \\big((1 - w_t) e_i + w_t \\bar e\\big) - c\\, t_i ,
+
+with ``e_i`` the clipped normalised error, ``\\bar e`` its mean over the agents that count
+(``alive``; the others get ``-c t_i``) and ``t_i`` the transmit bit chosen at ``k``. A
+learner may be trained on the reward of one of these options instead
+(:data:`REWARDS`; ``netsense train --backend torchrl --reward ...``):
+
+``scenario``
+    ``r_i`` as configured.
+``team``
+    every agent gets the team mean, :math:`r^{team}_i = \\frac1N \\sum_l r_l`: the
+    message cost is shared (``c \\bar t``) and so is the error.
+``agent``
+    individual error and own cost, :math:`r^{agent}_i = -w_e e_i - c\\, t_i` for the
+    agents that count (``-c t_i`` otherwise); computed from the core's reward as
+    :math:`r_i - w_e w_t (e_i - \\bar e)` so that no knowledge of the action encoding is
+    needed.
+``counterfactual``
+    the per-agent reward plus a sender credit for the error reduction its message brought
+    at the receivers that adopted it:
+
+    .. math:: r^{cf}_i = r^{agent}_i + w_e \\sum_{(l, j) \\in \\mathcal A_i[k]}
+              \\big(\\varepsilon_{l j}[k] - \\varepsilon_{i j}[k]\\big),\\qquad
+              \\varepsilon_{l j}[k] = \\min\\Big(\\frac{\\|\\hat z^{(j)}_l[k] - z^{(j)}[k]\\|}
+              {\\max(\\|x[k]\\|, f)}, e_{\\max}\\Big),
+
+    where :math:`\\mathcal A_i[k]` holds the (receiver ``l``, substate ``j``) pairs in
+    which ``l`` adopted the message of ``i`` at step ``k`` (eqs. (9)/(10)),
+    :math:`z^{(j)}` the block of substate ``j`` in the coordinates of Lemma 1
+    (``z = T^{-1} x``) and :math:`\\hat z^{(j)}_l` agent ``l``'s estimate of it. The
+    credit compares what the receiver had (keep) with what it took (adopt) before the
+    common propagation by ``A``; it is negative when a receiver adopted a worse estimate.
+    Uniform averages (eq. (6)) credit nobody. The message adopted at ``k`` was sent on
+    the transmit bit chosen at ``k - 1`` (:mod:`netsense.engine.core`, timing protocol),
+    so the credit reaches the transmitting action one step late, through the discount.
+
+Which slot a receiver adopted: in full control the action of substate ``j`` *is* the
+adopted slot (``a_j = d + 1``); a control mode whose adoption is scripted reports it
+through an ``adopted_slots(actions)`` method of its core (see
+:func:`adopted_slots`). Only numpy here; the TorchRL env calls these functions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["REWARDS", "adopted_slots", "agent_reward", "full_control", "sender_credit",
+           "shaped_reward", "team_reward"]
+
+#: Reward options, see the module docstring.
+REWARDS = ("scenario", "team", "agent", "counterfactual")
+
+
+def full_control(core) -> bool:
+    """True when ``core.nvec`` is the full-control layout ``[D + 2] * M + [2]``."""
+    nvec = np.asarray(core.nvec)
+    return (nvec.size == core.M + 1 and bool(np.all(nvec[:-1] == core.D + 2))
+            and int(nvec[-1]) == 2)
+
+
+def adopted_slots(core, actions: np.ndarray) -> np.ndarray:
+    """``(B, N, M)`` int: the slot each agent adopts per substate at this step, ``-1`` none.
+
+    Uses ``core.adopted_slots(actions)`` when the core has it (control modes with a
+    scripted fusion rule); otherwise the actions must be full control, where
+    ``a[..., j] = d + 1`` adopts slot ``d``.
+    """
+    if hasattr(core, "adopted_slots"):
+        return np.asarray(core.adopted_slots(actions))
+    if not full_control(core):
+        raise ValueError("this control mode reports no adoptions (its core has no "
+                         "adopted_slots method) and its actions are not full control; the "
+                         "counterfactual reward needs one of the two")
+    a = np.asarray(actions)[..., :core.M]
+    return np.where((a >= 1) & (a <= core.D), a - 1, -1)
+
+
+def team_reward(reward: np.ndarray) -> np.ndarray:
+    """:math:`\\frac1N \\sum_l r_l` for every agent, ``(B, N)``."""
+    return np.broadcast_to(reward.mean(axis=1, keepdims=True), reward.shape).copy()
+
+
+def agent_reward(reward: np.ndarray, errors: np.ndarray, alive: np.ndarray,
+                 error_weight: float, team_weight: float) -> np.ndarray:
+    """:math:`r_i - w_e w_t (e_i - \\bar e)` on the agents that count, ``(B, N)``.
+
+    Parameters
+    ----------
+    reward : (B, N)
+        The core's reward.
+    errors : (B, N)
+        Clipped normalised errors ``e_i`` of the same step.
+    alive : (N,) bool
+        Agents whose errors count.
+    error_weight, team_weight : float
+        ``w_e`` and ``w_t`` of the scenario.
+    """
+    alive = np.asarray(alive, bool)
+    ebar = errors[:, alive].mean(axis=1, keepdims=True) if alive.any() else 0.0
+    return reward - error_weight * team_weight * (errors - ebar) * alive
+
+
+def block_errors(Z: np.ndarray, x: np.ndarray, T_inv: np.ndarray, blocks: np.ndarray,
+                 floor: float, clip: float) -> np.ndarray:
+    """``(B, N, M)``: :math:`\\varepsilon_{l j}` of every agent and substate.
+
+    Parameters
+    ----------
+    Z : (B, N, n)
+        Estimates in Lemma 1 coordinates.
+    x : (B, n)
+        True state.
+    T_inv : (n, n)
+        ``T^{-1}`` (``z = T^{-1} x``).
+    blocks : (n, M)
+        One-hot: coordinate ``c`` belongs to substate ``j``.
+    floor, clip : float
+        ``f`` and ``e_max`` of the scenario.
+    """
+    z = x @ T_inv.T
+    sq = (Z - z[:, None, :]) ** 2
+    scale = np.maximum(np.linalg.norm(x, axis=1), floor)[:, None, None]
+    eps = np.sqrt(sq @ blocks) / scale
+    return np.where(np.isfinite(eps), np.minimum(eps, clip), clip)
+
+
+def sender_credit(eps: np.ndarray, adopted: np.ndarray, nbr: np.ndarray,
+                  alive: np.ndarray) -> np.ndarray:
+    """``(B, N)``: :math:`\\sum_{(l, j) \\in \\mathcal A_i} (\\varepsilon_{lj} -
+    \\varepsilon_{ij})` per sender ``i``.
+
+    Parameters
+    ----------
+    eps : (B, N, M)
+        :func:`block_errors` at step ``k``.
+    adopted : (B, N, M) int
+        :func:`adopted_slots` (``-1``: no adoption).
+    nbr : (B, N, D) int
+        In-neighbour of each slot at ``k`` (``-1``: empty).
+    alive : (N,) bool
+        Receivers whose errors count (others give no credit).
+    """
+    B, N, M = eps.shape
+    b, l, j = np.nonzero((adopted >= 0) & np.asarray(alive, bool)[None, :, None])
+    sender = nbr[b, l, adopted[b, l, j]]
+    ok = sender >= 0
+    b, l, j, sender = b[ok], l[ok], j[ok], sender[ok]
+    gain = eps[b, l, j] - eps[b, sender, j]
+    out = np.zeros((B, N))
+    np.add.at(out, (b, sender), gain)
+    return out
+
+
+def shaped_reward(option: str, reward: np.ndarray, errors: np.ndarray, alive: np.ndarray,
+                  error_weight: float, team_weight: float,
+                  credit: np.ndarray | None = None) -> np.ndarray:
+    """The reward of ``option`` (:data:`REWARDS`) from the core's reward, ``(B, N)``.
+
+    ``credit`` (:func:`sender_credit`) is required for ``"counterfactual"``.
+    """
+    if option == "scenario":
+        return reward
+    if option == "team":
+        return team_reward(reward)
+    if option not in REWARDS:
+        raise ValueError(f"reward must be one of {REWARDS}, got {option!r}")
+    out = agent_reward(reward, errors, alive, error_weight, team_weight)
+    if option == "counterfactual":
+        if credit is None:
+            raise ValueError("the counterfactual reward needs the sender credit")
+        out = out + error_weight * credit
+    return out

@@ -1,0 +1,623 @@
+"""MAPPO and IPPO on the batched core, built from TorchRL components (torch; on demand).
+
+Pipeline (no PPO arithmetic here: loss, advantages and collection are TorchRL's)::
+
+    make_core(scenario, B, control)            BatchedCore (or another control mode)
+      -> NetSenseBatchedEnv(core, reward)      TorchRL EnvBase, batch [B], group "agents"
+      -> Collector(env, actor, B * T frames)   T steps of B environments per iteration
+      -> GAE (torchrl.objectives.value)        per-agent advantages (done expanded to agents)
+      -> ClipPPOLoss(actor, critic)            clipped surrogate + value + entropy terms
+      -> Adam, minibatches of env-steps, gradient clipping
+
+Actor: :func:`netsense.rl.models.mlp_actor_net` or :class:`netsense.rl.models.SetPolicyNet`
+behind TorchRL's ``ProbabilisticActor`` with :class:`netsense.rl.models.MaskedMultiCategorical`
+reading ``("agents", "action_mask")``; parameters shared by all agents. Critic: ``mappo``
+uses the global ``state`` (:func:`netsense.rl.torchrl_batched.global_state`) with each
+agent's observation (``critic="state"``) or TorchRL's ``MultiAgentMLP(centralised=True)``
+over all observations (``critic="joint"``); ``ippo`` a local critic ``V_i(o_i)``.
+
+Optional behaviour-cloning warm start (:func:`behaviour_clone`): cross-entropy of the
+masked distribution on a scripted policy's actions collected through the batched core,
+then PPO fine-tuning; :meth:`PPOConfig.conservative` gives the small clip range and
+learning rate and the critic warm-up (actor frozen) used for that.
+
+Outputs per run (:func:`train_ppo`): ``log.csv`` (one row per iteration: agent-steps,
+wall time, throughput, training return, error, messages, losses, entropy, evaluation
+columns when evaluated: ``eval_*`` with the most likely actions, ``eval_sampled_*`` with
+sampled ones), TensorBoard events under ``tb/`` when ``tensorboard`` or
+``tensorboardX`` is installed, ``checkpoint_<iter>.pt`` at every evaluation and
+``policy.pt`` at the end (:func:`load_policy` reads them), ``config.json``. The learner
+runs on CUDA when ``torch.cuda.is_available()`` (``device="auto"``); the core always
+runs on the CPU.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from tensordict.nn import TensorDictModule
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import ProbabilisticActor
+
+from netsense.rl import credit
+from netsense.rl.models import (
+    CRITICS,
+    MaskedMultiCategorical,
+    SetPolicyNet,
+    critic_net,
+    mlp_actor_net,
+)
+from netsense.rl.torchrl_batched import CONTROLS, NetSenseBatchedEnv, make_core
+
+__all__ = ["ALGOS", "NETWORKS", "BatchedPolicy", "PPOConfig", "behaviour_clone",
+           "build_actor", "evaluate", "load_policy", "scripted_actions", "train_ppo"]
+
+ALGOS = ("mappo", "ippo")
+NETWORKS = ("mlp", "set")
+#: Seeds of evaluation episodes start here (training members use ``seed * 10**6 + b``).
+EVAL_SEED = 10**9
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """One batched MAPPO / IPPO run.
+
+    Attributes
+    ----------
+    scenario : str
+        Scenario id.
+    algo : {"mappo", "ippo"}
+        Centralised (``critic`` ``"state"`` or ``"joint"``) or local critic.
+    network : {"mlp", "set"}
+        Actor network (:mod:`netsense.rl.models`).
+    control : {"full", "transmit"}
+        Control mode of the core (:func:`netsense.rl.torchrl_batched.make_core`).
+    reward : str
+        Reward option (:data:`netsense.rl.credit.REWARDS`).
+    steps : int
+        Agent-steps of experience (``N`` per env-step).
+    seed : int
+    num_envs, rollout : int
+        ``B`` environments, ``T`` steps each per iteration.
+    epochs, minibatch : int
+        PPO epochs per iteration; minibatch size in env-steps (each holds ``N`` agents).
+    lr, clip, gamma, lmbda, entropy_coef, critic_coef, max_grad_norm : float
+    hidden : tuple of int
+        Hidden layers of the MLP actor (the set network uses ``set_hidden``).
+    critic_hidden : tuple of int
+    set_hidden : int
+    critic : str or None
+        ``"state"``, ``"joint"`` or ``"local"``; default ``"state"`` for mappo, ``"local"``
+        for ippo.
+    eval_interval : int
+        Evaluate and checkpoint every this many iterations (0: only at the end).
+    eval_envs : int
+        Evaluation episodes (one batch, deterministic actions, seeds from
+        :data:`EVAL_SEED`).
+    bc : str or None
+        Scripted policy to clone before PPO (:func:`scripted_actions`).
+    bc_steps, bc_epochs : int
+        Env-steps of scripted data (split over ``num_envs`` members; each holds ``N``
+        agent-steps) and passes over it.
+    critic_warmup : int
+        First iterations that train only the critic.
+    device : str
+        ``"auto"`` (CUDA when available), ``"cpu"`` or ``"cuda"``.
+    numba_threads : int or None
+        Threads of the core's compiled passes during training (``None``: numba's
+        default). One by default: the learner's torch threads use the cores between
+        collections, and threaded passes stall on busy cores (``docs/rl.md``).
+    torch_threads : int or None
+        ``torch.set_num_threads`` for the learner (``None``: torch's default). One by
+        default, as the SB3 path: on the shared 2-core machine two threads of small
+        matrix products waited on each other (a 20480 x 233 x 64 layer: 11.5 ms on one
+        thread, 25 ms on two, with the other core busy).
+    overrides : dict
+        Scenario overrides.
+    """
+
+    scenario: str
+    algo: str = "mappo"
+    network: str = "mlp"
+    control: str = "full"
+    reward: str = "scenario"
+    steps: int = 200_000
+    seed: int = 0
+    num_envs: int = 64
+    rollout: int = 32
+    epochs: int = 4
+    minibatch: int = 512
+    lr: float = 3e-4
+    clip: float = 0.2
+    gamma: float = 0.95
+    lmbda: float = 0.95
+    entropy_coef: float = 0.01
+    critic_coef: float = 0.5
+    max_grad_norm: float = 1.0
+    hidden: tuple[int, ...] = (64, 64)
+    critic_hidden: tuple[int, ...] = (128, 128)
+    set_hidden: int = 32
+    critic: str | None = None
+    eval_interval: int = 10
+    eval_envs: int = 16
+    bc: str | None = None
+    bc_steps: int = 8192
+    bc_epochs: int = 5
+    critic_warmup: int = 0
+    device: str = "auto"
+    numba_threads: int | None = 1
+    torch_threads: int | None = 1
+    overrides: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, options in (("algo", ALGOS), ("network", NETWORKS), ("control", CONTROLS),
+                              ("reward", credit.REWARDS)):
+            if getattr(self, name) not in options:
+                raise ValueError(f"PPOConfig.{name} must be one of {options}, got "
+                                 f"{getattr(self, name)!r}")
+        if self.critic is not None and self.critic not in CRITICS:
+            raise ValueError(f"PPOConfig.critic must be one of {CRITICS}, got {self.critic!r}")
+        if self.algo == "ippo" and self.critic not in (None, "local"):
+            raise ValueError("ippo uses a local critic (critic='local')")
+        for name in ("steps", "num_envs", "rollout", "epochs", "minibatch", "eval_envs",
+                     "bc_steps", "bc_epochs"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ValueError(f"PPOConfig.device must be auto, cpu or cuda, got {self.device!r}")
+
+    @property
+    def critic_kind(self) -> str:
+        return self.critic or ("local" if self.algo == "ippo" else "state")
+
+    def conservative(self) -> PPOConfig:
+        """Fine-tuning after a warm start: clip 0.1, lr 1e-4, entropy 1e-3, 2 critic-only
+        iterations (unless already set lower / longer)."""
+        return replace(self, clip=min(self.clip, 0.1), lr=min(self.lr, 1e-4),
+                       entropy_coef=min(self.entropy_coef, 1e-3),
+                       critic_warmup=max(self.critic_warmup, 2))
+
+
+def _device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+# ------------------------------------------------------------------ networks
+def actor_net(config: PPOConfig, core, device=None) -> torch.nn.Module:
+    """The actor's logits network for ``core``'s layout and action layout."""
+    if config.network == "set":
+        return SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden).to(device)
+    return mlp_actor_net(core.layout, core.nvec, core.N, hidden=config.hidden, device=device)
+
+
+def build_actor(net: torch.nn.Module, nvec) -> ProbabilisticActor:
+    """``ProbabilisticActor``: logits from ``net``, masked by ``("agents", "action_mask")``."""
+    module = TensorDictModule(net, in_keys=[("agents", "observation")],
+                              out_keys=[("agents", "logits")])
+    return ProbabilisticActor(
+        module, in_keys={"logits": ("agents", "logits"), "mask": ("agents", "action_mask")},
+        out_keys=[("agents", "action")], distribution_class=MaskedMultiCategorical,
+        distribution_kwargs={"nvec": tuple(int(v) for v in nvec)}, return_log_prob=True,
+        log_prob_key=("agents", "action_log_prob"),
+        default_interaction_type=ExplorationType.RANDOM)
+
+
+def _critic(config: PPOConfig, env: NetSenseBatchedEnv, device) -> TensorDictModule:
+    net, keys = critic_net(config.critic_kind, env.layout.size, env.state_dim, env.n_agents,
+                           hidden=config.critic_hidden, device=device)
+    return TensorDictModule(net, in_keys=keys, out_keys=[("agents", "state_value")])
+
+
+# ------------------------------------------------------------------ scripted data
+def scripted_actions(name: str, core):
+    """``(obs, mask) -> actions`` of a scripted policy in ``core``'s action layout.
+
+    ``name`` is one of :data:`netsense.env.policies.POLICIES`. On a core of another
+    control mode that wraps a full-control core (``core.core``), the scripted full actions
+    are computed on that core's observation and mask and reduced to the mode's actions:
+    the transmit column for ``nvec == [2]``.
+    """
+    from netsense.env.policies import make_policy
+
+    full = core if credit.full_control(core) else getattr(core, "core", None)
+    if full is None or not credit.full_control(full):
+        raise ValueError("scripted policies act on full-control cores or on wrappers of one")
+    policy = make_policy(name, full, **({"seed": 0} if name == "random" else {}))
+    if full is core:
+        return policy.act
+    if [int(v) for v in core.nvec] != [2]:
+        raise ValueError(f"no reduction of full actions to nvec {list(core.nvec)}")
+
+    def act(obs, mask):
+        o, m = full.observe()
+        return policy.act(o, m)[..., -1:]
+
+    return act
+
+
+def _collect_scripted(config: PPOConfig, name: str, steps: int, seed: int):
+    """Observations, masks and scripted actions of about ``steps`` env-steps (``num_envs``
+    members, ``ceil(steps / num_envs)`` steps each), as tensors ``(rows, N, ...)``."""
+    core = make_core(config.scenario, config.num_envs, control=config.control,
+                     **config.overrides)
+    act = scripted_actions(name, core)
+    obs, mask = core.reset(seed)
+    rng = np.random.default_rng(seed)
+    O, Mk, A = [], [], []
+    for _ in range(-(-int(steps) // core.B)):
+        a = act(obs, mask)
+        O.append(obs.copy())
+        Mk.append(mask.astype(bool))
+        A.append(np.asarray(a, dtype=np.int64))
+        out = core.step(a)
+        obs, mask = out.obs, out.action_mask
+        done = out.terminated | out.truncated
+        if done.any():
+            obs, mask = core.reset([int(s) for s in rng.integers(0, 2**62, core.B)],
+                                   members=done)
+    cat = lambda xs: torch.as_tensor(np.concatenate(xs))  # noqa: E731
+    return cat(O), cat(Mk), cat(A)
+
+
+def behaviour_clone(net: torch.nn.Module, config: PPOConfig, scripted: str, *,
+                    steps: int | None = None, epochs: int | None = None, lr: float = 1e-3,
+                    seed: int = 7, device=None) -> dict:
+    """Warm start: minimise the cross-entropy of the masked policy on scripted actions.
+
+    Data: about ``steps`` env-steps (default ``config.bc_steps``) of ``config.num_envs``
+    members driven by ``scripted`` (training members seeded from ``seed``, a quarter as
+    many held-out steps from members seeded from ``seed + 10**6``).
+
+    Returns
+    -------
+    dict
+        ``ce_before``, ``ce_after`` (held-out cross-entropy per agent-step, nats),
+        ``accuracy`` (held-out share of action entries where the most likely allowed
+        choice equals the scripted one), ``chance`` (the same for a uniform choice among
+        the allowed ones), ``samples``.
+    """
+    steps = int(steps or config.bc_steps)
+    epochs = int(epochs or config.bc_epochs)
+    device = device or next(net.parameters()).device
+    obs, mask, act = (t.to(device) for t in _collect_scripted(config, scripted, steps, seed))
+    h_obs, h_mask, h_act = (t.to(device) for t in _collect_scripted(
+        config, scripted, max(steps // 4, 1), seed + 10**6))
+    core_nvec = make_core(config.scenario, 1, control=config.control,
+                          **config.overrides).nvec
+
+    def dist(o, m):
+        return MaskedMultiCategorical(net(o), m, core_nvec)
+
+    def held_out() -> tuple[float, float]:
+        with torch.no_grad():
+            d = dist(h_obs, h_mask)
+            ce = float(-d.log_prob(h_act).mean())
+            acc = float((d.deterministic_sample == h_act).float().mean())
+        return ce, acc
+
+    ce_before, _ = held_out()
+    opt = torch.optim.Adam(net.parameters(), lr=lr)
+    gen = torch.Generator().manual_seed(seed)
+    rows = obs.shape[0]
+    mb = max(1, min(rows, config.minibatch))
+    for _ in range(epochs):
+        perm = torch.randperm(rows, generator=gen).to(device)
+        for s in range(0, rows, mb):
+            idx = perm[s:s + mb]
+            loss = -dist(obs[idx], mask[idx]).log_prob(act[idx]).mean()
+            opt.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), config.max_grad_norm)
+            opt.step()
+    ce_after, acc = held_out()
+    allowed = MaskedMultiCategorical(torch.zeros(h_mask.shape, device=device), h_mask,
+                                     core_nvec).base_dist.mask.sum(-1).float()
+    return {"ce_before": ce_before, "ce_after": ce_after, "accuracy": acc,
+            "chance": float((1.0 / allowed).mean()), "samples": rows * act.shape[1]}
+
+
+# ------------------------------------------------------------------ evaluation
+def _first_episode(td) -> dict:
+    """Means over each member's first episode of a rollout ``td (B, T)``."""
+    done = td["next", "done"][..., 0].float()  # (B, T)
+    before = torch.cumsum(done, 1) - done == 0  # steps up to and including the first done
+    w = before.float()
+    steps = w.sum(1).clamp(min=1)
+    r = td["next", "agents", "reward"][..., 0].mean(-1)  # (B, T), mean over agents
+    e = td["next", "agents", "error"].mean(-1)
+    s = td["next", "agents", "sent"].mean(-1)
+    return {"return": float((r * w).sum(1).mean()),
+            "error": float(((e * w).sum(1) / steps).mean()),
+            "messages": float(((s * w).sum(1) / steps).mean())}
+
+
+def evaluate(actor, config: PPOConfig, *, episodes: int | None = None,
+             deterministic: bool = True) -> dict:
+    """Return per agent, mean error and messages per agent-step of ``actor`` on
+    ``episodes`` fresh episodes (seeds :data:`EVAL_SEED` + b), one horizon each."""
+    B = int(episodes or config.eval_envs)
+    core = make_core(config.scenario, B, control=config.control, **config.overrides)
+    dev = next(actor.parameters()).device
+    env = NetSenseBatchedEnv(core, reward=config.reward, seed=EVAL_SEED, device=dev)
+    kind = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
+    with torch.no_grad(), set_exploration_type(kind):
+        td = env.rollout(core.horizon, actor, break_when_any_done=False)
+    return _first_episode(td)
+
+
+def evaluate_scripted(name: str, config: PPOConfig, *, episodes: int | None = None) -> dict:
+    """:func:`evaluate` for a scripted policy (same seeds, same reward option)."""
+    B = int(episodes or config.eval_envs)
+    core = make_core(config.scenario, B, control=config.control, **config.overrides)
+    env = NetSenseBatchedEnv(core, reward=config.reward, seed=EVAL_SEED)
+    act = scripted_actions(name, core)
+
+    def policy(td):
+        obs = td["agents", "observation"].numpy()
+        mask = td["agents", "action_mask"].numpy().astype(np.int8)
+        td["agents", "action"] = torch.as_tensor(act(obs, mask))
+        return td
+
+    td = env.rollout(core.horizon, policy, break_when_any_done=False)
+    return _first_episode(td)
+
+
+def mask_violations(td, nvec) -> int:
+    """Agent-steps of ``td`` whose action breaks its mask (must be 0)."""
+    offsets = torch.as_tensor(np.concatenate([[0], np.cumsum(nvec)[:-1]]))
+    a = td["agents", "action"]
+    m = td["agents", "action_mask"]
+    ok = m.gather(-1, a + offsets.to(a.device)).all(-1)
+    return int((~ok).sum())
+
+
+# ------------------------------------------------------------------ logging
+class _Log:
+    """``log.csv`` (rows of varying columns, header = union) + optional TensorBoard."""
+
+    def __init__(self, out: Path) -> None:
+        self.path = out / "log.csv"
+        self.rows: list[dict] = []
+        self.tb = None
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError:
+            try:
+                from tensorboardX import SummaryWriter
+            except ImportError:
+                SummaryWriter = None  # noqa: N806
+        if SummaryWriter is not None:
+            self.tb = SummaryWriter(str(out / "tb"))
+
+    def add(self, row: dict) -> None:
+        self.rows.append(row)
+        if self.tb is not None:
+            for k, v in row.items():
+                if k != "agent_steps" and isinstance(v, (int, float)) and np.isfinite(v):
+                    self.tb.add_scalar(k, v, row["agent_steps"])
+        cols: list[str] = []
+        for r in self.rows:
+            cols += [c for c in r if c not in cols]
+        with self.path.open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=cols)
+            w.writeheader()
+            w.writerows(self.rows)
+
+    def close(self) -> None:
+        if self.tb is not None:
+            self.tb.close()
+
+
+# ------------------------------------------------------------------ training
+@dataclass
+class PPOResult:
+    """What :func:`train_ppo` produced (paths and per-iteration rows)."""
+
+    out: Path
+    rows: list[dict]
+    wall_s: float
+    agent_steps: int
+    mask_violations: int
+    bc: dict | None = None
+
+    @property
+    def agent_steps_per_s(self) -> float:
+        return self.agent_steps / max(self.wall_s, 1e-9)
+
+
+def _checkpoint(path: Path, config: PPOConfig, actor_net, critic, it: int, steps: int) -> None:
+    torch.save({"config": asdict(config), "actor": actor_net.state_dict(),
+                "critic": critic.state_dict(), "iteration": it, "agent_steps": steps}, path)
+
+
+def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: bool = False,
+              evaluate_every: bool = True) -> PPOResult:
+    """Train one seed; see the module docstring for what is written into ``out``.
+
+    ``out=None`` writes nothing (benchmarks). ``evaluate_every=False`` skips the periodic
+    evaluations and checkpoints (benchmarks).
+    """
+    from torchrl.collectors import Collector
+    from torchrl.objectives import ClipPPOLoss, ValueEstimators
+    from tqdm.auto import tqdm
+
+    device = _device(config.device)
+    torch.manual_seed(config.seed)
+    if config.torch_threads:
+        torch.set_num_threads(int(config.torch_threads))
+    if config.numba_threads:
+        import numba
+
+        numba.set_num_threads(min(int(config.numba_threads), numba.config.NUMBA_NUM_THREADS))
+    out = None if out is None else Path(out)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "config.json").write_text(json.dumps(asdict(config), indent=2, default=list)
+                                         + "\n")
+    core = make_core(config.scenario, config.num_envs, control=config.control,
+                     **config.overrides)
+    env = NetSenseBatchedEnv(core, reward=config.reward, seed=config.seed * 10**6)
+    N, B, T = core.N, core.B, config.rollout
+    net = actor_net(config, core, device)
+    bc = None
+    if config.bc:
+        bc = behaviour_clone(net, config, config.bc, device=device)
+    actor = build_actor(net, core.nvec).to(device)
+    critic = _critic(config, env, device).to(device)
+    loss = ClipPPOLoss(actor, critic, clip_epsilon=config.clip,
+                       entropy_coeff=config.entropy_coef, critic_coeff=config.critic_coef,
+                       normalize_advantage=True, normalize_advantage_exclude_dims=(-2,),
+                       loss_critic_type="smooth_l1")
+    loss.set_keys(reward=("agents", "reward"), action=("agents", "action"),
+                  sample_log_prob=("agents", "action_log_prob"),
+                  value=("agents", "state_value"), done=("agents", "done"),
+                  terminated=("agents", "terminated"))
+    loss.make_value_estimator(ValueEstimators.GAE, gamma=config.gamma, lmbda=config.lmbda)
+    opt = torch.optim.Adam(loss.parameters(), lr=config.lr)
+    frames = B * T
+    iters = max(1, -(-int(config.steps) // (frames * N)))
+    collector = Collector(env, actor, frames_per_batch=frames, total_frames=frames * iters,
+                          env_device="cpu", policy_device=device, storing_device=device,
+                          auto_register_policy_transforms=False)
+    log = _Log(out) if out is not None else None
+    acc = torch.zeros(B, N, device=device)
+    returns: list[float] = []
+    violations = 0
+    agent_steps = 0
+    t0 = time.perf_counter()
+    bar = tqdm(total=frames * iters * N, desc=f"{config.algo} seed {config.seed}",
+               unit="agent-step", disable=not progress)
+    rows: list[dict] = []
+    t_learned = t0
+    collect_s = learn_s = 0.0
+    for it, data in enumerate(collector):
+        t_collected = time.perf_counter()
+        collect_s += t_collected - t_learned
+        violations += mask_violations(data, core.nvec)
+        nxt = data["next"]
+        for key in ("done", "terminated"):
+            nxt.set(("agents", key), nxt[key].unsqueeze(-2).expand(B, T, N, 1))
+        r = nxt["agents", "reward"][..., 0]
+        done = nxt["done"][..., 0]
+        for t in range(T):  # training episode returns (mean over agents)
+            acc += r[:, t]
+            d = done[:, t]
+            if d.any():
+                returns += acc[d].mean(-1).tolist()
+                acc[d] = 0.0
+        with torch.no_grad():
+            loss.value_estimator(data, params=loss.critic_network_params,
+                                 target_params=loss.target_critic_network_params)
+        # only what the loss reads (observations, masks, state, actions, log-probs,
+        # advantages, targets): gathering minibatches of the whole rollout costs more
+        flat = data.exclude("next", ("agents", "logits")).reshape(-1)
+        warm = it < config.critic_warmup
+        sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "entropy": 0.0}
+        n_mb = 0
+        mb = min(config.minibatch, flat.shape[0])
+        for _ in range(config.epochs):
+            perm = torch.randperm(flat.shape[0], device=device)
+            for s in range(0, flat.shape[0] - mb + 1, mb):
+                lv = loss(flat[perm[s:s + mb]])
+                total = lv["loss_critic"] if warm else (
+                    lv["loss_objective"] + lv["loss_critic"] + lv["loss_entropy"])
+                opt.zero_grad()
+                total.backward()
+                torch.nn.utils.clip_grad_norm_(loss.parameters(), config.max_grad_norm)
+                opt.step()
+                for k in sums:
+                    sums[k] += float(lv[k].detach())
+                n_mb += 1
+        collector.update_policy_weights_()
+        t_learned = time.perf_counter()
+        learn_s += t_learned - t_collected
+        agent_steps += frames * N
+        bar.update(frames * N)
+        wall = time.perf_counter() - t0
+        row = {"iteration": it, "agent_steps": agent_steps, "wall_s": round(wall, 3),
+               "agent_steps_per_s": round(agent_steps / wall, 1),
+               "collect_s": round(collect_s, 3), "learn_s": round(learn_s, 3),
+               "train_return": float(np.mean(returns[-64:])) if returns else float("nan"),
+               "train_error": float(nxt["agents", "error"].mean()),
+               "train_messages": float(nxt["agents", "sent"].mean()),
+               **{k: v / max(n_mb, 1) for k, v in sums.items()}}
+        if not all(np.isfinite([row[k] for k in sums])):
+            raise FloatingPointError(f"non-finite PPO loss at iteration {it}: {row}")
+        last = it == iters - 1
+        if out is not None and evaluate_every and (
+                last or (config.eval_interval and (it + 1) % config.eval_interval == 0)):
+            # greedy and sampled: a learned randomised schedule (transmit with some
+            # probability) collapses to all-or-nothing under the greedy action
+            ev = evaluate(actor, config)
+            row.update({f"eval_{k}": v for k, v in ev.items()})
+            ev = evaluate(actor, config, deterministic=False)
+            row.update({f"eval_sampled_{k}": v for k, v in ev.items()})
+            _checkpoint(out / f"checkpoint_{it + 1:05d}.pt", config, net, critic, it + 1,
+                        agent_steps)
+        rows.append(row)
+        if log is not None:
+            log.add(row)
+        bar.set_postfix(ret=f"{row['train_return']:.3g}")
+    wall = time.perf_counter() - t0
+    bar.close()
+    collector.shutdown()
+    if out is not None:
+        _checkpoint(out / "policy.pt", config, net, critic, iters, agent_steps)
+        log.close()
+        meta = {"wall_s": round(wall, 2), "agent_steps": agent_steps,
+                "agent_steps_per_s": round(agent_steps / wall, 1),
+                "mask_violations": violations, "device": str(device), "bc": bc}
+        (out / "summary.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return PPOResult(out, rows, wall, agent_steps, violations, bc)
+
+
+# ------------------------------------------------------------------ inference
+class BatchedPolicy:
+    """A trained actor as a batched policy: ``act(obs (B, N, obs_dim), mask) -> actions``.
+
+    Parameters
+    ----------
+    path : path
+        ``policy.pt`` or a checkpoint of :func:`train_ppo`.
+    core : optional
+        The core the policy will act on (default: one of the training scenario). A set
+        network runs on any layout; an MLP needs the training layout.
+    deterministic : bool
+        Most likely allowed action (default) or a sample.
+    """
+
+    def __init__(self, path: str | Path, core=None, *, deterministic: bool = True) -> None:
+        state = torch.load(Path(path), map_location="cpu", weights_only=False)
+        cfg = dict(state["config"])
+        cfg["hidden"] = tuple(cfg["hidden"])
+        cfg["critic_hidden"] = tuple(cfg["critic_hidden"])
+        self.config = PPOConfig(**cfg)
+        if core is None:
+            core = make_core(self.config.scenario, 1, control=self.config.control,
+                             **self.config.overrides)
+        self.net = actor_net(self.config, core, torch.device("cpu"))
+        self.net.load_state_dict(state["actor"])
+        self.net.eval()
+        self.nvec = tuple(int(v) for v in core.nvec)
+        self.deterministic = deterministic
+
+    def act(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            d = MaskedMultiCategorical(self.net(torch.as_tensor(obs)),
+                                       torch.as_tensor(np.asarray(mask).astype(bool)),
+                                       self.nvec)
+            a = d.deterministic_sample if self.deterministic else d.sample()
+        return a.numpy()
+
+
+def load_policy(path: str | Path, core=None, *, deterministic: bool = True) -> BatchedPolicy:
+    """:class:`BatchedPolicy` from ``policy.pt`` or a checkpoint."""
+    return BatchedPolicy(path, core, deterministic=deterministic)

@@ -1,0 +1,293 @@
+"""Policy and value networks for the batched TorchRL path (torch; imported on demand).
+
+Every network reads the flat per-agent observation of :class:`netsense.engine.model.ObsLayout`
+and writes flat logits in the core's action layout (``core.nvec``: one block of
+``nvec[a]`` logits per action entry, the order of the flat action mask), so the masked
+distribution :class:`MaskedMultiCategorical` is the same for every control mode.
+
+=======================  ===================================================================
+network                  what it is
+=======================  ===================================================================
+:func:`mlp_actor_net`    TorchRL ``MultiAgentMLP`` (parameters shared by the agents,
+                         decentralised): observation -> flat logits; any action layout
+:class:`SetPolicyNet`    permutation-invariant over message slots, size-free parameters
+                         (one policy runs at any ``N``, ``D``, ``M``); see below
+:func:`critic_net`       ``"local"`` (IPPO: ``V_i(o_i)``), ``"state"`` (MAPPO: ``V_i(o_i,
+                         s)`` with the global state ``s``), ``"joint"`` (MAPPO as in
+                         TorchRL's tutorial: ``MultiAgentMLP(centralised=True)`` over all
+                         observations, one value for the team)
+=======================  ===================================================================
+
+Observation tokens of :class:`SetPolicyNet` (all read from the documented layout; none has
+a size that depends on ``N``, ``D``, ``M`` or ``n``):
+
+* agent token ``g_i`` (6): ``time``, ``y_arrived``, ``z_lognorm`` and the means over
+  substates of ``own_omega``, ``own_age`` and over slots of ``slot_arrived``;
+* substate token ``u_ij`` (3): ``own_omega[j]``, ``own_age[j]``, ``[j is i's own
+  substate]`` (from ``layout.own``);
+* pair token ``v_idj`` (5) for slot ``d`` and substate ``j``: ``slot_arrived[d]``,
+  ``slot_omega[d, j]``, ``slot_age[d, j]``, ``own_age[j] - slot_age[d, j]`` and
+  ``[the message is fresher than the own index]`` (arrived, not omega, and own omega or
+  a smaller age). Empty slots and slots whose message did not arrive are padding: they
+  are left out of the pooling (padding mask ``slot_arrived``; their adopt choices are
+  masked by the environment anyway).
+
+Pairs are embedded by one layer shared over all ``(d, j)`` (with the substate embedding
+added), pooled over slots with masked mean and max (DeepSets), and combined with the
+substate and agent embeddings; one shared scoring head gives the adopt logit of every
+``(substate, slot)`` pair, two heads the keep and average logits of every substate, one
+head the two transmit logits from the agent embedding and the substate pool. Parameters
+do not depend on the sizes: a state dict trained at one ``N`` loads into a
+:class:`SetPolicyNet` built for another layout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+from torch.distributions import Independent
+
+from netsense.engine.model import ObsLayout
+
+__all__ = ["ACTION_LAYOUTS", "CRITICS", "MaskedMultiCategorical", "SetPolicyNet", "action_layout",
+           "critic_net", "mlp_actor_net"]
+
+#: The action layouts :class:`SetPolicyNet` knows (``action_layout`` names them).
+ACTION_LAYOUTS = ("full", "transmit")
+
+
+def action_layout(nvec: Sequence[int], layout: ObsLayout) -> str:
+    """``"full"`` for ``[D + 2] * M + [2]``, ``"transmit"`` for ``[2]``; else ValueError."""
+    nv = [int(v) for v in nvec]
+    if nv == [layout.D + 2] * layout.M + [2]:
+        return "full"
+    if nv == [2]:
+        return "transmit"
+    raise ValueError(f"SetPolicyNet knows the action layouts {ACTION_LAYOUTS} "
+                     f"([D + 2] * M + [2] and [2]); got nvec {nv}. Use the MLP network or "
+                     "add the layout's heads")
+
+
+# ------------------------------------------------------------------ distribution
+_PAD_CACHE: dict[tuple, torch.Tensor] = {}
+
+
+def _pad_index(nvec: tuple[int, ...], device: torch.device) -> torch.Tensor:
+    """``(A, K_max)`` positions in the flat layout (``sum(nvec)`` = padding)."""
+    key = (nvec, str(device))
+    if key not in _PAD_CACHE:
+        total, kmax = sum(nvec), max(nvec)
+        idx = np.full((len(nvec), kmax), total, dtype=np.int64)
+        start = 0
+        for a, k in enumerate(nvec):
+            idx[a, :k] = np.arange(start, start + k)
+            start += k
+        _PAD_CACHE[key] = torch.as_tensor(idx, device=device)
+    return _PAD_CACHE[key]
+
+
+class MaskedMultiCategorical(Independent):
+    """Independent masked categoricals, one per action entry, from flat logits and mask.
+
+    The flat layout is ``core.nvec``'s (the flat action mask's): entry ``a`` owns the
+    ``nvec[a]`` positions after those of entries ``< a``. The logits and the mask are
+    padded to ``(..., A, max(nvec))`` and handed to TorchRL's
+    :class:`~torchrl.modules.MaskedCategorical`; ``log_prob`` and ``entropy`` sum over
+    the ``A`` entries (one joint action per agent), ``sample`` returns ``(..., A)``.
+
+    Parameters
+    ----------
+    logits : (..., sum(nvec)) tensor
+    mask : (..., sum(nvec)) bool tensor
+        ``True`` where a choice is allowed (every entry needs at least one).
+    nvec : sequence of int
+    """
+
+    def __init__(self, logits: torch.Tensor, mask: torch.Tensor,
+                 nvec: Sequence[int]) -> None:
+        from torchrl.modules import MaskedCategorical
+
+        nv = tuple(int(v) for v in nvec)
+        if len(set(nv)) == 1:  # equal blocks: a view, no padding
+            padded = logits.unflatten(-1, (len(nv), nv[0]))
+            m = mask.bool().unflatten(-1, (len(nv), nv[0]))
+        else:
+            idx = _pad_index(nv, logits.device)
+            pad = logits.new_zeros(logits.shape[:-1] + (1,))
+            padded = torch.cat([logits, pad], -1)[..., idx]
+            m = torch.cat([mask.bool(), mask.new_zeros(mask.shape[:-1] + (1,),
+                                                       dtype=torch.bool)], -1)[..., idx]
+        self.nvec = nv
+        super().__init__(MaskedCategorical(logits=padded, mask=m), 1, validate_args=False)
+
+    @property
+    def deterministic_sample(self) -> torch.Tensor:
+        """The most likely allowed choice of every entry, ``(..., A)``."""
+        return self.base_dist.logits.argmax(-1)
+
+    @property
+    def mode(self) -> torch.Tensor:
+        return self.deterministic_sample
+
+
+# ------------------------------------------------------------------ MLP networks
+def mlp_actor_net(layout: ObsLayout, nvec: Sequence[int], n_agents: int, *,
+                  hidden: Sequence[int] = (64, 64), device=None) -> nn.Module:
+    """TorchRL ``MultiAgentMLP``: ``(..., N, obs_dim) -> (..., N, sum(nvec))`` logits,
+    one set of parameters for every agent (``share_params=True``, decentralised)."""
+    from torchrl.modules import MultiAgentMLP
+
+    return MultiAgentMLP(n_agent_inputs=layout.size, n_agent_outputs=int(sum(nvec)),
+                         n_agents=n_agents, centralised=False, share_params=True,
+                         depth=len(hidden), num_cells=list(hidden), activation_class=nn.Tanh,
+                         device=device)
+
+
+class _StateCritic(nn.Module):
+    """``V_i(o_i, s)``: the global state embedded once per member, then one MLP shared by
+    the agents over ``[o_i, emb(s)]`` (the state is not copied ``N`` times into a wide
+    first layer)."""
+
+    def __init__(self, obs_dim: int, state_dim: int, hidden: Sequence[int],
+                 device=None) -> None:
+        super().__init__()
+        h = list(hidden)
+        self.state_enc = nn.Sequential(nn.Linear(state_dim, h[0], device=device), nn.Tanh())
+        layers: list[nn.Module] = []
+        width = obs_dim + h[0]
+        for w in h:
+            layers += [nn.Linear(width, w, device=device), nn.Tanh()]
+            width = w
+        self.agent = nn.Sequential(*layers, nn.Linear(width, 1, device=device))
+
+    def forward(self, obs: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        s = self.state_enc(state).unsqueeze(-2).expand(*obs.shape[:-1], -1)
+        return self.agent(torch.cat([obs, s], -1))
+
+
+CRITICS = ("local", "state", "joint")
+
+
+def critic_net(kind: str, obs_dim: int, state_dim: int, n_agents: int, *,
+               hidden: Sequence[int] = (128, 128), device=None) -> tuple[nn.Module, list]:
+    """A value network and the input keys it reads.
+
+    Returns
+    -------
+    (module, in_keys)
+        ``module(*inputs) -> (..., N, 1)`` values; ``in_keys`` nested keys of the env.
+    """
+    from torchrl.modules import MultiAgentMLP
+
+    obs_key, state_key = ("agents", "observation"), "state"
+    if kind == "local":
+        net = MultiAgentMLP(n_agent_inputs=obs_dim, n_agent_outputs=1, n_agents=n_agents,
+                            centralised=False, share_params=True, depth=len(hidden),
+                            num_cells=list(hidden), activation_class=nn.Tanh, device=device)
+        return net, [obs_key]
+    if kind == "joint":
+        net = MultiAgentMLP(n_agent_inputs=obs_dim, n_agent_outputs=1, n_agents=n_agents,
+                            centralised=True, share_params=True, depth=len(hidden),
+                            num_cells=list(hidden), activation_class=nn.Tanh, device=device)
+        return net, [obs_key]
+    if kind == "state":
+        return _StateCritic(obs_dim, state_dim, hidden, device), [obs_key, state_key]
+    raise ValueError(f"critic must be one of {CRITICS}, got {kind!r}")
+
+
+# ------------------------------------------------------------------ set network
+def _mlp(i: int, h: int, o: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(i, h), nn.Tanh(), nn.Linear(h, o))
+
+
+class SetPolicyNet(nn.Module):
+    """Policy logits from message-slot sets (see the module docstring for the tokens).
+
+    Parameters
+    ----------
+    layout : ObsLayout
+        Observation layout of the environment the net runs on (only buffers and slices
+        depend on it; :meth:`bind` switches to another layout).
+    nvec : sequence of int
+        The core's action layout (``"full"`` or ``"transmit"``, :func:`action_layout`).
+    hidden : int
+        Width of every embedding.
+    """
+
+    def __init__(self, layout: ObsLayout, nvec: Sequence[int], *, hidden: int = 32) -> None:
+        super().__init__()
+        h = int(hidden)
+        self.hidden = h
+        self.agent_enc = _mlp(6, h, h)
+        self.sub_enc = _mlp(3, h, h)
+        # pair embedding tanh(W v + U u): one layer on the (slot, substate) grid, the
+        # substate's part added by broadcasting (the grid is the costly tensor)
+        self.pair_in = nn.Linear(5, h)
+        self.pair_sub = nn.Linear(h, h, bias=False)
+        self.sub_mix = _mlp(4 * h, h, h)  # [u, mean-pool, max-pool, agent]
+        # scoring head shared over every (substate, slot) pair: w . tanh(A e + B s) + b,
+        # a layer on [e, s] with the substate's part broadcast instead of concatenated
+        self.pair_a = nn.Linear(h, h)
+        self.pair_b = nn.Linear(h, h, bias=False)
+        self.pair_out = nn.Linear(h, 1)
+        self.keep_head = nn.Linear(h, 1)
+        self.avg_head = nn.Linear(h, 1)
+        self.tx_head = _mlp(3 * h, h, 2)  # [agent, mean and max over substates]
+        self.bind(layout, nvec)
+
+    def bind(self, layout: ObsLayout, nvec: Sequence[int] | None = None) -> SetPolicyNet:
+        """Run on another layout (another ``N``, ``D``, ``M``); parameters unchanged."""
+        if nvec is None:
+            nvec = ([layout.D + 2] * layout.M + [2] if self.mode == "full" else [2])
+        self.mode = action_layout(nvec, layout)
+        self.layout = layout
+        own = torch.zeros(layout.N, layout.M)
+        src = np.flatnonzero(layout.own >= 0)
+        own[src, layout.own[src]] = 1.0
+        dev = next(self.parameters()).device
+        self.register_buffer("is_own", own.to(dev), persistent=False)
+        return self
+
+    def tokens(self, obs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``(g (..., N, 6), u (..., N, M, 3), v (..., N, D, M, 5), arrived (..., N, D))``."""
+        L = self.layout
+        D, M = L.D, L.M
+        lead = obs.shape[:-1]
+        own_omega = obs[..., L.own_omega]
+        own_age = obs[..., L.own_age]
+        arrived = obs[..., L.slot_arrived]
+        s_omega = obs[..., L.slot_omega].reshape(*lead, D, M)
+        s_age = obs[..., L.slot_age].reshape(*lead, D, M)
+        g = torch.cat([obs[..., L.time], obs[..., L.y_arrived], obs[..., L.z_lognorm],
+                       own_omega.mean(-1, keepdim=True), own_age.mean(-1, keepdim=True),
+                       arrived.mean(-1, keepdim=True) if D else obs[..., L.time] * 0], -1)
+        is_own = self.is_own.expand(*lead[:-1], L.N, M)
+        u = torch.stack([own_omega, own_age, is_own], -1)
+        arr = arrived.unsqueeze(-1).expand(*lead, D, M)
+        oo, oa = own_omega.unsqueeze(-2), own_age.unsqueeze(-2)
+        fresher = arr * (1 - s_omega) * torch.clamp(oo + (s_age < oa).float(), max=1.0)
+        v = torch.stack([arr, s_omega, s_age, oa - s_age, fresher], -1)
+        return g, u, v, arrived
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        g, u, v, arrived = self.tokens(obs)
+        ge = self.agent_enc(g)  # (..., N, h)
+        ue = self.sub_enc(u)  # (..., N, M, h)
+        pe = torch.tanh(self.pair_in(v) + self.pair_sub(ue).unsqueeze(-3))  # (..., N, D, M, h)
+        pad = arrived.unsqueeze(-1).unsqueeze(-1)  # (..., N, D, 1, 1): padding mask
+        count = pad.sum(-3).clamp(min=1.0)
+        mean = (pe * pad).sum(-3) / count
+        mx = torch.where(pad > 0, pe, torch.full_like(pe, -1e4)).amax(-3) if pe.shape[-3] \
+            else torch.zeros_like(ue)
+        mx = torch.where(pad.sum(-3) > 0, mx, torch.zeros_like(mx))
+        s = self.sub_mix(torch.cat([ue, mean, mx, ge.unsqueeze(-2).expand_as(ue)], -1))
+        tx = self.tx_head(torch.cat([ge, s.mean(-2), s.amax(-2)], -1))  # (..., N, 2)
+        if self.mode == "transmit":
+            return tx
+        hid = torch.tanh(self.pair_a(pe) + self.pair_b(s).unsqueeze(-3))
+        pair = self.pair_out(hid)[..., 0]  # (..., N, D, M)
+        blocks = torch.cat([self.keep_head(s), pair.transpose(-1, -2), self.avg_head(s)], -1)
+        return torch.cat([blocks.flatten(-2), tx], -1)  # [keep, slots, avg] * M, transmit
