@@ -76,7 +76,7 @@ def rollout_seeds(scenario: str | CoreModel, policy: str, seeds: Sequence[int],
     oracle = policy == "kf_oracle"
     if oracle:
         kf = CentralizedKF(model.plant, x0_std=model.x0_std, batch_size=B)
-        idle = np.zeros((B, core.N, core.M + 1), dtype=np.int64)
+        idle = np.zeros((B, core.N, core.nvec.size), dtype=np.int64)
     else:
         pol = scripted_policy(policy, core, seeds)
     obs, mask = core.reset(seeds)

@@ -119,7 +119,7 @@ def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> E
     core = env.core
     kf = CentralizedKF(env.model.plant, x0_std=env.model.x0_std, batch_size=1)
     env.reset(seed=seed)
-    idle = {a: np.zeros(core.M + 1, dtype=np.int64) for a in env.possible_agents}
+    idle = {a: np.zeros(core.nvec.size, dtype=np.int64) for a in env.possible_agents}
     rec = EpisodeRecorder(env.model.reward.error_floor, network=False)
     while True:
         rec.state(core, kf.x[:, None, :])

@@ -364,7 +364,7 @@ class NetSenseEnv(ParallelEnv):
         return o, infos
 
     def actions_to_array(self, actions: dict[str, Any]) -> np.ndarray:
-        """Stack an ``{agent: action}`` dict into the core's ``(1, N, M + 1)`` array."""
+        """Stack an ``{agent: action}`` dict into the core's ``(1, N, len(nvec))`` array."""
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict {{agent: action}}, got "
                              f"{type(actions).__name__}")
@@ -374,13 +374,16 @@ class NetSenseEnv(ParallelEnv):
         extra = [a for a in actions if a not in self._index]
         if extra:
             raise ValueError(f"actions given for unknown agents {extra[:5]}")
+        width = self.core.nvec.size  # M + 1 (full control), 1 or M (communication only)
         try:
             arr = np.asarray([actions[a] for a in self.possible_agents])
         except ValueError as exc:
-            raise ValueError(f"every action must be a vector of {self.core.M + 1} "
+            raise ValueError(f"every action must be a vector of {width} "
                              f"integers: {exc}") from exc
-        if arr.ndim != 2 or arr.shape[1] != self.core.M + 1:
-            raise ValueError(f"every action must be a vector of {self.core.M + 1} integers "
+        if arr.ndim == 1 and width == 1:  # Discrete-like scalars of MultiDiscrete([2])
+            arr = arr[:, None]
+        if arr.ndim != 2 or arr.shape[1] != width:
+            raise ValueError(f"every action must be a vector of {width} integers "
                              f"(MultiDiscrete {list(self.core.nvec)}), got shape "
                              f"{arr.shape[1:]}")
         return arr[None]
