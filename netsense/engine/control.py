@@ -50,7 +50,7 @@ __all__ = ["COMM_OBS_FIELDS", "FUSIONS", "MODES", "Channel", "CommControl", "Con
 MODES = ("full", "transmit", "substates")
 FUSIONS = ("freshness", "uniform", "tree")
 #: Observation fields of the communication-only modes, appended after the full mode's.
-COMM_OBS_FIELDS = ("news", "silence", "channel_load", "collided")
+COMM_OBS_FIELDS = ("news", "silence", "channel_load", "collided", "agent_id")
 #: ``g_sent`` of a substate never sent.
 NEVER = np.iinfo(np.int64).min
 
@@ -169,11 +169,18 @@ class CommControl:
     ``silence``       1     ``min(k - last_tx, H) / H`` (``last_tx = -1``: never sent)
     ``channel_load``  1     fraction of the agents transmitting at step ``k``
     ``collided``      1     1 if the messages of step ``k`` collided (``[channel]``)
+    ``agent_id``      1     ``(i + 1) / N``: lets one shared policy break the symmetry
+                            between agents (e.g. take turns on a shared channel)
     ================  ====  ============================================================
+
+    A substate whose block of Lemma 1 is empty (``empty[m]``: a column of an agent that
+    measures nothing, with ``substates = "all"``) carries nothing: it is never news, never
+    sent and its bit is masked in ``"substates"`` mode.
     """
 
     def __init__(self, control: Control, B: int, N: int, M: int, D: int, own: np.ndarray,
-                 horizon: int, tree_table: np.ndarray | None = None) -> None:
+                 horizon: int, tree_table: np.ndarray | None = None,
+                 empty: np.ndarray | None = None) -> None:
         self.control = control
         self.per_substate = control.mode == "substates"
         self.width = M if self.per_substate else 1
@@ -189,6 +196,8 @@ class CommControl:
         self.choice = np.zeros((B, N, M), dtype=np.int64)
         self.tau_next = np.zeros((B, N, M), dtype=np.int64)
         self._own_rows = np.flatnonzero(self.own >= 0)
+        #: (M,) bool: columns of empty substates (nothing to send)
+        self.empty = np.zeros(M, dtype=bool) if empty is None else np.asarray(empty, bool)
 
     # ------------------------------------------------------------------ state
     def reset_members(self, members: np.ndarray, transmit: np.ndarray, tau: np.ndarray,
@@ -197,8 +206,9 @@ class CommControl:
         substate with a finite index (``initial_transmit``)."""
         self.g_sent[members] = NEVER
         self.last_tx[members] = -1
-        sent = transmit[members][..., None] & (tau[members] >= 0 if self.per_substate
-                                               else True)
+        sent = transmit[members][..., None] & ~self.empty
+        if self.per_substate:
+            sent &= tau[members] >= 0
         self.sent[members] = sent
         self._record(members, transmit, tau, k)
 
@@ -247,7 +257,7 @@ class CommControl:
         """``(B, N, width)`` bool: which bits may be 1 (substates with an estimate at
         ``k + 1`` in ``"substates"`` mode; always in ``"transmit"`` mode)."""
         if self.per_substate:
-            return self.tau_next >= 0
+            return (self.tau_next >= 0) & ~self.empty
         return np.ones((self.B, self.N, 1), dtype=bool)
 
     def expand(self, a: np.ndarray, invalid_actions: str) -> tuple[np.ndarray, np.ndarray,
@@ -281,14 +291,15 @@ class CommControl:
 
     def after_step(self, bits: np.ndarray, transmit: np.ndarray, tau: np.ndarray,
                    k: np.ndarray, reward: np.ndarray, substate_cost: float) -> None:
-        """What the messages of the new step ``k`` carry, their payload cost (subtracted
-        from ``reward`` in place) and the bookkeeping of :meth:`_record`."""
+        """What the messages of the new step ``k`` carry, their payload cost ``c_s`` per
+        substate with an estimate (subtracted from ``reward`` in place) and the
+        bookkeeping of :meth:`_record`."""
         if self.per_substate:
             np.logical_and(bits, transmit[..., None], out=self.sent)
-            if substate_cost:
-                reward -= substate_cost * np.count_nonzero(self.sent, axis=2)
         else:
-            self.sent[...] = transmit[..., None]
+            np.logical_and(transmit[..., None], ~self.empty, out=self.sent)
+        if substate_cost:
+            reward -= substate_cost * np.count_nonzero(self.sent & (tau >= 0), axis=2)
         self._record(slice(None), transmit, tau, k)
 
     # ------------------------------------------------------------------ observations
@@ -313,10 +324,11 @@ class CommControl:
         g_next = (k[:, None, None] + 1) - self.tau_next
         gain = np.minimum(g_next - np.where(self.g_sent == NEVER, 0, self.g_sent), H)
         news = np.where(self.g_sent == NEVER, 1.0, np.maximum(gain, 0) / H)
-        obs[..., layout.news] = np.where(self.tau_next >= 0, news, 0.0)
+        obs[..., layout.news] = np.where((self.tau_next >= 0) & ~self.empty, news, 0.0)
         silence = np.minimum(k[:, None] - self.last_tx, H) / H
         obs[..., layout.silence] = silence[..., None]
         load = np.count_nonzero(transmit, axis=1) / N
         obs[..., layout.channel_load] = load[:, None, None]
         obs[..., layout.collided] = (0.0 if collided is None
                                      else collided[:, None, None].astype(np.float32))
+        obs[..., layout.agent_id] = ((np.arange(N, dtype=np.float32) + 1) / N)[None, :, None]

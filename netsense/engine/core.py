@@ -214,8 +214,9 @@ class BatchedCore:
         if self.control.comm_only:
             table = (tree_choice_table(model.graphs, self.D, self.sources)
                      if self.control.fusion == "tree" else None)
+            empty = np.bincount(self.block_of, minlength=self.N)[self.sources] == 0
             self.comm = CommControl(self.control, self.B, self.N, self.M, self.D, self.own,
-                                    self.horizon, table)
+                                    self.horizon, table, empty)
             self.nvec = self.comm.nvec
         self.mask_size = int(self.nvec.sum())
         #: capacity ``K`` of the shared channel (None: no ``[channel]``)

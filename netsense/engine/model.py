@@ -42,8 +42,8 @@ class RewardConfig:
 
     with ``\\bar e`` the mean of ``e_i`` over the agents whose errors count (crashed
     agents and liars excluded; those get only ``-c t_i``) and ``t_i`` the transmit bit
-    chosen at this step, ``s_i`` the number of substates in its message (per-substate
-    messages, control mode ``"substates"`` only; see :mod:`netsense.engine.control`). A
+    chosen at this step, ``s_i`` the number of substates with an estimate in its message
+    (communication-only control modes only; see :mod:`netsense.engine.control`). A
     non-finite error is clipped to ``e_max`` (:mod:`netsense.engine.rewards`).
 
     Attributes
@@ -59,7 +59,8 @@ class RewardConfig:
     error_clip : float
         ``e_max``, the normalised error is clipped there (bounded rewards).
     substate_cost : float
-        ``c_s >= 0``, cost of one substate in a per-substate message (default 0).
+        ``c_s >= 0``, cost of each substate with an estimate (index not omega, block not
+        empty) in a message, communication-only modes (default 0).
     """
 
     error_weight: float = 1.0
@@ -192,9 +193,9 @@ class CoreModel:
         if self.channel is not None and not isinstance(self.channel, Channel):
             raise ValueError(f"channel must be None or a Channel, got "
                              f"{type(self.channel).__name__}")
-        if self.reward.substate_cost and self.control.mode != "substates":
-            raise ValueError("reward.substate_cost needs per-substate messages "
-                             "(control.mode = 'substates')")
+        if self.reward.substate_cost and not self.control.comm_only:
+            raise ValueError("reward.substate_cost needs a communication-only control mode "
+                             "(control.mode = 'transmit' or 'substates')")
         if (self.control.comm_only and self.control.fusion == "tree"
                 and not isinstance(self.graphs, PeriodicGraphs)):
             raise ValueError("control.fusion = 'tree' needs a periodic graph schedule, got "
@@ -239,13 +240,14 @@ class ObsLayout:
     silence: slice | None = None
     channel_load: slice | None = None
     collided: slice | None = None
+    agent_id: slice | None = None
 
     @classmethod
     def build(cls, N: int, n: int, r: int, D: int,
               sources: Sequence[int] | None = None, comm: bool = False) -> ObsLayout:
         """The layout; ``comm=True`` appends the communication-only modes' fields
         (:data:`netsense.engine.control.COMM_OBS_FIELDS`: ``news`` (M), ``silence``,
-        ``channel_load``, ``collided``)."""
+        ``channel_load``, ``collided``, ``agent_id``)."""
         src = tuple(range(N)) if sources is None else tuple(int(v) for v in sources)
         M = len(src)
         sizes = (1, r, 1, M, M, n, 1, D, D, D * M, D * M)
@@ -254,7 +256,7 @@ class ObsLayout:
             out[name] = slice(o, o + s)
             o += s
         if comm:
-            for name, s in zip(COMM_OBS_FIELDS, (M, 1, 1, 1), strict=True):
+            for name, s in zip(COMM_OBS_FIELDS, (M, 1, 1, 1, 1), strict=True):
                 out[name] = slice(o, o + s)
                 o += s
         return cls(N=N, n=n, r=r, D=D, M=M, sources=src, size=o, **out)

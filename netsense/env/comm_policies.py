@@ -147,8 +147,12 @@ class AgeScheduler(CommPolicy):
 
     name = "scheduler"
 
-    def __init__(self, layout, width, horizon, slots: int = 1, index: str = "whittle") -> None:
+    def __init__(self, layout, width, horizon, slots: int = 1, index: str = "whittle",
+                 columns: np.ndarray | None = None) -> None:
         super().__init__(layout, width, horizon)
+        #: (M,) bool: substates that count (non-empty blocks; default all)
+        self.columns = (np.ones(self.M, bool) if columns is None
+                        else np.asarray(columns, dtype=bool))
         self.slots = _int_knob(index, slots, 1)
         if index not in ("oldest", "whittle"):
             raise ValueError(f"index must be 'oldest' or 'whittle', got {index!r}")
@@ -160,7 +164,7 @@ class AgeScheduler(CommPolicy):
         omega = obs[..., L.own_omega] > 0.5  # (B, N, M)
         age = np.where(omega, float(H), np.rint(obs[..., L.own_age] * H))
         h = age[:, None, :, :] - age[:, :, None, :]  # [b, l, i, j] = tau_i - tau_l
-        h = np.where(omega[:, :, None, :], 0.0, np.maximum(h, 0.0))
+        h = np.where(omega[:, :, None, :] | ~self.columns, 0.0, np.maximum(h, 0.0))
         w = h if self.index == "oldest" else h * (h + 1.0) / 2.0
         return w.sum(2)  # (the i = l term is 0)
 
@@ -231,4 +235,4 @@ def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) ->
         return SourcesFirst(*args, is_source=is_source, relay_period=knob)
     if name == "event":
         return EventTriggered(*args, threshold=knob)
-    return AgeScheduler(*args, slots=knob, index=name)
+    return AgeScheduler(*args, slots=knob, index=name, columns=~core.comm.empty)
