@@ -48,6 +48,11 @@ uniform average over self and every in-neighbour whose message arrived (eq. (6),
 stalest contributor + 1). ``a[M]``: transmit at the next step (0/1). The source's entry
 for its own substate must be 0 (update (7) is not an action).
 
+In the communication-only control modes (``model.control``, :mod:`netsense.engine.control`)
+the actions are ``(B, N, 1)`` transmit bits or ``(B, N, M)`` per-substate bits; the fusion
+rule's choice (computed by :class:`~netsense.engine.control.CommControl` when a step's
+messages are loaded) fills ``a[:M]`` and the step above runs unchanged.
+
 Faults (``CoreModel.faults``, scenario ``[[faults]]``)
 -----------------------------------------------------
 A crashed agent's transmit bits are cleared from its crash step on; a stuck or stale
