@@ -132,3 +132,24 @@ def test_calibration_neither_always_nor_never_is_optimal(sid, best):
     for end in ("always", "never"):
         assert r[best].mean() > r[end].mean() + 5, (end, {k: v.mean() for k, v in r.items()})
     assert 0 < pr.evaluate(sid, best, seeds[:4])["msgs_per_agent_step"].mean() < 1
+
+
+def test_comm_training_config_matches_the_committed_runs():
+    """experiments/configs/train_comm_tasks.toml is what trained the committed policies of
+    the communication tasks, on seeds below the evaluation range."""
+    import json
+    from pathlib import Path
+
+    from experiment_loader import load_experiment
+
+    pytest.importorskip("sb3_contrib")
+    root = Path(__file__).resolve().parents[1]
+    train = load_experiment("train_maskable_ppo")
+    configs = train.load_configs(root / "experiments/configs/train_comm_tasks.toml")
+    assert set(configs) == {"comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0"}
+    for sc, cfg in configs.items():
+        meta = json.loads((root / f"experiments/results/train_{sc}/train_config.json")
+                          .read_text())
+        assert meta["overrides"] == cfg.overrides and meta["steps"] == cfg.steps
+        assert meta["seed"] + meta["num_vec_envs"] <= pr.TRAIN_SEED_LIMIT
+        assert meta["mask_violations"] == 0

@@ -10,7 +10,7 @@ NAME = "benchmark"
 HELP = ("Benchmark learned and scripted policies and a centralized KF oracle on scenarios "
         "(seeds as one batched run, or in processes or on Ray); writes CSV, a Markdown table "
         "and plots. --frontier: the scripted communication frontier with learned points, "
-        "95 % bootstrap intervals, Pareto plots.")
+        "95-percent bootstrap intervals, Pareto plots.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
