@@ -309,3 +309,22 @@ def test_pettingzoo_checkers_in_every_mode(sid, mode):
 
 def test_omega_stays_encoded_as_minus_one():
     assert OMEGA == -1  # the comm bookkeeping reads tau >= 0 as "has an estimate"
+
+
+def test_vector_envs_take_the_communication_modes():
+    from netsense.env.vector import AgentVectorEnv, BatchedEnv
+
+    be = BatchedEnv("comm_substates-v0", 3, horizon=5)
+    obs, info = be.reset(seed=0)
+    assert obs.shape == (3, 10, be.obs_dim) and info["action_mask"].shape == (3, 10, 10)
+    bits = (info["action_mask"][..., 1::2] > 0).astype(np.int64)
+    for _ in range(6):  # past the horizon: auto-reset
+        obs, rew, term, trunc, info = be.step(bits)
+        bits = (info["action_mask"][..., 1::2] > 0).astype(np.int64)
+    av = AgentVectorEnv("comm_channel_k2-v0", 2, horizon=5)
+    obs, info = av.reset(seed=1)
+    assert av.action_masks().shape == (20, 2)
+    obs, rew, term, trunc, info = av.step(np.ones((20, 1), dtype=np.int64))
+    assert rew.shape == (20,)
+    with pytest.raises(ValueError, match="len\\(nvec\\)"):
+        av.step(np.ones((20, 2), dtype=np.int64))
