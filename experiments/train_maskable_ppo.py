@@ -9,6 +9,7 @@ Usage::
     python experiments/train_maskable_ppo.py                  # every scenario in the config
     python experiments/train_maskable_ppo.py --only message_cost-v0
     python experiments/train_maskable_ppo.py --smoke --out /tmp/x   # a few hundred steps
+    python experiments/train_maskable_ppo.py --config experiments/configs/train_comm_tasks.toml
 
 Needs the ``rl`` extra.
 """
@@ -54,11 +55,14 @@ def main(argv: list[str] | None = None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--only", nargs="*", help="scenario ids to train (default: all)")
+    p.add_argument("--config", default=str(CONFIG),
+                   help="training config (default: configs/train_maskable_ppo.toml; the "
+                        "communication tasks: configs/train_comm_tasks.toml)")
     p.add_argument("--out", default=str(HERE / "results"), help="parent output directory")
     p.add_argument("--smoke", action="store_true", help="tiny runs (tests)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
-    configs = load_configs(smoke=args.smoke)
+    configs = load_configs(Path(args.config), smoke=args.smoke)
     for scenario, cfg in configs.items():
         if args.only and scenario not in args.only:
             continue

@@ -18,3 +18,17 @@ def test_torchrl_random_masked_rollout():
     assert td["next", "sensor", "reward"].shape == (15, 10, 1)
     assert bool(td["next", "done"][-1])
     assert torch.isfinite(td["next", "sensor", "reward"]).all()
+
+
+@pytest.mark.parametrize("sid,width", [("comm_channel_k2-v0", 1), ("comm_substates-v0", 5)])
+def test_torchrl_communication_modes(sid, width):
+    """Transmit bits and per-substate bits (whose mask TorchRL takes as (M, 2)); the env
+    raises on a masked bit, so a finished rollout took none."""
+    from netsense.rl.torchrl import make_torchrl_env
+
+    env = make_torchrl_env(sid, horizon=12, seed=0)
+    torch.manual_seed(0)
+    td = env.rollout(12)
+    assert td["sensor", "action"].shape == (12, 10, width)
+    assert bool(td["next", "done"][-1])
+    assert torch.isfinite(td["next", "sensor", "reward"]).all()

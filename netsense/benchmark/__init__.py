@@ -26,9 +26,19 @@ Policies (names accepted by :func:`run_benchmark` and ``netsense benchmark``):
 ``kf_oracle``
     a centralized Kalman filter that sees every agent's measurement every step (no
     network): a lower bound on the error, no messages and no reward;
-``learned`` / ``learned:PATH``
+``always``, ``never``, ``periodic:P``, ``bernoulli:p``, ``sources:P``, ``event:d``, ...
+    ``oldest:m``, ``whittle:m``: the communication baselines of
+    :mod:`netsense.env.comm_policies` (communication-only scenarios; not applicable, hence
+    skipped, on full-control ones);
+``learned`` / ``learned:PATH`` / ``learned_sampled:PATH``
     a policy trained by :mod:`netsense.rl.sb3` and loaded from ``PATH`` (a ``.zip``); in
-    ``PATH`` the text ``{scenario}`` is replaced by the scenario id.
+    ``PATH`` the text ``{scenario}`` is replaced by the scenario id; ``learned_sampled``
+    samples its actions (torch seeded with the episode's seed) instead of taking the most
+    likely one.
+
+The evaluation protocol of the communication tasks (seeds, bootstrap intervals, the
+scripted frontier, Pareto plots; ``netsense benchmark --frontier``) is
+:mod:`~netsense.benchmark.protocol`.
 
 Backends (:func:`execute`), all with a tqdm bar and the same results in job order:
 

@@ -98,7 +98,7 @@ def run_batched(jobs: Sequence[Job], *, runner: Callable[[Job], dict | None] = r
         else:
             groups.append((key, [i]))
     for (scenario, policy, overrides), idx in groups:
-        if policy not in BATCHABLE_POLICIES:
+        if policy.partition(":")[0] not in BATCHABLE_POLICIES:
             for i in idx:
                 results[i] = runner(jobs[i])
                 done(1)

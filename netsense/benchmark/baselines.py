@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from netsense.benchmark.rollouts import rollout
+from netsense.benchmark.rollouts import NotApplicable, rollout
 
 if TYPE_CHECKING:  # pragma: no cover
     from netsense.rl.sb3 import TrainConfig
@@ -19,12 +19,16 @@ def baseline_returns(config: TrainConfig, policies: tuple[str, ...] = ("freshnes
     """Mean episode return per agent of scripted policies on the training scenario.
 
     Same scenario and overrides as the training run (seeds ``10_000 + e``), so the
-    numbers sit on the training curve's axis.
+    numbers sit on the training curve's axis. Policies that do not apply to the scenario
+    (e.g. an adoption rule on a communication-only scenario) are left out.
     """
     out = {}
     for name in policies:
-        rets = [np.mean(np.sum(rollout(config.scenario, name, 10_000 + e,
-                                       config.overrides).rewards, axis=0))
-                for e in range(episodes)]
+        try:
+            rets = [np.mean(np.sum(rollout(config.scenario, name, 10_000 + e,
+                                           config.overrides).rewards, axis=0))
+                    for e in range(episodes)]
+        except NotApplicable:
+            continue
         out[name] = float(np.mean(rets))
     return out

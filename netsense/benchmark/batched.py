@@ -12,6 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from netsense.engine.core import BatchedCore, CoreModel
+from netsense.env.comm_policies import COMM_POLICIES
 from netsense.env.policies import SCRIPTED_POLICIES
 from netsense.env.vector import load_model
 
@@ -19,10 +20,11 @@ __all__ = ["BATCHABLE_POLICIES", "rollout_seeds"]
 
 # ---------------------------------------------------------------------------- benchmark
 #: Benchmark policies that :func:`rollout_seeds` runs as one batch: the scripted ones
-#: (``random`` with one generator per member) and the centralized KF oracle. Learned
+#: (``random`` with one generator per member), the communication baselines (``name[:knob]``;
+#: ``bernoulli`` with one generator per member) and the centralized KF oracle. Learned
 #: policies act through the PettingZoo env episode by episode (:func:`netsense.benchmark.
 #: rollout`).
-BATCHABLE_POLICIES = SCRIPTED_POLICIES + ("kf_oracle",)
+BATCHABLE_POLICIES = SCRIPTED_POLICIES + tuple(COMM_POLICIES) + ("kf_oracle",)
 
 
 def rollout_seeds(scenario: str | CoreModel, policy: str, seeds: Sequence[int],
@@ -63,7 +65,7 @@ def rollout_seeds(scenario: str | CoreModel, policy: str, seeds: Sequence[int],
     from netsense.benchmark.rollouts import scripted_policy
     from netsense.estimators.oracle import CentralizedKF
 
-    if policy not in BATCHABLE_POLICIES:
+    if policy.partition(":")[0] not in BATCHABLE_POLICIES:
         raise ValueError(f"policy {policy!r} cannot run batched; choose one of "
                          f"{', '.join(BATCHABLE_POLICIES)} (learned policies run episode by "
                          "episode in netsense.benchmark)")
@@ -76,7 +78,7 @@ def rollout_seeds(scenario: str | CoreModel, policy: str, seeds: Sequence[int],
     oracle = policy == "kf_oracle"
     if oracle:
         kf = CentralizedKF(model.plant, x0_std=model.x0_std, batch_size=B)
-        idle = np.zeros((B, core.N, core.M + 1), dtype=np.int64)
+        idle = np.zeros((B, core.N, core.nvec.size), dtype=np.int64)
     else:
         pol = scripted_policy(policy, core, seeds)
     obs, mask = core.reset(seeds)

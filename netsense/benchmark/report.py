@@ -14,7 +14,12 @@ from netsense.env.policies import SCRIPTED_POLICIES
 
 
 def aggregate(results: Iterable[dict]) -> list[dict]:
-    """Mean and standard deviation over seeds per (scenario, policy), in first-seen order."""
+    """Mean and standard deviation over seeds per (scenario, policy), in first-seen order,
+    with the protocol's 95 % bootstrap interval of the mean (``<metric>_ci_low``,
+    ``<metric>_ci_high``; :func:`netsense.benchmark.protocol.bootstrap_ci`, over the
+    finite values)."""
+    from netsense.benchmark.protocol import bootstrap_ci
+
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in results:
         groups.setdefault((r["job"]["scenario"], _label(r["job"]["policy"])), []).append(r)
@@ -27,6 +32,7 @@ def aggregate(results: Iterable[dict]) -> list[dict]:
             row[f"{m}_mean"] = float(fin.mean()) if fin.size else float("nan")
             row[f"{m}_std"] = float(fin.std()) if fin.size > 1 else 0.0 if fin.size else \
                 float("nan")
+            _, row[f"{m}_ci_low"], row[f"{m}_ci_high"] = bootstrap_ci(fin)
             if m == "steps_to_eps":
                 row["reached_eps"] = int(fin.size)
         rows.append(row)
@@ -34,6 +40,8 @@ def aggregate(results: Iterable[dict]) -> list[dict]:
 
 
 def _label(policy: str) -> str:
+    if policy.startswith("learned_sampled"):
+        return "learned (sampled)"
     return "learned" if policy.startswith("learned") else policy
 
 

@@ -11,11 +11,17 @@ from collections.abc import Sequence
 import numpy as np
 
 from netsense.benchmark.records import EpisodeRecord, EpisodeRecorder
+from netsense.env.comm_policies import COMM_POLICIES
 from netsense.env.policies import SCRIPTED_POLICIES
 from netsense.estimators.oracle import CentralizedKF
 
-#: Every policy name the harness knows (``learned`` may carry ``:PATH``).
-POLICY_NAMES = SCRIPTED_POLICIES + ("kf_oracle", "learned")
+#: Communication baselines (communication-only scenarios; ``name[:knob]``, e.g.
+#: ``periodic:4``), see :mod:`netsense.env.comm_policies`.
+COMM_BASELINES = tuple(COMM_POLICIES)
+#: Every policy name the harness knows (``learned`` and ``learned_sampled`` carry
+#: ``:PATH``: greedy and sampled actions of one policy).
+POLICY_NAMES = SCRIPTED_POLICIES + COMM_BASELINES + ("kf_oracle", "learned",
+                                                     "learned_sampled")
 #: Default policy set of ``netsense benchmark``.
 DEFAULT_POLICIES = ("freshness", "uniform_consensus", "open_loop", "random", "kf_oracle")
 
@@ -50,10 +56,20 @@ def scripted_policy(name: str, env, seed: int | Sequence[int]):
     Raises
     ------
     NotApplicable
-        ``tree_consensus`` on a scenario without a periodic graph schedule.
+        ``tree_consensus`` on a scenario without a periodic graph schedule; a
+        communication baseline on a full-control scenario; an adoption rule other than
+        the scenario's fusion rule on a communication-only scenario.
     """
+    from netsense.env.comm_policies import make_comm_policy
     from netsense.env.policies import make_policy
 
+    if name.partition(":")[0] in COMM_POLICIES:
+        try:
+            return make_comm_policy(name, env, seed)
+        except ValueError as exc:
+            if getattr(getattr(env, "core", env), "comm", None) is None:
+                raise NotApplicable(str(exc)) from exc
+            raise
     if name not in _SCRIPTED:
         raise ValueError(f"unknown scripted policy {name!r}; choose from "
                          f"{', '.join(SCRIPTED_POLICIES)}")
@@ -61,7 +77,8 @@ def scripted_policy(name: str, env, seed: int | Sequence[int]):
     try:
         return make_policy(_SCRIPTED[name], env, **kwargs)
     except ValueError as exc:
-        if name == "tree_consensus":  # needs a periodic graph schedule
+        comm = getattr(getattr(env, "core", env), "comm", None) is not None
+        if name == "tree_consensus" or comm:  # a periodic schedule / its own adoption
             raise NotApplicable(str(exc)) from exc
         raise
 
@@ -86,7 +103,12 @@ def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
         if not path:
             raise ValueError("the learned policy needs a path: learned:PATH")
         agent_env = MaskedFlatObs(env)
-        model = LearnedPolicy(path)
+        sampled = policy.startswith("learned_sampled")
+        model = LearnedPolicy(path, deterministic=not sampled)
+        if sampled:  # reproducible draws: torch seeded with the episode's seed
+            import torch
+
+            torch.manual_seed(int(seed))
 
         def act(o, i):
             return model.act(o, agent_env)
@@ -119,7 +141,7 @@ def rollout_oracle(scenario: str, seed: int, overrides: dict | None = None) -> E
     core = env.core
     kf = CentralizedKF(env.model.plant, x0_std=env.model.x0_std, batch_size=1)
     env.reset(seed=seed)
-    idle = {a: np.zeros(core.M + 1, dtype=np.int64) for a in env.possible_agents}
+    idle = {a: np.zeros(core.nvec.size, dtype=np.int64) for a in env.possible_agents}
     rec = EpisodeRecorder(env.model.reward.error_floor, network=False)
     while True:
         rec.state(core, kf.x[:, None, :])

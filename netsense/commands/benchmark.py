@@ -1,4 +1,6 @@
-"""``netsense benchmark``: scenarios x policies x seeds -> CSV, Markdown table, PNG plots."""
+"""``netsense benchmark``: scenarios x policies x seeds -> CSV, Markdown table, PNG plots;
+``--frontier``: the scripted communication frontier and learned points per scenario under
+the evaluation protocol of :mod:`netsense.benchmark.protocol` (Pareto PNG + CSV)."""
 
 from __future__ import annotations
 
@@ -9,11 +11,13 @@ from netsense.commands._args import nonnegative_int, positive_float, positive_in
 NAME = "benchmark"
 HELP = ("Benchmark learned and scripted policies and a centralized KF oracle on scenarios "
         "(seeds as one batched run, or in processes or on Ray); writes CSV, a Markdown table "
-        "and plots.")
+        "and plots. --frontier: the scripted communication frontier with learned points, "
+        "95-percent bootstrap intervals, Pareto plots.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from netsense.benchmark import BACKENDS, DEFAULT_POLICIES, POLICY_NAMES
+    from netsense.benchmark.protocol import DEFAULT_EPISODES, EVAL_SEED0, FAMILIES
 
     parser.add_argument("scenarios", nargs="+", help="scenario ids (see `netsense list`)")
     parser.add_argument("--policies", nargs="+", default=list(DEFAULT_POLICIES),
@@ -21,11 +25,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"policies among {', '.join(POLICY_NAMES)}; a learned policy is "
                              "learned:PATH where {scenario} in PATH is replaced by the "
                              f"scenario id (default: {' '.join(DEFAULT_POLICIES)})")
-    parser.add_argument("--seeds", type=positive_int, default=5,
-                        help="number of seeds (default: 5)")
-    parser.add_argument("--seed0", type=nonnegative_int, default=1000,
-                        help="first seed; seeds are seed0..seed0+seeds-1 (default: 1000, "
-                             "away from training seeds)")
+    parser.add_argument("--seeds", type=positive_int, default=DEFAULT_EPISODES,
+                        help=f"number of evaluation seeds (default: {DEFAULT_EPISODES})")
+    parser.add_argument("--seed0", type=nonnegative_int, default=EVAL_SEED0,
+                        help=f"first seed; seeds are seed0..seed0+seeds-1 (default: "
+                             f"{EVAL_SEED0}: training uses seeds below it)")
+    parser.add_argument("--frontier", action="store_true",
+                        help="run the scripted communication frontier (every baseline at "
+                             "each knob, in the scenario's communication-only mode, "
+                             "'transmit' for full-control scenarios) and the --learned "
+                             "policies (greedy and sampled); writes frontier_<scenario>.csv/"
+                             ".png, frontier.csv and frontier.md")
+    parser.add_argument("--families", nargs="+", default=list(FAMILIES), metavar="FAMILY",
+                        choices=list(FAMILIES),
+                        help=f"--frontier: baseline families (default: {' '.join(FAMILIES)})")
+    parser.add_argument("--learned", action="append", default=[], metavar="PATH",
+                        help="--frontier: a MaskablePPO policy.zip ({scenario} is replaced "
+                             "by the scenario id); repeatable")
     parser.add_argument("--eps", type=positive_float, default=1e-2,
                         help="relative-error threshold of 'steps to eps' (default: 0.01)")
     parser.add_argument("--out", required=True, help="output directory")
@@ -76,6 +92,9 @@ def run(args: argparse.Namespace) -> int:
     if args.workers is not None and (args.workers < 1 or args.backend != "process"):
         raise SystemExit(f"--workers must be >= 1 and needs --backend process "
                          f"(got --workers {args.workers} with --backend {args.backend})")
+    if args.frontier:
+        _check_inputs(args.scenarios, [])
+        return _frontier(args, parse_overrides(args.override))
     _check_inputs(args.scenarios, args.policies)
     seeds = range(args.seed0, args.seed0 + args.seeds)
     _, rows = run_benchmark(args.scenarios, args.policies, seeds, out=args.out,
@@ -86,4 +105,16 @@ def run(args: argparse.Namespace) -> int:
 
     print(markdown_table(rows, args.eps))
     print(f"wrote {args.out}/episodes.csv, summary.csv, summary.md and plots")
+    return 0
+
+
+def _frontier(args: argparse.Namespace, overrides: dict) -> int:
+    from netsense.benchmark.protocol import FAMILIES, markdown_frontier, run_frontier
+
+    rows = run_frontier(args.scenarios, args.out, episodes=args.seeds, seed0=args.seed0,
+                        families={f: FAMILIES[f] for f in args.families},
+                        learned=args.learned, overrides=overrides,
+                        progress=not args.no_progress)
+    print(markdown_frontier(rows))
+    print(f"wrote {args.out}/frontier.csv, frontier.md and frontier_<scenario>.csv/.png")
     return 0

@@ -48,6 +48,11 @@ uniform average over self and every in-neighbour whose message arrived (eq. (6),
 stalest contributor + 1). ``a[M]``: transmit at the next step (0/1). The source's entry
 for its own substate must be 0 (update (7) is not an action).
 
+In the communication-only control modes (``model.control``, :mod:`netsense.engine.control`)
+the actions are ``(B, N, 1)`` transmit bits or ``(B, N, M)`` per-substate bits; the fusion
+rule's choice (computed by :class:`~netsense.engine.control.CommControl` when a step's
+messages are loaded) fills ``a[:M]`` and the step above runs unchanged.
+
 Faults (``CoreModel.faults``, scenario ``[[faults]]``)
 -----------------------------------------------------
 A crashed agent's transmit bits are cleared from its crash step on; a stuck or stale
@@ -89,6 +94,7 @@ from typing import NamedTuple
 import numpy as np
 
 from netsense.engine import observation, rewards
+from netsense.engine.control import CommControl, apply_collisions, tree_choice_table
 from netsense.engine.model import SUBSTATES, CoreModel, ObsLayout, RewardConfig, symlog
 from netsense.engine.observation import FillBuffers
 from netsense.graphs.processes import slot_adjacency
@@ -225,11 +231,24 @@ class BatchedCore:
         self.sources = (np.flatnonzero(sizes > 0) if model.substates == "sources"
                         else np.arange(self.N))
         self.M = int(self.sources.size)
-        self.layout = ObsLayout.build(self.N, self.n, self.r, self.D, self.sources)
+        self.control = model.control
+        self.layout = ObsLayout.build(self.N, self.n, self.r, self.D, self.sources,
+                                      comm=self.control.comm_only)
         #: ``(N,)`` column of each agent's own substate (``-1``: owns none)
         self.own = self.layout.own
         self.nvec = np.array([self.D + 2] * self.M + [2], dtype=np.int64)
+        #: the communication-only modes' state and rules (None in full control)
+        self.comm: CommControl | None = None
+        if self.control.comm_only:
+            table = (tree_choice_table(model.graphs, self.D, self.sources)
+                     if self.control.fusion == "tree" else None)
+            empty = np.bincount(self.block_of, minlength=self.N)[self.sources] == 0
+            self.comm = CommControl(self.control, self.B, self.N, self.M, self.D, self.own,
+                                    self.horizon, table, empty)
+            self.nvec = self.comm.nvec
         self.mask_size = int(self.nvec.sum())
+        #: capacity ``K`` of the shared channel (None: no ``[channel]``)
+        self.capacity = None if model.channel is None else int(model.channel.capacity)
         column = np.full(self.N, -1, dtype=np.int64)
         column[self.sources] = np.arange(self.M)
         self._block_of = np.ascontiguousarray(column[self.block_of])
@@ -308,6 +327,8 @@ class BatchedCore:
         else:
             self.source.reset_members(sel, source_rngs)
         self._seeded = True
+        if self.comm is not None:
+            self.comm.reset_members(idx, self.transmit, self.tau, self.k)
         self._load_step()
         return self.observe()
 
@@ -326,6 +347,8 @@ class BatchedCore:
         self.raw_errors = self._raw_buf = np.zeros((B, N))
         self.messages_sent = np.zeros(B, dtype=np.int64)
         self.nonfinite: list[dict | None] = [None] * B
+        #: (B,) bool: the messages of the current step collided (``[channel]``)
+        self.collided = np.zeros(B, dtype=bool)
         self.ptr = np.zeros(B, dtype=np.int64)
         # graphs are kept as their slot tables only (-1 = empty slot; G[k] is rebuilt
         # from them on demand), in the smallest integer type that holds a node id
@@ -432,6 +455,10 @@ class BatchedCore:
         for f, memory in zip(self._stuck, self._stuck_memory, strict=True):
             y = f.apply(self.k, y, memory)  # stuck/stale readings replace y_i[k]
         self.y = y
+        if self.capacity is not None:  # at most K senders per step, else all lost
+            apply_collisions(self.transmit, self.msg, self.capacity, self.collided)
+        if self.comm is not None:  # the fusion rule's choice for this step's messages
+            self.comm.fuse(self.reported_indices(), self.nbr, self.msg, self.k)
         if self._meas_always:
             self.y_arrived = self._ones_BN
         elif self.ptr.min() == self.ptr.max():  # all members at one chunk position: a view
@@ -462,11 +489,13 @@ class BatchedCore:
 
     # ------------------------------------------------------------------ step
     def _as_actions(self, actions) -> np.ndarray:
-        """``actions`` as an integer ``(B, N, M + 1)`` array (shape and dtype checked)."""
-        B, N, M = self.B, self.N, self.M
+        """``actions`` as an integer ``(B, N, len(nvec))`` array (shape and dtype checked):
+        ``M + 1`` entries in full control, 1 or ``M`` bits in the communication modes."""
+        B, N, A = self.B, self.N, self.nvec.size
         a = np.asarray(actions)
-        if a.shape != (B, N, M + 1):
-            raise ValueError(f"actions must have shape (B, N, M + 1) = {(B, N, M + 1)}, "
+        if a.shape != (B, N, A):
+            what = "M + 1" if self.comm is None else "len(nvec)"
+            raise ValueError(f"actions must have shape (B, N, {what}) = {(B, N, A)}, "
                              f"got {a.shape}")
         if a.dtype.kind not in "iu":
             if a.dtype.kind not in "fb":
@@ -518,6 +547,9 @@ class BatchedCore:
         """
         self._require_reset("step")
         a = self._as_actions(actions)
+        bits = comm_masked = None
+        if self.comm is not None:  # the fusion rule adopts, the bits say who transmits
+            a, bits, comm_masked = self.comm.expand(a, self.invalid_actions)
         B = self.B
         Z, tau = self.Z, self.reported_indices()  # a liar's claims are what others adopt
         # the default fixed-gain source (eq. (7)) runs inside the fused update; any other
@@ -553,7 +585,7 @@ class BatchedCore:
         # finite error is <= sqrt(DBL_MAX), so their sum is finite iff every one is)
         bad = None if math.isfinite(np.add.reduce(out.err, None)) else self._diagnose(out)
         self._turn ^= 1  # of buffers the state is not in)
-        self.last_invalid = out.masked
+        self.last_invalid = out.masked if comm_masked is None else comm_masked
         self.x, self.Z, self.tau = out.x_next, out.Z_next, out.tau_next
         self.k += 1
         # rewards, next transmit flags (crashed agents send nothing from their crash step
@@ -569,6 +601,9 @@ class BatchedCore:
             self._flag_nonfinite(bad, tail)
         self.transmit = tail.transmit
         self.raw_errors, self.errors = tail.raw_errors, tail.errors
+        if self.comm is not None:  # per-substate payload, what each agent last sent
+            self.comm.after_step(bits, self.transmit, self.tau, self.k, tail.reward,
+                                 self.model.reward.substate_cost)
         self.ptr += 1
         if self.ptr.max() >= self.chunk:
             self._refill(np.flatnonzero(self.ptr >= self.chunk))
@@ -657,11 +692,17 @@ class BatchedCore:
         exact = H < 2**24 and int(self.k.max()) + self._claim < 2**24
         dummy_o = np.empty((1, 1, 1), np.float32)
         dummy_m = np.empty((1, 1, 1), np.int8)
-        observation.fill(dummy_o if obs is None else obs, dummy_m if mask is None else mask,
-                         self._obs_starts, self.k, H, self.y, self.y_arrived,
-                         self.reported_indices(), self.Z, self.nbr, self.msg, exact,
-                         observations=obs is not None, masks=mask is not None, own=self.own,
-                         work=self._fill_bufs)
+        full_mask = mask if self.comm is None else None
+        if obs is not None or full_mask is not None:
+            observation.fill(dummy_o if obs is None else obs,
+                             dummy_m if full_mask is None else full_mask,
+                             self._obs_starts, self.k, H, self.y, self.y_arrived,
+                             self.reported_indices(), self.Z, self.nbr, self.msg, exact,
+                             observations=obs is not None, masks=full_mask is not None,
+                             own=self.own, work=self._fill_bufs)
+        if self.comm is not None:
+            self.comm.fill(obs, mask, self.layout, self.k, self.nbr, self.msg, self.transmit,
+                           None if self.capacity is None else self.collided)
 
     # ------------------------------------------------------------------ views
     @property

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from netsense.engine.control import COMM_OBS_FIELDS, Channel, Control
 from netsense.graphs.processes import GraphProcess
 from netsense.kernels.checks import MAX_STEPS
 from netsense.observers.source import SourceEstimator
@@ -36,14 +37,15 @@ class RewardConfig:
 
     Agent ``i``'s reward after step ``k -> k + 1`` is
 
-    .. math:: r_i = -w_e \\big((1 - w_t) e_i + w_t \\bar e\\big) - c\\, t_i,
+    .. math:: r_i = -w_e \\big((1 - w_t) e_i + w_t \\bar e\\big) - c\\, t_i - c_s\\, s_i,
               \\qquad e_i = \\min\\Big(\\frac{\\|\\hat x_i[k+1] - x[k+1]\\|}
               {\\max(\\|x[k+1]\\|, f)}, e_{\\max}\\Big),
 
     with ``\\bar e`` the mean of ``e_i`` over the agents whose errors count (crashed
     agents and liars excluded; those get only ``-c t_i``) and ``t_i`` the transmit bit
-    chosen at this step. A non-finite error is clipped to ``e_max``
-    (:mod:`netsense.engine.rewards`).
+    chosen at this step, ``s_i`` the number of substates with an estimate in its message
+    (communication-only control modes only; see :mod:`netsense.engine.control`). A
+    non-finite error is clipped to ``e_max`` (:mod:`netsense.engine.rewards`).
 
     Attributes
     ----------
@@ -57,6 +59,9 @@ class RewardConfig:
         ``f > 0``, the smallest ``||x||`` used for normalising (keeps ``e`` finite at 0).
     error_clip : float
         ``e_max``, the normalised error is clipped there (bounded rewards).
+    substate_cost : float
+        ``c_s >= 0``, cost of each substate with an estimate (index not omega, block not
+        empty) in a message, communication-only modes (default 0).
     """
 
     error_weight: float = 1.0
@@ -64,6 +69,7 @@ class RewardConfig:
     message_cost: float = 0.0
     error_floor: float = 1e-3
     error_clip: float = 10.0
+    substate_cost: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("error_weight", "team_weight", "message_cost", "error_floor",
@@ -81,9 +87,15 @@ class RewardConfig:
             raise ValueError(f"reward.error_clip must be > 0, got {self.error_clip}")
         if self.message_cost < 0 or self.error_weight < 0:
             raise ValueError("reward.message_cost and reward.error_weight must be >= 0")
+        c_s = self.substate_cost
+        if not isinstance(c_s, (int, float, np.integer, np.floating)) or not c_s >= 0 \
+                or not np.isfinite(c_s):
+            raise ValueError(f"reward.substate_cost must be a finite number >= 0, got {c_s!r}")
         if not np.isfinite(float(self.error_weight) * float(self.error_clip)
-                           + float(self.message_cost)):
-            raise ValueError("reward.error_weight * reward.error_clip + reward.message_cost "
+                           + float(self.message_cost)
+                           + float(self.substate_cost)):
+            raise ValueError("reward.error_weight * reward.error_clip + reward.message_cost + "
+                             "reward.substate_cost "
                              "must be finite (it bounds |reward|)")
 
 
@@ -126,6 +138,11 @@ class CoreModel:
         an empty substate carry nothing to estimate, so the estimates, errors and rewards
         are the same in both (tested); with ``N`` agents and ``n < N`` states at most
         ``n`` agents are sources, and the O(N^2) per-member bookkeeping becomes O(N M).
+    control : Control
+        What the actions decide: full control (default) or communication only, with the
+        fusion rule that adopts (:mod:`netsense.engine.control`).
+    channel : Channel or None
+        A shared channel of capacity ``K`` with collisions (default none).
     """
 
     plant: Plant
@@ -141,6 +158,8 @@ class CoreModel:
     source_estimator: Callable[[], SourceEstimator] | None = None
     faults: tuple = ()
     substates: str = "all"
+    control: Control = field(default_factory=Control)
+    channel: Channel | None = None
 
     def __post_init__(self) -> None:
         from netsense.observers.faults import CrashedAgents, LyingAgent, StuckSensor
@@ -186,6 +205,24 @@ class CoreModel:
                                 or not isinstance(lim, (int, float, np.integer, np.floating))
                                 or np.isnan(lim) or lim <= 0):
             raise ValueError(f"divergence_limit must be None or a number > 0, got {lim!r}")
+
+        self._check_control()
+
+    def _check_control(self) -> None:
+        from netsense.graphs.processes import PeriodicGraphs
+
+        if not isinstance(self.control, Control):
+            raise ValueError(f"control must be a Control, got {type(self.control).__name__}")
+        if self.channel is not None and not isinstance(self.channel, Channel):
+            raise ValueError(f"channel must be None or a Channel, got "
+                             f"{type(self.channel).__name__}")
+        if self.reward.substate_cost and not self.control.comm_only:
+            raise ValueError("reward.substate_cost needs a communication-only control mode "
+                             "(control.mode = 'transmit' or 'substates')")
+        if (self.control.comm_only and self.control.fusion == "tree"
+                and not isinstance(self.graphs, PeriodicGraphs)):
+            raise ValueError("control.fusion = 'tree' needs a periodic graph schedule, got "
+                             f"{type(self.graphs).__name__}")
 
     def _check_types(self) -> None:
         """Every field of the right type, and the design made for this plant."""
@@ -252,10 +289,18 @@ class ObsLayout:
     slot_omega: slice
     slot_age: slice
     size: int
+    news: slice | None = None
+    silence: slice | None = None
+    channel_load: slice | None = None
+    collided: slice | None = None
+    agent_id: slice | None = None
 
     @classmethod
     def build(cls, N: int, n: int, r: int, D: int,
-              sources: Sequence[int] | None = None) -> ObsLayout:
+              sources: Sequence[int] | None = None, comm: bool = False) -> ObsLayout:
+        """The layout; ``comm=True`` appends the communication-only modes' fields
+        (:data:`netsense.engine.control.COMM_OBS_FIELDS`: ``news`` (M), ``silence``,
+        ``channel_load``, ``collided``, ``agent_id``)."""
         src = tuple(range(N)) if sources is None else tuple(int(v) for v in sources)
         M = len(src)
         sizes = (1, r, 1, M, M, n, 1, D, D, D * M, D * M)
@@ -263,6 +308,10 @@ class ObsLayout:
         for name, s in zip(OBS_FIELDS, sizes, strict=True):
             out[name] = slice(o, o + s)
             o += s
+        if comm:
+            for name, s in zip(COMM_OBS_FIELDS, (M, 1, 1, 1, 1), strict=True):
+                out[name] = slice(o, o + s)
+                o += s
         return cls(N=N, n=n, r=r, D=D, M=M, sources=src, size=o, **out)
 
     @property
@@ -276,6 +325,11 @@ class ObsLayout:
         """``(field, start, stop)`` rows in :data:`OBS_FIELDS` order (the documentation
         table, and the offsets the compiled observation pass writes at)."""
         return [(nm, getattr(self, nm).start, getattr(self, nm).stop) for nm in OBS_FIELDS]
+
+    def comm_table(self) -> list[tuple[str, int, int]]:
+        """``(field, start, stop)`` of the communication-only fields (empty in full mode)."""
+        return [(nm, getattr(self, nm).start, getattr(self, nm).stop) for nm in COMM_OBS_FIELDS
+                if getattr(self, nm) is not None]
 
 
 def symlog(v: np.ndarray) -> np.ndarray:

@@ -17,7 +17,8 @@ the kernels of :mod:`netsense.kernels.update`; the AEC form is ``pettingzoo.util
 ==================  ===========================================================
 Import              ``netsense.make("fig1_scalar-v0")`` (see ``netsense list``)
 Agents              ``sensor_0 .. sensor_{N-1}`` (all with identical spaces)
-Action space        ``MultiDiscrete([D + 2] * N + [2])``
+Action space        ``MultiDiscrete([D + 2] * M + [2])`` (full control), ``([2])`` or
+                    ``([2] * M)`` (communication only, see Control modes)
 Observation space   ``Dict(observation=Box(obs_dim), action_mask=MultiBinary(M))``
                     or ``Box(obs_dim)`` with ``action_mask_in="info"``
 State space         ``Box(n + N n + N N)``: ``x``, every estimate of ``x``, ``G[k]``
@@ -62,6 +63,19 @@ whose ``sample(mask)`` also accepts this flat mask. Empty slots, slots whose nei
 not transmit (or whose message was dropped), and every non-zero choice on an agent's own
 substate are masked.
 
+Control modes
+-------------
+The scenario section ``[control]`` (override ``control={"mode": ...}``) chooses what the
+actions decide (:mod:`netsense.engine.control`, ``docs/communication.md``): ``"full"``
+(default, the table above), ``"transmit"`` (``MultiDiscrete([2])``: transmit at the next
+step or not) or ``"substates"`` (``MultiDiscrete([2] * M)``: which substates go into the next
+message; a substate without an estimate is masked). In the two communication-only modes a
+scripted fusion rule (``fusion = "freshness"``, ``"uniform"`` or ``"tree"``) does the
+adoption on the data of step ``k`` before the bits are applied, through the same update:
+with every bit set it is the full-control policy of that rule, bit for bit. A neighbour's
+substate can be adopted only if the neighbour sent it. ``[channel] capacity = K``: when
+more than ``K`` agents transmit at a step, every message of that step is lost.
+
 Bad actions: out-of-range entries always raise ``ValueError``; masked entries raise
 ``ValueError`` by default (``invalid_actions="raise"``) or are replaced by 0 = keep
 (``invalid_actions="keep"``, counted in ``infos[agent]["invalid_actions"]``). Actions are
@@ -87,14 +101,18 @@ field               size       content
 ``slot_age``        D x M      ``tau_l^{(j)} / H`` from the message (0 otherwise)
 ==================  =========  ===========================================================
 
-``symlog(v) = sign(v) log(1 + |v|)``; all entries are clipped to ``[-1000, 1000]``.
+``symlog(v) = sign(v) log(1 + |v|)``; all entries are clipped to ``[-1000, 1000]``. The
+communication-only modes append ``news`` (M), ``silence``, ``channel_load``, ``collided``
+and ``agent_id`` (:class:`netsense.engine.control.CommControl`; ``layout.comm_table()``).
 :attr:`NetSenseEnv.layout` (:class:`netsense.engine.model.ObsLayout`) gives the slices.
 
 Rewards
 -------
-``r_i = -w_e((1 - w_t) e_i + w_t mean(e)) - c t_i`` with ``e_i`` agent ``i``'s estimation
-error normalised by ``max(||x||, floor)`` and clipped (see
-:class:`netsense.engine.model.RewardConfig`), ``t_i`` its transmit bit.
+``r_i = -w_e((1 - w_t) e_i + w_t mean(e)) - c t_i - c_s s_i`` with ``e_i`` agent ``i``'s
+estimation error normalised by ``max(||x||, floor)`` and clipped (see
+:class:`netsense.engine.model.RewardConfig`), ``t_i`` its transmit bit and ``s_i`` the
+substates with an estimate in its message (``c_s = 0`` unless a communication-only
+scenario sets ``reward.substate_cost``).
 
 Starting State
 --------------
@@ -170,9 +188,13 @@ Version History
   noise, drops and decisions; estimates differ from earlier versions in the last bits
   (the products' summation order changed), and so do rewards (the norm and the team mean
   are summed in order since the reward pass was compiled).
-* Numerical health (hardening): a member whose plant state or estimates stop
+* Numerical health: a member whose plant state or estimates stop
   being finite terminates with ``infos[agent]["nonfinite"]`` (before, it stepped on with
   clipped rewards and nothing flagged); bad arguments raise ``ValueError`` naming them.
+* Control modes (``[control]``), the shared channel (``[channel]``) and
+  ``reward.substate_cost``, first used by ``comm_process_noise-v0``, ``comm_substates-v0``
+  and ``comm_channel_k2-v0``; every existing scenario keeps full control, its spaces and
+  its realisations.
 """
 
 from __future__ import annotations
@@ -400,7 +422,7 @@ class NetSenseEnv(ParallelEnv):
         return o, infos
 
     def actions_to_array(self, actions: dict[str, Any]) -> np.ndarray:
-        """Stack an ``{agent: action}`` dict into the core's ``(1, N, M + 1)`` array."""
+        """Stack an ``{agent: action}`` dict into the core's ``(1, N, len(nvec))`` array."""
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict {{agent: action}}, got "
                              f"{type(actions).__name__}")
@@ -410,13 +432,16 @@ class NetSenseEnv(ParallelEnv):
         extra = [a for a in actions if a not in self._index]
         if extra:
             raise ValueError(f"actions given for unknown agents {extra[:5]}")
+        width = self.core.nvec.size  # M + 1 (full control), 1 or M (communication only)
         try:
             arr = np.asarray([actions[a] for a in self.possible_agents])
         except ValueError as exc:
-            raise ValueError(f"every action must be a vector of {self.core.M + 1} "
+            raise ValueError(f"every action must be a vector of {width} "
                              f"integers: {exc}") from exc
-        if arr.ndim != 2 or arr.shape[1] != self.core.M + 1:
-            raise ValueError(f"every action must be a vector of {self.core.M + 1} integers "
+        if arr.ndim == 1 and width == 1:  # Discrete-like scalars of MultiDiscrete([2])
+            arr = arr[:, None]
+        if arr.ndim != 2 or arr.shape[1] != width:
+            raise ValueError(f"every action must be a vector of {width} integers "
                              f"(MultiDiscrete {list(self.core.nvec)}), got shape "
                              f"{arr.shape[1:]}")
         return arr[None]

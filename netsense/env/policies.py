@@ -19,6 +19,15 @@ policy                  rule
 ``open_loop``           keep every estimate (eq. (12)); never transmit
 ``random``              uniformly random among the unmasked choices; transmit w.p. ``p_transmit``
 ======================  =====================================================================
+
+In the communication-only control modes (:mod:`netsense.engine.control`) the actions are
+transmit bits ``(B, N, W)`` (``W = 1``, or ``M`` per-substate bits) and the scenario's
+fusion rule adopts. There :func:`make_policy` gives, for the fusion rule's own name
+(``freshness`` by default), :class:`TransmitAll` (so the policy reproduces its
+full-control self exactly), for ``open_loop`` :class:`TransmitNone`, and for ``random``
+bits that are 1 with probability ``p_transmit`` where allowed; the other adoption rules
+do not apply. The communication baselines with a knob (periodic, Bernoulli, sources
+first, event-triggered, age-based scheduler) are in :mod:`netsense.env.comm_policies`.
 """
 
 from __future__ import annotations
@@ -102,6 +111,52 @@ class UniformConsensusPolicy(Policy):
         return self._keep_own(out)
 
 
+class CommPolicy(Policy):
+    """Base of the communication-only policies: ``act`` returns bits ``(B, N, width)``.
+
+    ``width`` is 1 (control mode ``"transmit"``) or ``M`` (``"substates"``); ``horizon``
+    turns the observation's ``time``, ``news`` and ``silence`` back into steps.
+    """
+
+    def __init__(self, layout: ObsLayout, width: int, horizon: int) -> None:
+        super().__init__(layout)
+        if layout.news is None:
+            raise ValueError("communication policies need a communication-only control mode "
+                             "(scenario [control] mode = 'transmit' or 'substates')")
+        self.width = int(width)
+        self.horizon = int(horizon)
+
+    def _send(self, mask: np.ndarray, send: np.ndarray) -> np.ndarray:
+        """Bits sending every allowed substate (or the one transmit bit) where ``send``
+        ``(B, N)`` or ``(B, N, width)`` is true."""
+        allowed = np.asarray(mask)[..., 1::2] > 0
+        if send.ndim == 2:
+            send = send[..., None]
+        return (send & allowed).astype(np.int64)
+
+    def steps(self, obs: np.ndarray) -> np.ndarray:
+        """``(B,)`` time index ``k`` read from the observation."""
+        return np.rint(obs[:, 0, self.layout.time.start] * self.horizon).astype(np.int64)
+
+
+class TransmitAll(CommPolicy):
+    """Send everything allowed at every step (the fusion rule's full-control policy)."""
+
+    name = "always"
+
+    def act(self, obs, mask):
+        return self._send(mask, np.ones(np.shape(obs)[:2], bool))
+
+
+class TransmitNone(CommPolicy):
+    """Never transmit."""
+
+    name = "never"
+
+    def act(self, obs, mask):
+        return np.zeros(np.shape(obs)[:2] + (self.width,), dtype=np.int64)
+
+
 class TreeConsensusPolicy(Policy):
     """Consensus with all weight on the BFS-tree parent (Fig. 2), for periodic graphs.
 
@@ -114,21 +169,13 @@ class TreeConsensusPolicy(Policy):
 
     def __init__(self, layout: ObsLayout, graphs, horizon: int) -> None:
         super().__init__(layout)
-        from netsense.graphs.processes import PeriodicGraphs, in_neighbor_slots
-        from netsense.observers.consensus import tree_parents
+        from netsense.engine.control import tree_choice_table
 
-        if not isinstance(graphs, PeriodicGraphs):
-            raise ValueError("the tree policy needs a PeriodicGraphs scenario (it uses the "
-                             f"graph schedule), got {type(graphs).__name__}")
-        adj = np.stack(graphs.graphs)  # (P, N, N)
-        nbr, valid = in_neighbor_slots(adj, self.D)
-        parent = tree_parents(adj, nbr, valid)  # (P, i, j)
-        # slot of the parent in i's slot list (-1: keep own)
-        hit = nbr[:, :, None, :] == parent[..., None]  # (P, i, j, D)
-        choice = np.where(hit.any(-1), np.argmax(hit, -1) + 1, 0)  # (P, N, N)
-        self.choice = choice[:, :, list(layout.sources)]  # (P, N, M)
+        # (P, N, M): parent's slot + 1 in i's slot list (0: keep own); the table of the
+        # tree fusion rule of the communication-only modes too
+        self.choice = tree_choice_table(graphs, self.D, layout.sources)
         self.horizon = int(horizon)
-        self.period = adj.shape[0]
+        self.period = self.choice.shape[0]
 
     def act(self, obs, mask):
         L, D, M = self.layout, self.D, self.M
@@ -170,8 +217,10 @@ class RandomPolicy(Policy):
     name = "random"
 
     def __init__(self, layout: ObsLayout, seed: int | Sequence[int] | None = None,
-                 p_transmit: float = 0.5) -> None:
+                 p_transmit: float = 0.5, comm_width: int | None = None) -> None:
         super().__init__(layout)
+        #: bits per agent in a communication-only mode (None: full control)
+        self.comm_width = comm_width
         p = float(p_transmit)
         if not 0.0 <= p <= 1.0:  # (nan fails too)
             raise ValueError(f"p_transmit must be a probability in [0, 1], got {p_transmit!r}")
@@ -189,6 +238,8 @@ class RandomPolicy(Policy):
     def act(self, obs, mask):
         N, D, M = self.N, self.D, self.M
         B = obs.shape[0]
+        if self.comm_width is not None:
+            return self._act_bits(B, mask)
         m = mask[..., : M * (D + 2)].reshape(B, N, M, D + 2).astype(float)
         if self.member_rngs is None:
             u = self.rng.random(m.shape)
@@ -206,6 +257,18 @@ class RandomPolicy(Policy):
         out[..., :M] = np.argmax(u, axis=-1)
         out[..., M] = t < self.p_transmit
         return out
+
+    def _act_bits(self, B: int, mask: np.ndarray) -> np.ndarray:
+        """Communication-only modes: each allowed bit is 1 with probability p_transmit."""
+        shape = (self.N, self.comm_width)
+        if self.member_rngs is None:
+            u = self.rng.random((B,) + shape)
+        else:
+            if B != len(self.member_rngs):
+                raise ValueError(f"this random policy has {len(self.member_rngs)} member "
+                                 f"generators, got a batch of {B} observations")
+            u = np.stack([g.random(shape) for g in self.member_rngs])
+        return ((u < self.p_transmit) & (np.asarray(mask)[..., 1::2] > 0)).astype(np.int64)
 
 
 def _seed(s) -> int:
@@ -226,6 +289,19 @@ def make_policy(name: str, env, **kwargs) -> Policy:
     :class:`netsense.engine.core.BatchedCore`) by name, one of :data:`POLICIES`."""
     core = getattr(env, "core", env)
     layout = core.layout
+    comm = getattr(core, "comm", None)
+    if comm is not None and name in POLICIES:  # communication only: the fusion rule adopts
+        if name == "random":
+            return RandomPolicy(layout, comm_width=comm.width, **kwargs)
+        if name == "open_loop":
+            return TransmitNone(layout, comm.width, core.horizon)
+        if name == core.control.fusion:
+            return TransmitAll(layout, comm.width, core.horizon)
+        raise ValueError(f"policy {name!r} adopts by its own rule, but this scenario is "
+                         f"communication-only (control.mode = {core.control.mode!r}) with "
+                         f"fusion {core.control.fusion!r}: use {core.control.fusion!r} "
+                         "(= transmit always), open_loop, random or a communication "
+                         "baseline of netsense.env.comm_policies")
     if name == "freshness":
         return FreshnessPolicy(layout)
     if name == "uniform":

@@ -66,6 +66,14 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     message_cost = 0.0
     error_floor = 1e-3
     error_clip = 10.0
+    substate_cost = 0.0                # per substate sent (control.mode = "substates")
+
+    [control]                          # netsense.engine.control.Control
+    mode = "full"                      # or "transmit" / "substates": communication only
+    fusion = "freshness"               # the adoption rule then: or "uniform" / "tree"
+
+    [channel]                          # netsense.engine.control.Channel (default: none)
+    capacity = 2                       # at most K senders per step, else all messages lost
 
 A malformed file raises ``ValueError("<file>: field '<section.key>': ...")``.
 """
@@ -93,7 +101,7 @@ from netsense.kernels import checks
 
 _TOP = {"description", "horizon", "x0_std", "initial_transmit", "divergence_limit",
         "plant", "graph", "design", "noise", "arrivals", "reward", "source_estimator",
-        "faults", "substates"}
+        "faults", "substates", "control", "channel"}
 _ENV_KWARGS = {"render_mode", "invalid_actions", "action_mask_in", "aoi_info", "nonfinite"}
 _PLANT_FIELDS = {
     "fig1_scalar": ({"kind"}, {"a"}),
@@ -155,6 +163,10 @@ class Scenario:
     substates : {"all", "sources"}
         Substates the indices, actions and observations cover (see
         :class:`netsense.engine.model.CoreModel`).
+    control : dict
+        ``[control]`` (``mode``, ``fusion``; empty: full control).
+    channel : dict
+        ``[channel]`` (``capacity``; empty: no shared channel).
     source : str
         Where the scenario came from (file path), for error messages.
     """
@@ -174,6 +186,8 @@ class Scenario:
     source_estimator: dict = field(default_factory=dict)
     faults: tuple = ()
     substates: str = "all"
+    control: dict = field(default_factory=dict)
+    channel: dict = field(default_factory=dict)
     source: str = "<memory>"
 
     @classmethod
@@ -193,7 +207,7 @@ class Scenario:
         if horizon > checks.MAX_STEPS:
             raise _err(source, "horizon", f"must be <= 2^53, got {horizon!r}")
         for sec in ("plant", "graph", "design", "noise", "arrivals", "reward",
-                    "source_estimator"):
+                    "source_estimator", "control", "channel"):
             if sec in raw and not isinstance(raw[sec], dict):
                 raise _err(source, sec, "must be a table")
         plant = dict(raw["plant"])
@@ -248,11 +262,15 @@ class Scenario:
         substates = raw.get("substates", "all")
         if substates not in ("all", "sources"):
             raise _err(source, "substates", f"must be 'all' or 'sources', got {substates!r}")
+        control = dict(raw.get("control", {}))
+        channel = dict(raw.get("channel", {}))
+        _build_control(control, channel, source)  # checks the fields
         sc = cls(id=id, horizon=horizon, plant=plant, graph=dict(raw["graph"]),
                  description=desc, x0_std=float(x0), initial_transmit=it,
                  divergence_limit=None if lim is None else float(lim), design=design,
                  noise=noise, arrivals=arrivals, reward=reward, source_estimator=est,
-                 faults=faults, substates=substates, source=source)
+                 faults=faults, substates=substates, control=control, channel=channel,
+                 source=source)
         return sc
 
     def to_dict(self) -> dict:
@@ -271,12 +289,40 @@ class Scenario:
             out["faults"] = copy.deepcopy(list(self.faults))
         if self.substates != "all":
             out["substates"] = self.substates
+        if self.control:
+            out["control"] = dict(self.control)
+        if self.channel:
+            out["channel"] = dict(self.channel)
         return out
 
     @property
     def num_agents(self) -> int:
         """``N`` (read from the plant section)."""
         return build_plant(self).num_agents
+
+
+def _build_control(control: dict, channel: dict, source: str):
+    """``[control]`` and ``[channel]`` as :class:`netsense.engine.control.Control` and
+    :class:`~netsense.engine.control.Channel` (or None); errors name the field."""
+    from netsense.engine.control import Channel, Control
+
+    for sec, tab, allowed in (("control", control, {"mode", "fusion"}),
+                              ("channel", channel, {"capacity"})):
+        for k in sorted(set(tab) - allowed):
+            raise _err(source, f"{sec}.{k}", f"unknown key; allowed: {sorted(allowed)}")
+    try:
+        ctl = Control(**control)
+    except ValueError as exc:
+        raise _err(source, "control." + ("fusion" if "fusion" in str(exc).split("must")[0]
+                                         else "mode"), str(exc)) from exc
+    if not channel:
+        return ctl, None
+    if "capacity" not in channel:
+        raise _err(source, "channel.capacity", "is required")
+    try:
+        return ctl, Channel(channel["capacity"])
+    except ValueError as exc:
+        raise _err(source, "channel.capacity", str(exc)) from exc
 
 
 def _check_source_estimator(est: dict, source: str) -> dict:
@@ -652,6 +698,7 @@ def build_model(sc: Scenario) -> CoreModel:
                        f"({plant.num_agents}), got {S}")
     source_estimator = build_source_estimator(sc, design)
     faults = build_faults(sc, plant.num_agents)
+    control, channel = _build_control(sc.control, sc.channel, sc.source)
     try:
         return CoreModel(plant=plant, design=design, graphs=graphs, horizon=sc.horizon,
                          measurement_arrivals=arr.get("measurement", AlwaysArrive()),
@@ -660,7 +707,7 @@ def build_model(sc: Scenario) -> CoreModel:
                          initial_transmit=sc.initial_transmit,
                          divergence_limit=sc.divergence_limit,
                          source_estimator=source_estimator, faults=faults,
-                         substates=sc.substates)
+                         substates=sc.substates, control=control, channel=channel)
     except ValueError as exc:
         name = _field_of(str(exc), {"faults", "horizon", "x0_std", "initial_transmit",
                                     "divergence_limit", "design", "substates", "reward"})

@@ -354,9 +354,9 @@ class AgentVectorEnv(VectorEnv):
                                      dict[str, Any]]:
         """One step of every slot; ``actions`` ``(B N, M + 1)``."""
         a = np.asarray(actions)
-        width = self.batched.core.M + 1
+        width = self.batched.core.nvec.size  # M + 1, or the bits of a communication mode
         if a.shape != (self.num_envs, width):
-            raise ValueError(f"actions must have shape (num_envs, M + 1) = "
+            raise ValueError(f"actions must have shape (num_envs, len(nvec)) = "
                              f"{(self.num_envs, width)}, got {a.shape}")
         obs, rew, term, trunc, info = self.batched.step(
             a.reshape(self.batch_size, self.num_agents, -1))

@@ -30,6 +30,7 @@ from netsense.kernels.update import (
     innovation_correction,
     propagate,
     slot_messages,
+    substate_messages,
     uniform_mix,
     usable_slots,
 )
@@ -37,5 +38,5 @@ from netsense.kernels.update import (
 __all__ = [
     "OMEGA", "StepBuffers", "StepOut", "advance_indices", "apply_actions", "average_indices",
     "freshness_choice", "gather_substates", "innovation_correction", "propagate",
-    "slot_messages", "uniform_mix", "usable_slots",
+    "slot_messages", "substate_messages", "uniform_mix", "usable_slots",
 ]

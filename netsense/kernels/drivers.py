@@ -100,18 +100,22 @@ def load_all(buf_nbr, ptr, x, C_T, has_v, buf_v, transmit, has_link, buf_msg, nb
 
 
 def freshness_all(tau, nbr, use, keys, slot, src):
-    """:func:`netsense.kernels.rules.freshness_row` on the indices: ``use`` the usable slots;
-    writes the chosen slot (``-1``: keep) and the agent adopted from (``i`` itself)."""
+    """:func:`netsense.kernels.rules.freshness_row` on the indices: ``use (B, N, D, S)`` the
+    usable slots (``S = 1``) or usable (slot, substate) pairs (``S = M``: per-substate
+    messages, a substate the neighbour did not send is not offered); writes the chosen
+    slot (``-1``: keep) and the agent adopted from (``i`` itself)."""
     B, N, M = tau.shape
     D = nbr.shape[2]
+    per_sub = use.shape[3] > 1
     for b in prange(B):
         for i in range(N):
             for j in range(M):
                 t = tau[b, i, j]
                 keys[b, 0, j] = np.inf if t < 0 else np.float64(t)
             for d in range(D):
-                ok, l = use[b, i, d], nbr[b, i, d]
+                l = nbr[b, i, d]
                 for j in range(M):
+                    ok = use[b, i, d, j if per_sub else 0]
                     t = tau[b, l, j] if ok else -1
                     keys[b, 1 + d, j] = np.inf if t < 0 else np.float64(t)
             freshness_row(keys, b, slot, b, i)

@@ -34,16 +34,20 @@ from netsense.kernels.rules import OMEGA  # noqa: F401  (re-exported: kernels.OM
 
 
 def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
-                     transmit: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     transmit: np.ndarray | None = None, sent: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """The freshness rule: whom each agent adopts each substate from, eqs. (8)-(14).
 
     For agent ``i`` and substate ``j``, among the transmitting in-neighbours ``l`` with
     ``tau_l^{(j)} != omega`` (the set ``M_i^{(j)}[k]`` of eq. (8)) take the one with the
-    smallest index. Adopt it if ``tau_i^{(j)} = omega`` (Case 1) or if it is strictly
-    fresher, ``tau_l^{(j)} < tau_i^{(j)}`` (the set ``F_i^{(j)}[k]`` of eq. (13), Case 2);
-    otherwise keep the own estimate. The source ``j`` has ``tau_j^{(j)} = 0`` and so never
-    adopts. **Tie-break:** among equally fresh neighbours the one with the smallest node
-    index wins (slots are in ascending node order and ``argmin`` returns the first).
+    smallest index. With per-substate messages (``sent (B, N, M)``: agent ``l`` sent
+    substate ``j``), only neighbours that sent ``j`` count for substate ``j``
+    (:func:`usable_slots` on (slot, substate) pairs). Adopt it if ``tau_i^{(j)} = omega``
+    (Case 1) or if it is strictly fresher, ``tau_l^{(j)} < tau_i^{(j)}`` (the set
+    ``F_i^{(j)}[k]`` of eq. (13), Case 2); otherwise keep the own estimate. The source
+    ``j`` has ``tau_j^{(j)} = 0`` and so never adopts. **Tie-break:** among equally fresh
+    neighbours the one with the smallest node index wins (slots are in ascending node
+    order and ``argmin`` returns the first).
 
     Returns
     -------
@@ -53,10 +57,13 @@ def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
         Chosen slot ``d`` (``-1`` when keeping the own estimate).
     """
     tau, nbr, valid, transmit = _slots_in(tau, nbr, valid, transmit)
-    use = usable_slots(nbr, valid, transmit)
+    if sent is not None:
+        sent = checks.mask("sent", sent, tau.shape)
+    slots = usable_slots(nbr, valid, transmit)
     B, N, M = tau.shape
-    if use.any() and not (0 <= nbr[use].min() and nbr[use].max() < N):
+    if slots.any() and not (0 <= nbr[slots].min() and nbr[slots].max() < N):
         raise ValueError(f"a usable slot names no agent 0..{N - 1}")
+    use = slots[..., None] if sent is None else substate_messages(nbr, slots, sent)
     D = nbr.shape[2]
     slot = np.empty((B, N, M), dtype=np.int64)
     src = np.empty((B, N, M), dtype=np.int64)
@@ -527,18 +534,36 @@ def _t(A: np.ndarray) -> np.ndarray:
 
 
 def usable_slots(nbr: np.ndarray, valid: np.ndarray,
-                 transmit: np.ndarray | None = None) -> np.ndarray:
+                 transmit: np.ndarray | None = None, sent: np.ndarray | None = None
+                 ) -> np.ndarray:
     """Slots whose neighbour is present and (if given) transmitted, ``(B, N, D)`` bool.
 
     The message rule of :func:`netsense.kernels.rules.message_row` (without link drops) on the
-    slots ``valid`` marks; ``transmit`` is ``(B, N)``.
+    slots ``valid`` marks; ``transmit`` is ``(B, N)``. With per-substate messages,
+    ``sent (B, N, M)`` (agent ``l`` sent substate ``j``), the result is the ``(B, N, D,
+    M)`` table of usable (slot, substate) pairs (:func:`substate_messages`).
     """
     nbr = checks.array("nbr", nbr, (None, None, None), kind="i")
     _, nbr, valid, transmit = _slots_in(np.empty(nbr.shape[:2] + (0,), np.int64), nbr, valid,
                                         transmit)
-    if transmit is None:
-        return valid
-    return slot_messages(np.where(valid, nbr, -1), np.asarray(transmit, bool))
+    use = valid if transmit is None else slot_messages(np.where(valid, nbr, -1), transmit)
+    return use if sent is None else substate_messages(nbr, use, sent)
+
+
+def substate_messages(nbr: np.ndarray, msg: np.ndarray, sent: np.ndarray) -> np.ndarray:
+    """``(B, N, D, M)`` bool: slot ``d`` of agent ``i`` carries substate ``j``.
+
+    Per-substate messages: the slot holds a message (``msg[b, i, d]``, e.g.
+    :func:`slot_messages`) and its neighbour ``l = nbr[b, i, d]`` put substate ``j`` in it
+    (``sent[b, l, j]``). A substate that was not sent cannot be adopted (or averaged).
+    """
+    nbr = checks.array("nbr", nbr, (None, None, None), kind="i")
+    B, N = nbr.shape[:2]
+    msg = checks.mask("msg", msg, nbr.shape)
+    sent = checks.mask("sent", sent, (B, N, None))
+    checks.index_range("nbr", nbr, 0, N, where=msg)
+    who = np.where(msg, nbr, 0)
+    return sent[np.arange(B)[:, None, None], who] & msg[..., None]
 
 
 def keep_own_blocks(Z_sel: np.ndarray, Z: np.ndarray, own_block: np.ndarray) -> np.ndarray:

@@ -1,0 +1,405 @@
+"""The evaluation protocol of the communication tasks, and the scripted frontier.
+
+What a number from ``netsense benchmark --frontier`` means (cite this module's defaults):
+
+* **Seeds.** Evaluation episodes use the seeds ``EVAL_SEED0 + e`` for ``e = 0 ..
+  episodes - 1`` (:func:`eval_seeds`, default :data:`DEFAULT_EPISODES` = 100 episodes,
+  ``EVAL_SEED0 = 10^6``). Training runs use explicit seeds below
+  :data:`TRAIN_SEED_LIMIT` ``= 10^6`` (``netsense train --seed s`` seeds copy ``c`` of the
+  environment with ``s + c``); :func:`check_disjoint` refuses an overlap. Later training
+  episodes draw their seeds from a generator over ``[0, 2^62)``: the chance that one of
+  them is an evaluation seed is about ``episodes / 2^62`` per episode.
+* **Metrics** per episode, as in :mod:`netsense.benchmark.metrics`: ``mean_rel_error``
+  (``||x_hat_i[k] - x[k]|| / max(||x[k]||, floor)`` over ``k = 1..K`` and agents),
+  ``final_rel_error``, ``msgs_per_agent_step`` (transmissions / ``N K``; in a shared
+  channel attempts count, collided or not), ``load_per_agent_step`` (substates sent /
+  ``M N K``: equal to the messages unless messages are per substate) and ``reward`` (the
+  episode return, mean over agents).
+* **Intervals.** Mean over the episodes with a 95 % percentile bootstrap confidence
+  interval (:func:`bootstrap_ci`: ``scipy.stats.bootstrap``, 9999 resamples, generator
+  seeded with 0, so the interval is reproducible).
+* **Learned policies** (``learned:PATH``, MaskablePPO ``policy.zip``) are evaluated twice
+  on the same seeds: ``greedy`` (the most likely allowed action) and ``sampled`` (actions
+  drawn from the policy, torch seeded with the first evaluation seed). They run in the
+  control mode they were trained in (the scenario's, plus the given overrides).
+* **Frontier.** Every communication baseline of :mod:`netsense.env.comm_policies` at each
+  knob of :data:`FAMILIES`, plus ``always`` and ``never``, in the scenario's
+  communication-only mode; a scenario with full control is run in ``mode =
+  "transmit"`` with freshness fusion (``always`` then equals the freshness observer, bit
+  for bit). Every (policy, knob) is one :class:`netsense.engine.core.BatchedCore` run of
+  all the seeds (member ``b`` = seed ``b``).
+
+Outputs (:func:`write_frontier`): ``frontier_<scenario>.csv`` (one row per policy and
+knob: the mean and interval of every metric and whether the point is on the Pareto front
+of error vs load), ``frontier_<scenario>.png`` (error vs messages per agent-step and
+reward vs messages, scripted curves through their knob settings, learned points with
+their intervals) and ``frontier.md`` (the table).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CSV_COLUMNS", "DEFAULT_EPISODES", "EVAL_SEED0", "FAMILIES", "PROTOCOL_METRICS",
+           "TRAIN_SEED_LIMIT", "bootstrap_ci", "check_disjoint", "evaluate", "eval_seeds",
+           "frontier", "frontier_overrides", "markdown_frontier", "pareto_front",
+           "run_frontier", "write_frontier"]
+
+EVAL_SEED0 = 1_000_000
+TRAIN_SEED_LIMIT = EVAL_SEED0
+DEFAULT_EPISODES = 100
+CONFIDENCE = 0.95
+RESAMPLES = 9999
+PROTOCOL_METRICS = ("mean_rel_error", "final_rel_error", "msgs_per_agent_step",
+                    "load_per_agent_step", "reward")
+#: Knob settings of each scripted family (from most to fewest messages, roughly).
+FAMILIES: dict[str, tuple] = {
+    "periodic": (1, 2, 3, 4, 5, 6, 8, 12, 16),
+    "bernoulli": (1.0, 0.7, 0.5, 0.35, 0.25, 0.15, 0.1, 0.05),
+    "sources": (1, 2, 4, 8, 16, 0),
+    "event": (1, 2, 3, 4, 6, 8, 12, 16),
+    "oldest": (1, 2, 3, 4, 6),
+    "whittle": (1, 2, 3, 4, 6),
+}
+ENDPOINTS = ("always", "never")
+CSV_COLUMNS = (("scenario", "control", "family", "policy", "knob", "evaluation", "episodes",
+                "seed_first", "seed_last", "pareto")
+               + tuple(f"{m}_{s}" for m in PROTOCOL_METRICS
+                       for s in ("mean", "ci_low", "ci_high")))
+
+
+def eval_seeds(episodes: int = DEFAULT_EPISODES, seed0: int = EVAL_SEED0) -> list[int]:
+    """The evaluation seeds ``seed0, ..., seed0 + episodes - 1``."""
+    if isinstance(episodes, bool) or int(episodes) != episodes or episodes < 1:
+        raise ValueError(f"episodes must be an integer >= 1, got {episodes!r}")
+    if int(seed0) < 0:
+        raise ValueError(f"seed0 must be >= 0, got {seed0}")
+    return list(range(int(seed0), int(seed0) + int(episodes)))
+
+
+def check_disjoint(train_seeds: Sequence[int], seeds: Sequence[int]) -> None:
+    """Raise ``ValueError`` when training and evaluation seeds overlap."""
+    common = sorted(set(int(s) for s in train_seeds) & set(int(s) for s in seeds))
+    if common:
+        raise ValueError(f"evaluation seeds {common[:5]} were used in training; evaluate on "
+                         f"seeds >= {EVAL_SEED0} and train below {TRAIN_SEED_LIMIT}")
+
+
+def _train_seeds(path: Path) -> list[int]:
+    """Explicit seeds of the training run that wrote ``path`` (its train_config.json)."""
+    cfg = path.parent / "train_config.json"
+    if not cfg.exists():
+        return []
+    meta = json.loads(cfg.read_text())
+    s, copies = int(meta.get("seed", 0)), int(meta.get("num_vec_envs", 1))
+    return list(range(s, s + copies))
+
+
+def bootstrap_ci(values: Sequence[float], confidence: float = CONFIDENCE,
+                 resamples: int = RESAMPLES, seed: int = 0) -> tuple[float, float, float]:
+    """Mean and percentile-bootstrap confidence interval of ``values``.
+
+    ``scipy.stats.bootstrap`` with ``resamples`` resamples from
+    ``numpy.random.default_rng(seed)``. Non-finite values make all three NaN; a single
+    value (or identical values) gives a zero-width interval.
+    """
+    from scipy import stats
+
+    v = np.asarray(values, dtype=float).ravel()
+    if v.size == 0 or not np.isfinite(v).all():
+        return (float("nan"),) * 3
+    mean = float(v.mean())
+    if v.size == 1 or np.ptp(v) <= 1e-12 * max(abs(mean), 1e-300):
+        return mean, mean, mean
+    res = stats.bootstrap((v,), np.mean, confidence_level=confidence, n_resamples=resamples,
+                          method="percentile", vectorized=True,
+                          random_state=np.random.default_rng(seed))
+    ci = res.confidence_interval
+    return mean, float(ci.low), float(ci.high)
+
+
+def frontier_overrides(scenario: str, overrides: dict | None = None) -> dict:
+    """Overrides that put ``scenario`` in a communication-only mode (``"transmit"`` with
+    freshness fusion unless the scenario or ``overrides`` choose one)."""
+    from netsense.env.registry import load, with_overrides
+
+    over = dict(overrides or {})
+    sc = with_overrides(load(scenario), **over)
+    if sc.control.get("mode", "full") == "full":
+        over["control"] = {**sc.control, "mode": "transmit"}
+    return over
+
+
+def _mode(scenario: str, overrides: dict) -> str:
+    from netsense.env.registry import load, with_overrides
+
+    return with_overrides(load(scenario), **overrides).control.get("mode", "full")
+
+
+# ----------------------------------------------------------------------------- rollouts
+def _learned_actor(path: str, deterministic: bool, seed: int):
+    import torch
+
+    from netsense.rl.sb3 import LearnedPolicy
+
+    model = LearnedPolicy(path, deterministic=deterministic).model
+    if not deterministic:
+        torch.manual_seed(int(seed))
+
+    def act(obs, mask):
+        B, N = obs.shape[:2]
+        flat = np.concatenate([obs, mask.astype(np.float32)], axis=-1).reshape(B * N, -1)
+        acts, _ = model.predict(flat, action_masks=mask.reshape(B * N, -1) > 0,
+                                deterministic=deterministic)
+        return np.asarray(acts).reshape(B, N, -1)
+
+    return act
+
+
+def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None = None
+             ) -> dict[str, np.ndarray]:
+    """Per-episode :data:`PROTOCOL_METRICS` of ``policy`` on ``seeds``, as one batched run.
+
+    ``policy``: a communication baseline spec (``periodic:4``, ...), a scripted policy name
+    of :mod:`netsense.env.policies` (``freshness``, ...), ``learned:PATH`` (greedy) or
+    ``learned_sampled:PATH``. Member ``b`` is seeded with ``seeds[b]``; members that
+    terminate early (``divergence_limit``) are scored over their own steps.
+    """
+    from netsense.engine.core import BatchedCore
+    from netsense.env.vector import load_model
+
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise ValueError("seeds must be non-empty")
+    model, _ = load_model(scenario, **dict(overrides or {}))
+    B = len(seeds)
+    core = BatchedCore(model, B)
+    name, _, arg = policy.partition(":")
+    if name in ("learned", "learned_sampled"):
+        if not arg:
+            raise ValueError(f"{name} needs a path: {name}:PATH")
+        check_disjoint(_train_seeds(Path(arg)), seeds)
+        act = _learned_actor(arg, name == "learned", seeds[0])
+    else:
+        act = _scripted(policy, core, seeds).act
+    obs, mask = core.reset(seeds)
+    floor = model.reward.error_floor
+    N = core.N
+    err, msgs, load, rew = (np.zeros(B) for _ in range(4))
+    final, steps = np.zeros(B), np.zeros(B)
+    live = np.ones(B, dtype=bool)
+    while live.any():
+        out = core.step(act(obs, mask))
+        obs, mask = out.obs, out.action_mask
+        rel = (np.linalg.norm(core.estimates - core.x[:, None, :], axis=-1)
+               / np.maximum(np.linalg.norm(core.x, axis=-1), floor)[:, None]).mean(1)
+        sent = (core.transmit.sum(1) if core.comm is None or not core.comm.per_substate
+                else core.comm.sent.sum((1, 2)) / core.M)
+        err[live] += rel[live]
+        final[live] = rel[live]
+        msgs[live] += core.transmit.sum(1)[live] / N
+        load[live] += sent[live] / N
+        rew[live] += out.reward.mean(1)[live]
+        steps[live] += 1
+        live &= ~(out.terminated | out.truncated)
+    return {"mean_rel_error": err / steps, "final_rel_error": final,
+            "msgs_per_agent_step": msgs / steps, "load_per_agent_step": load / steps,
+            "reward": rew}
+
+
+def _scripted(policy: str, core, seeds: Sequence[int]):
+    from netsense.env.comm_policies import COMM_POLICIES, make_comm_policy
+    from netsense.env.policies import make_policy
+
+    if policy.partition(":")[0] in COMM_POLICIES:
+        return make_comm_policy(policy, core, seed=list(seeds))
+    kwargs = {"seed": list(seeds)} if policy == "random" else {}
+    return make_policy(policy, core, **kwargs)
+
+
+def _summary(values: dict[str, np.ndarray]) -> dict[str, float]:
+    out = {}
+    for m in PROTOCOL_METRICS:
+        mean, lo, hi = bootstrap_ci(values[m])
+        out.update({f"{m}_mean": mean, f"{m}_ci_low": lo, f"{m}_ci_high": hi})
+    return out
+
+
+def pareto_front(rows: Sequence[dict], x: str = "load_per_agent_step",
+                 y: str = "mean_rel_error") -> list[bool]:
+    """Which rows are not dominated in (``x``, ``y``) means (both smaller is better)."""
+    pts = np.array([[r[f"{x}_mean"], r[f"{y}_mean"]] for r in rows], dtype=float)
+    out = []
+    for p in pts:
+        worse = np.all(pts <= p, axis=1) & np.any(pts < p, axis=1)
+        out.append(bool(np.isfinite(p).all() and not worse.any()))
+    return out
+
+
+def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EVAL_SEED0,
+             families: dict[str, Sequence] | None = None, learned: Sequence[str] = (),
+             overrides: dict | None = None, progress: bool = True) -> list[dict]:
+    """Rows of the scripted frontier and the learned points of one scenario.
+
+    Parameters
+    ----------
+    scenario : str
+    episodes, seed0 : int
+        Evaluation seeds (:func:`eval_seeds`).
+    families : dict, optional
+        Family -> knob settings (default :data:`FAMILIES`); ``always`` and ``never`` are
+        always run.
+    learned : sequence of str
+        Paths of MaskablePPO policies (``{scenario}`` is replaced by the scenario id); each
+        is evaluated greedy and sampled.
+    overrides : dict, optional
+        Scenario overrides (the learned policies run with exactly these).
+    progress : bool
+        A tqdm bar over the runs.
+    """
+    from tqdm.auto import tqdm
+
+    seeds = eval_seeds(episodes, seed0)
+    fams = dict(FAMILIES if families is None else families)
+    comm_over = frontier_overrides(scenario, overrides)
+    control = _mode(scenario, comm_over)
+    runs = [(name, None, name, "scripted", comm_over) for name in ENDPOINTS]
+    runs += [(fam, knob, f"{fam}:{knob}", "scripted", comm_over)
+             for fam, knobs in fams.items() for knob in knobs]
+    for path in learned:
+        path = path.replace("{scenario}", scenario)
+        runs += [("learned", path, f"learned:{path}", "greedy", dict(overrides or {})),
+                 ("learned", path, f"learned_sampled:{path}", "sampled",
+                  dict(overrides or {}))]
+    rows = []
+    for fam, knob, spec, how, over in tqdm(runs, desc=f"frontier {scenario}",
+                                           disable=not progress):
+        vals = evaluate(scenario, spec, seeds, over)
+        mode = _mode(scenario, over) if fam == "learned" else control
+        rows.append({"scenario": scenario, "control": mode, "family": fam,
+                     "policy": spec, "knob": "" if knob is None else knob, "evaluation": how,
+                     "episodes": len(seeds), "seed_first": seeds[0], "seed_last": seeds[-1],
+                     **_summary(vals)})
+    for r, p in zip(rows, pareto_front(rows), strict=True):
+        r["pareto"] = p
+    return rows
+
+
+# ----------------------------------------------------------------------------- outputs
+def _cell(v) -> str:
+    if isinstance(v, float):
+        return "nan" if not math.isfinite(v) else f"{v:.6g}"
+    return str(v)
+
+
+def write_frontier(rows: Sequence[dict], out: str | Path) -> tuple[Path, Path]:
+    """``frontier_<scenario>.csv`` and ``.png`` of one scenario's rows into ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    scenario = rows[0]["scenario"]
+    path_csv = out / f"frontier_{scenario}.csv"
+    with path_csv.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_COLUMNS)
+        for r in rows:
+            w.writerow([_cell(r[c]) for c in CSV_COLUMNS])
+    path_png = out / f"frontier_{scenario}.png"
+    _plot(rows, path_png)
+    return path_csv, path_png
+
+
+def _plot(rows: Sequence[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    per_sub = any(r["control"] == "substates" for r in rows if r["family"] != "learned")
+    xm = "load_per_agent_step" if per_sub else "msgs_per_agent_step"
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+    for ax, ym, ylabel in ((axes[0], "mean_rel_error", "mean relative error"),
+                           (axes[1], "reward", "episode return (mean over agents)")):
+        groups: dict[str, list[dict]] = {}
+        for r in rows:
+            key = r["family"] if r["family"] != "learned" else f"learned ({r['evaluation']})"
+            groups.setdefault(key, []).append(r)
+        for c, (key, rs) in enumerate(groups.items()):
+            rs = sorted(rs, key=lambda r: r[f"{xm}_mean"])
+            x = np.array([r[f"{xm}_mean"] for r in rs])
+            y = np.array([r[f"{ym}_mean"] for r in rs])
+            xerr = np.abs(np.array([[r[f"{xm}_ci_low"], r[f"{xm}_ci_high"]] for r in rs]).T
+                          - x)
+            yerr = np.abs(np.array([[r[f"{ym}_ci_low"], r[f"{ym}_ci_high"]] for r in rs]).T
+                          - y)
+            learned = key.startswith("learned")
+            endpoint = key in ENDPOINTS
+            ax.errorbar(x, y, xerr=xerr, yerr=yerr, color="k" if endpoint else f"C{c % 10}",
+                        marker="*" if learned else ("s" if endpoint else "o"),
+                        ms=11 if learned else 5, ls="none" if learned or endpoint else "-",
+                        lw=1.2, capsize=2, elinewidth=0.8, label=key,
+                        mfc="none" if key.endswith("(sampled)") else None)
+            if not learned:
+                for r, xi, yi in zip(rs, x, y, strict=True):
+                    ax.annotate(key if endpoint else str(r["knob"]), (xi, yi), fontsize=6,
+                                xytext=(2, 2), textcoords="offset points",
+                                color="k" if endpoint else f"C{c % 10}")
+        ax.set_xlabel("substate messages per agent-step / M" if per_sub
+                      else "messages per agent-step")
+        ax.set_ylabel(ylabel)
+        if ym == "mean_rel_error":
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    r0 = rows[0]
+    fig.suptitle(f"{r0['scenario']} ({r0['control']} control): {r0['episodes']} episodes, "
+                 f"seeds {r0['seed_first']}-{r0['seed_last']}, 95 % bootstrap CI",
+                 fontsize=10)
+    axes[1].legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown_frontier(rows: Sequence[dict]) -> str:
+    """The rows as a Markdown table: mean [95 % CI] of error, messages and reward."""
+
+    def f(r, m, digits=3):
+        mean, lo, hi = r[f"{m}_mean"], r[f"{m}_ci_low"], r[f"{m}_ci_high"]
+        if not math.isfinite(mean):
+            return "–"
+        if hi - lo <= 1e-12 * max(abs(mean), 1e-300):
+            return f"{mean:.{digits}g}"
+        return f"{mean:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
+
+    lines = ["| scenario | policy | evaluation | mean rel. error | msgs / agent-step | "
+             "load / agent-step | reward | Pareto |", "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['scenario']} | {r['policy']} | {r['evaluation']} | "
+                     f"{f(r, 'mean_rel_error')} | {f(r, 'msgs_per_agent_step')} | "
+                     f"{f(r, 'load_per_agent_step')} | {f(r, 'reward')} | "
+                     f"{'yes' if r['pareto'] else ''} |")
+    return "\n".join(lines) + "\n"
+
+
+def run_frontier(scenarios: Sequence[str], out: str | Path, **kwargs) -> list[dict]:
+    """:func:`frontier` of every scenario, written by :func:`write_frontier`, plus
+    ``frontier.csv`` (all rows) and ``frontier.md``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for sc in dict.fromkeys(scenarios):
+        rs = frontier(sc, **kwargs)
+        write_frontier(rs, out)
+        rows += rs
+    with (out / "frontier.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_COLUMNS)
+        for r in rows:
+            w.writerow([_cell(r[c]) for c in CSV_COLUMNS])
+    (out / "frontier.md").write_text(markdown_frontier(rows))
+    return rows

@@ -1,0 +1,238 @@
+"""Communication baselines: scripted transmit rules, each with a knob that trades messages
+for accuracy (the scripted frontier of the communication-only control modes).
+
+They act in the communication-only modes of :mod:`netsense.engine.control`, where the
+scenario's fusion rule (freshness by default) adopts and an action is ``W`` bits per agent
+(``W = 1``: transmit; ``W = M``: one bit per substate). A bit set at step ``k`` sends at
+``k + 1``; every rule below decides ``t_i[k + 1]`` (and, per substate, ``s_i^{(j)}[k+1]``)
+from the observation at ``k``, in one numpy pass over ``(B, N, ...)``. In ``"substates"``
+mode a transmitting agent sends every substate it has an estimate of, except where the
+rule says which (event-triggered, schedulers). Rules and knobs:
+
+=================  ======  ===================================================================
+spec               knob    rule (``k`` the step whose action is taken, ``H`` the horizon)
+=================  ======  ===================================================================
+``always``         --      ``t_i = 1`` (with freshness fusion: the freshness observer)
+``never``          --      ``t_i = 0``
+``periodic:P``     P >= 1  ``t_i[k+1] = 1`` iff ``(k + 1 + i) mod P = 0``: every ``P`` steps,
+                           agents staggered by id (round robin; ``N/P`` senders per step)
+``bernoulli:p``    p       ``t_i[k+1] ~ Bernoulli(p)``, independent over agents and steps
+``sources:P``      P >= 0  agents with a non-empty block of Lemma 1 always; the others as
+                           ``periodic:P`` (``P = 0``: never, "sources only")
+``event:d``        d >= 1  send substate ``j`` iff ``news_i^{(j)} H >= d``: the information
+                           the next message would carry was generated at least ``d`` steps
+                           after what ``i`` last sent of ``j`` (never sent: always news)
+``oldest:m``       m >= 1  centralised: the ``m`` agents with the largest total age
+                           reduction ``I_l = sum_{i != l, j} h_{lij}`` send
+``whittle:m``      m >= 1  centralised: the same with the Whittle index ``h (h + 1) / 2``
+=================  ======  ===================================================================
+
+Age reduction ``h_{lij} = [tau_i^{(j)} - tau_l^{(j)}]_+`` of receiver ``i``'s age of
+substate ``j`` were it to adopt sender ``l``'s (``tau_i^{(j)} = omega`` counts as ``H``,
+``tau_l^{(j)} = omega`` gives 0), from every agent's indices in the observations. The
+schedulers read all ``N`` observations of a member, so they are a centralised reference
+(a scheduler that knows every age), not a decentralised policy; the next graph is
+unknown to them, so every other agent counts as a receiver. ``whittle`` is the Whittle
+index of Kadota et al. (IEEE/ACM ToN 2018) for reliable links, ``W(h) = w p h (h + 2/p -
+1) / 2`` with ``w = p = 1``; ``oldest`` is max-age-first with the linear age ``h``. In
+``"substates"`` mode a scheduled agent sends the substates ``j`` with ``sum_i h_{lij} >
+0``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from netsense.env.policies import CommPolicy, TransmitAll, TransmitNone, _seed
+
+__all__ = ["COMM_POLICIES", "AgeScheduler", "Bernoulli", "EventTriggered", "Periodic",
+           "SourcesFirst", "make_comm_policy", "parse_spec"]
+
+
+class Periodic(CommPolicy):
+    """Every ``period`` steps, staggered by agent id (``stagger=False``: all at once)."""
+
+    name = "periodic"
+
+    def __init__(self, layout, width, horizon, period: int = 2, stagger: bool = True) -> None:
+        super().__init__(layout, width, horizon)
+        self.period = _int_knob("periodic", period, 1)
+        self.phase = np.arange(self.N) if stagger else np.zeros(self.N, dtype=np.int64)
+
+    def act(self, obs, mask):
+        k = self.steps(obs)
+        send = (k[:, None] + 1 + self.phase[None]) % self.period == 0
+        return self._send(mask, send)
+
+
+class Bernoulli(CommPolicy):
+    """Transmit with probability ``p``, independently per agent and step.
+
+    ``seed``: an int (or None) seeds one generator for the batch; a sequence of ``B``
+    seeds gives member ``b`` its own generator, as :class:`netsense.env.policies.
+    RandomPolicy` does (so a batch of seeds equals the single episodes).
+    """
+
+    name = "bernoulli"
+
+    def __init__(self, layout, width, horizon, p: float = 0.5,
+                 seed: int | Sequence[int] | None = None) -> None:
+        super().__init__(layout, width, horizon)
+        p = float(p)
+        if not 0.0 <= p <= 1.0:
+            raise ValueError(f"bernoulli: p must be a probability in [0, 1], got {p!r}")
+        self.p = p
+        if seed is None or np.ndim(seed) == 0:
+            self.rng = np.random.default_rng(None if seed is None else _seed(seed))
+            self.member_rngs = None
+        else:
+            self.rng = None
+            self.member_rngs = [np.random.default_rng(_seed(s)) for s in seed]
+
+    def act(self, obs, mask):
+        B = obs.shape[0]
+        if self.member_rngs is None:
+            u = self.rng.random((B, self.N))
+        else:
+            if B != len(self.member_rngs):
+                raise ValueError(f"this policy has {len(self.member_rngs)} member generators, "
+                                 f"got a batch of {B} observations")
+            u = np.stack([g.random(self.N) for g in self.member_rngs])
+        return self._send(mask, u < self.p)
+
+
+class SourcesFirst(CommPolicy):
+    """Sources (non-empty blocks) every step; relays every ``relay_period`` steps (0: never)."""
+
+    name = "sources"
+
+    def __init__(self, layout, width, horizon, is_source: np.ndarray,
+                 relay_period: int = 0) -> None:
+        super().__init__(layout, width, horizon)
+        self.relay_period = _int_knob("sources", relay_period, 0)
+        self.is_source = np.asarray(is_source, dtype=bool)
+        if self.is_source.shape != (self.N,):
+            raise ValueError(f"is_source must have shape ({self.N},)")
+
+    def act(self, obs, mask):
+        k = self.steps(obs)
+        send = np.broadcast_to(self.is_source, (obs.shape[0], self.N)).copy()
+        if self.relay_period:
+            send |= (k[:, None] + 1 + np.arange(self.N)) % self.relay_period == 0
+        return self._send(mask, send)
+
+
+class EventTriggered(CommPolicy):
+    """Send (substate ``j``) when the next message's information is ``threshold`` steps
+    newer than what was last sent (the observation's ``news``)."""
+
+    name = "event"
+
+    def __init__(self, layout, width, horizon, threshold: int = 2) -> None:
+        super().__init__(layout, width, horizon)
+        self.threshold = _int_knob("event", threshold, 1)
+
+    def act(self, obs, mask):
+        news = np.rint(obs[..., self.layout.news] * self.horizon) >= self.threshold
+        return self._send(mask, news if self.width > 1 else news.any(-1))
+
+
+class AgeScheduler(CommPolicy):
+    """Centralised: the ``slots`` agents with the largest age-reduction index send.
+
+    ``index = "oldest"``: ``W(h) = h``; ``"whittle"``: ``W(h) = h (h + 1) / 2``.
+    """
+
+    name = "scheduler"
+
+    def __init__(self, layout, width, horizon, slots: int = 1, index: str = "whittle",
+                 columns: np.ndarray | None = None) -> None:
+        super().__init__(layout, width, horizon)
+        #: (M,) bool: substates that count (non-empty blocks; default all)
+        self.columns = (np.ones(self.M, bool) if columns is None
+                        else np.asarray(columns, dtype=bool))
+        self.slots = _int_knob(index, slots, 1)
+        if index not in ("oldest", "whittle"):
+            raise ValueError(f"index must be 'oldest' or 'whittle', got {index!r}")
+        self.index = index
+
+    def gains(self, obs: np.ndarray) -> np.ndarray:
+        """``(B, N, M)``: ``sum_{i != l} W(h_{lij})`` for every sender ``l`` and substate."""
+        L, H = self.layout, self.horizon
+        omega = obs[..., L.own_omega] > 0.5  # (B, N, M)
+        age = np.where(omega, float(H), np.rint(obs[..., L.own_age] * H))
+        h = age[:, None, :, :] - age[:, :, None, :]  # [b, l, i, j] = tau_i - tau_l
+        h = np.where(omega[:, :, None, :] | ~self.columns, 0.0, np.maximum(h, 0.0))
+        w = h if self.index == "oldest" else h * (h + 1.0) / 2.0
+        return w.sum(2)  # (the i = l term is 0)
+
+    def act(self, obs, mask):
+        g = self.gains(np.asarray(obs))
+        total = g.sum(-1)  # (B, N)
+        order = np.argsort(-total, axis=1, kind="stable")  # ties: smallest id first
+        rank = np.empty_like(order)
+        np.put_along_axis(rank, order, np.arange(self.N)[None], axis=1)
+        send = (rank < self.slots) & (total > 0)
+        return self._send(mask, send[..., None] & (g > 0) if self.width > 1 else send)
+
+
+def _int_knob(name: str, v, low: int) -> int:
+    if isinstance(v, bool) or int(v) != v or v < low:
+        raise ValueError(f"{name}: the knob must be an integer >= {low}, got {v!r}")
+    return int(v)
+
+
+#: spec name -> (knob type, default knob); ``always`` and ``never`` take none.
+COMM_POLICIES = {"always": (None, None), "never": (None, None), "periodic": (int, 2),
+                 "bernoulli": (float, 0.5), "sources": (int, 0), "event": (int, 2),
+                 "oldest": (int, 1), "whittle": (int, 1)}
+
+
+def parse_spec(spec: str) -> tuple[str, float | int | None]:
+    """``"periodic:4"`` -> ``("periodic", 4)``; the default knob when none is given."""
+    name, _, arg = spec.partition(":")
+    if name not in COMM_POLICIES:
+        raise ValueError(f"unknown communication policy {name!r}; choose from "
+                         f"{', '.join(COMM_POLICIES)}")
+    kind, default = COMM_POLICIES[name]
+    if kind is None:
+        if arg:
+            raise ValueError(f"{name} takes no knob, got {spec!r}")
+        return name, None
+    try:
+        return name, kind(arg) if arg else default
+    except ValueError as exc:
+        raise ValueError(f"{spec!r}: the knob of {name} must be a {kind.__name__}") from exc
+
+
+def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) -> CommPolicy:
+    """The communication baseline ``spec`` (``name[:knob]``, see the module docstring) for
+    ``env`` (a :class:`netsense.env.pettingzoo_env.NetSenseEnv` or a
+    :class:`netsense.engine.core.BatchedCore` in a communication-only mode).
+
+    ``seed`` seeds ``bernoulli`` (a sequence: one generator per batch member).
+    """
+    core = getattr(env, "core", env)
+    comm = getattr(core, "comm", None)
+    if comm is None:
+        raise ValueError(f"{spec!r} is a communication baseline: it needs a communication-only "
+                         "control mode (scenario [control] mode = 'transmit' or 'substates'; "
+                         "override with control={'mode': 'transmit'})")
+    name, knob = parse_spec(spec)
+    args = (core.layout, comm.width, core.horizon)
+    if name == "always":
+        return TransmitAll(*args)
+    if name == "never":
+        return TransmitNone(*args)
+    if name == "periodic":
+        return Periodic(*args, period=knob)
+    if name == "bernoulli":
+        return Bernoulli(*args, p=knob, seed=seed)
+    if name == "sources":
+        is_source = np.bincount(core.block_of, minlength=core.N) > 0
+        return SourcesFirst(*args, is_source=is_source, relay_period=knob)
+    if name == "event":
+        return EventTriggered(*args, threshold=knob)
+    return AgeScheduler(*args, slots=knob, index=name, columns=~core.comm.empty)
