@@ -22,17 +22,17 @@ observability matrices), with tolerances relative to ``||A||`` and ``||C_j||``.
 Exact zero pattern. In floating point the staircase leaves rounding-level entries where
 Lemma 1 has zeros, and it leaves more than rounding: each agent's block is computed inside
 the previous complement, so an error of ``U_{j-1}`` reaches ``C_j U_{j-1}`` amplified by
-``||C_j|| / ||C_jj||`` (1e-13 after five single-output agents, up to 1e-7 at n = 26 in
-measured cases). Such entries are not harmless: the freshness observer's error feeds
-through them from later substates back into earlier ones over stale (delayed) copies, a
-loop whose gain ``eps * (gamma / rho)^delay`` is of order one, so the error decays more
-slowly than Theorem 1's rate (``docs/theory.md``). Two steps remove them:
+``||C_j|| / ||C_jj||`` (3e-13 after six single-output agents, 2e-7 at n = 100). Such
+entries are not harmless even at 1e-18: the freshness observer's error feeds through them
+from later substates back into earlier ones over stale (delayed) copies, a loop whose gain
+``eps * (gamma / rho)^delay`` is of order one, so the error decays more slowly than
+Theorem 1's rate (``docs/theory.md``). Two steps remove them:
 
 1. *Refinement* (:func:`refine_structure`): Newton steps on the orthogonal ``T`` that drive
    the entries above the block diagonal of ``T^T A T`` and right of block ``i`` in
    ``C_i T`` to rounding level, all pairs of blocks at once (a sparse least-squares
-   problem in the rotation angles; one or two steps take 1e-7 to ~5e-16).
-2. *Structure* : ``A_bar`` and ``C_bar`` are then *defined* with exact zeros in those
+   problem in the rotation angles; one to three steps take 2e-7 to ~5e-16).
+2. *Structure*: ``A_bar`` and ``C_bar`` are then *defined* with exact zeros in those
    positions. What was dropped is reported, relative to ``||A||`` and ``||C_i||``, as
    :attr:`Decomposition.residual_A` and :attr:`Decomposition.residual_C`: the plant in
    Lemma 1's coordinates is ``T^T A T = A_bar + E_A`` with ``||E_A|| <= residual_A ||A||``,
