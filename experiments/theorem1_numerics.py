@@ -34,6 +34,7 @@ plants each and asserts the bounds.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from dataclasses import dataclass
 
@@ -72,6 +73,14 @@ class Case:
         return 2 * (self.N - 1) * self.T + 1
 
 
+@functools.cache
+def design(case: Case, *, rho: float | None = None) -> ObserverDesign:
+    """``design_observer`` of the case's plant: Theorem 1's with ``rho``, else deadbeat
+    (cached: :func:`cases` checks the Theorem 1 design, the measurements reuse it)."""
+    plant = case.plant()
+    return design_observer(plant, rho=rho) if rho else design_observer(plant, deadbeat=True)
+
+
 def sample_case(seed: int, *, single_output: bool, radius: tuple[float, float]) -> Case:
     """A random case (see the module docstring); ``radius``: range of the spectral radius."""
     rng = np.random.default_rng([seed, 26])
@@ -100,7 +109,7 @@ def cases(count: int, *, radius: tuple[float, float], offset: int = 0,
         s += 1
         if rho is not None:
             try:
-                design_observer(case.plant(), rho=rho)
+                design(case, rho=rho)
             except ValueError:
                 skipped += 1
                 continue
@@ -146,15 +155,15 @@ def run_error_alone(design: ObserverDesign, plant: Plant, graphs: np.ndarray,
     return out
 
 
-def measure_rate(case: Case, *, rho: float = 0.5, decomposition=None) -> dict:
+def measure_rate(case: Case, *, rho: float = 0.5) -> dict:
     """Fitted tail rate of the worst error vs ``max_j rho_j`` (Theorem 1's design)."""
     plant = case.plant()
-    design = design_observer(plant, rho=rho, decomposition=decomposition)
+    des = design(case, rho=rho)
     W = case.window
     K = 400 + 12 * W
-    log_err = run_error_alone(design, plant, case.graphs(K), np.random.default_rng(case.seed))
+    log_err = run_error_alone(des, plant, case.graphs(K), np.random.default_rng(case.seed))
     rate = envelope_rate(log_err, K - 10 * W, W) if np.isfinite(log_err[-1]) else 0.0
-    return {"rate": rate, "rho_max": float(np.nanmax(design.rates)), "steps": K}
+    return {"rate": rate, "rho_max": float(np.nanmax(des.rates)), "steps": K}
 
 
 # ------------------------------------------------------------------ deadbeat, floor
@@ -216,46 +225,46 @@ def measure_deadbeat(case: Case, *, extra: int = 50) -> dict:
     """Corollary 1: the error alone (``x = 0``) and the relative error (``x != 0``) from
     the bound ``n + 2N(N-1)T`` to ``extra`` steps after it, and the noise gain there."""
     plant = case.plant()
-    design = design_observer(plant, deadbeat=True)
+    des = design(case)
     bound = int(corollary1_bound(plant.n, plant.num_agents, case.T))
     graphs = case.graphs(bound + extra)
-    log_err = run_error_alone(design, plant, graphs, np.random.default_rng(case.seed))
-    rel = relative_errors(design, plant, graphs, case.seed)
+    log_err = run_error_alone(des, plant, graphs, np.random.default_rng(case.seed))
+    rel = relative_errors(des, plant, graphs, case.seed)
     below = np.flatnonzero(~(rel < 1e-12))
     return {"bound": bound,
             "alone_after_bound": float(np.exp(log_err[bound:].max() - log_err[0])),
             "after_bound": float(rel[bound:].max()),
             "first_exact": int(below[-1] + 1) if below.size else 0,
-            "peak": float(rel.max()), "gain": noise_gain(design, plant, graphs, case.seed,
-                                                          bound),
-            "gain_max": _largest_gain(design),
-            "nilpotency": float(np.nanmax(design.nilpotency_residuals))}
+            "peak": float(rel.max()),
+            "gain": noise_gain(des, plant, graphs, case.seed, bound),
+            "gain_max": _largest_gain(des),
+            "nilpotency": float(np.nanmax(des.nilpotency_residuals))}
 
 
-def measure_floor(case: Case, *, rho: float = 0.5, steps: int = 450,
+def measure_floor(case: Case, *, rho: float = 0.5, steps: int = 360,
                   structured: bool = False) -> dict:
     """Largest relative error over the last third of a noise-free run (Theorem 1 gains),
     and the noise gain over the same steps (``structured``: of the plant simulated in
     Lemma 1's coordinates, see :func:`relative_errors`; no noise gain then)."""
     plant = case.plant()
-    design = design_observer(plant, rho=rho)
+    des = design(case, rho=rho)
     graphs = case.graphs(steps)
     start = 2 * steps // 3
-    rel = relative_errors(design, plant, graphs, case.seed, structured=structured)
-    gain = np.nan if structured else noise_gain(design, plant, graphs, case.seed, start)
-    return {"floor": float(rel[start:].max()), "gain": gain, "gain_max": _largest_gain(design)}
+    rel = relative_errors(des, plant, graphs, case.seed, structured=structured)
+    gain = np.nan if structured else noise_gain(des, plant, graphs, case.seed, start)
+    return {"floor": float(rel[start:].max()), "gain": gain, "gain_max": _largest_gain(des)}
 
 
 def one_state_gain_ratios(case: Case) -> list[float]:
     """``||L_j|| / (|a_j| / ||c_j||)`` for the 1-state blocks of the deadbeat design."""
-    design = design_observer(case.plant(), deadbeat=True)
-    d = design.decomposition
+    des = design(case)
+    d = des.decomposition
     out = []
     for j, size in enumerate(d.sizes):
         if size == 1:
             a, c = abs(float(d.A_jj(j)[0, 0])), float(np.linalg.norm(d.C_jj(j)))
             if a > 0:
-                out.append(design.gain_norms[j] / (a / c))
+                out.append(des.gain_norms[j] / (a / c))
     return out
 
 
@@ -297,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = [measure_floor(c) for c in chosen]
     floors = [r["floor"] for r in rows]
     print(f"floor ({count} plants, Theorem 1 gains, rho = 0.5, {skipped} skipped): relative "
-          f"error over steps 300-450: {_q(floors)}; below 1e-12: "
+          f"error over steps 240-360: {_q(floors)}; below 1e-12: "
           f"{sum(f < 1e-12 for f in floors)}; / (eps x noise gain): "
           f"{_q([r['floor'] / (EPS * r['gain']) for r in rows], '.1f')}; noise gain: "
           f"{_q([r['gain'] for r in rows])}")

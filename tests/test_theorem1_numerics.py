@@ -55,7 +55,7 @@ def test_deadbeat_error_vanishes_within_corollary1():
 @pytest.mark.slow
 def test_no_error_floor_beyond_rounding():
     """Theorem 1's gains on plants with spectral radius 0.9-1.1: the relative error over
-    steps 300-450 is at most 1e-12 or the rounding floor eps x noise gain."""
+    steps 240-360 is at most 1e-12 or the rounding floor eps x noise gain."""
     chosen, skipped = num.cases(COUNT, radius=(0.9, 1.1), offset=20_000, rho=0.5)
     assert skipped <= COUNT // 20
     bad = []
