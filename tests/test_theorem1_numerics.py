@@ -14,7 +14,7 @@ num = load_experiment("theorem1_numerics")
 COUNT = 200
 EPS = float(np.finfo(float).eps)
 #: The noise-free relative error may sit at rounding times the observer's noise gain,
-#: ``c eps G`` with ``c`` measured at 1-18 (median 1.5); a floor of any other origin (the
+#: ``c eps G`` with ``c`` measured up to 24 (median 1.5); a floor of any other origin (the
 #: staircase's ~1e-13 left in the model, say) is 1e3-1e6 times larger than that.
 FLOOR_FACTOR = 64
 
