@@ -12,7 +12,7 @@ What is measured (``docs/theory.md`` explains why each quantity is the right one
   ``y = 0``), so long tails do not underflow.
 * **deadbeat** -- ``design_observer(plant, deadbeat=True)``, random ``x[0]``,
   ``x_hat_i[0] = 0``: the relative error ``max_i ||x_hat_i[k] - x[k]|| / ||x[k]||``
-  (``netsense.topology.relative_error``) from Corollary 1's bound ``n + 2N(N-1)T`` on.
+  (``netsense.observers.run.relative_error``) from Corollary 1's bound ``n + 2N(N-1)T`` on.
 * **floor** -- Theorem 1's gains, random ``x[0]``, ``x_hat_i[0] = 0``, plant spectral
   radius in ``[0.9, 1.1]`` (at least ``rho``, so that the error's transient dies relative
   to the state): the largest relative error over the last third of the run.
@@ -22,7 +22,7 @@ What is measured (``docs/theory.md`` explains why each quantity is the right one
 Cases: ``N`` in 3..10, ``T`` in 1..4, single-output sources (``n <= 3 x sources``, blocks
 of a few states; a large block seen through one output makes pole placement itself
 ill-conditioned) and multi-output sources (2, 3 or ``ceil(n_j / 4)`` outputs, ``n <= 30``),
-stable and unstable plants (``netsense.systems.random_structured``), random jointly
+stable and unstable plants (``netsense.systems.plants.random_structured``), random jointly
 strongly connected graphs with period ``T``.
 
 Run: ``python experiments/theorem1_numerics.py`` (``--cases 200``, about a minute on 2
@@ -40,11 +40,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from netsense.design import ObserverDesign, design_observer
-from netsense.graphs import RandomJointlyConnected
+from netsense.graphs.bounds import corollary1_bound
+from netsense.graphs.processes import RandomJointlyConnected
 from netsense.observers.freshness import FreshnessObserver
-from netsense.systems import Plant, random_structured
-from netsense.topology import corollary1_bound
+from netsense.systems.design import ObserverDesign, design_observer
+from netsense.systems.plants import Plant, random_structured
 
 
 @dataclass(frozen=True)

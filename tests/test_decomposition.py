@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from netsense import decompose, random_structured
-from netsense.decomposition import refine_structure
+from netsense.systems.decomposition import refine_structure
 
 
 def obs_rank(A, C):

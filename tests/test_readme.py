@@ -38,3 +38,13 @@ def test_user_facing_text_has_no_history_markers(page):
     assert not re.search(r"\bissue \d+", text), "internal issue numbers in the README"
     commit = r"\b(?=[0-9a-f]*\d)(?=[0-9a-f]*[a-f])[0-9a-f]{7,40}\b"
     assert not re.search(commit, text), "commit hashes in the README"
+
+
+def test_readme_quick_start_prints_what_the_readme_shows(capsys):
+    """The quick start's output block is its real output."""
+    text = README.read_text()
+    section = text[text.index("## Quick start"):]
+    code = re.search(r"```python\n(.*?)```", section, flags=re.S).group(1)
+    shown = re.search(r"\nprints\n\n```\n(.*?)```", section, flags=re.S).group(1)
+    exec(compile(code, "README-quick-start", "exec"), {})
+    assert capsys.readouterr().out == shown

@@ -141,8 +141,9 @@ def propagate(Z_sel: np.ndarray, Z: np.ndarray, A_diag: np.ndarray,
 
     ``Z_sel`` holds, per substate, the estimate the agent decided to propagate (its own,
     an adopted one, or a consensus mix); the couplings ``A_jq`` always act on the agent's
-    own estimates of the other substates. ``A_lower`` may carry the decomposition's
-    rounding-level entries above the diagonal, so the model is exact. The block-diagonal
+    own estimates of the other substates. ``A_lower`` is the strictly lower block part of
+    ``A_bar`` (Lemma 1's zeros above the diagonal are exact, see
+    :func:`netsense.systems.decomposition.refine_structure`). The block-diagonal
     part visits only the non-zeros of ``A_diag`` (the order of the sums is that of
     :func:`netsense.kernels.lanes.block_triangular_row`).
     """

@@ -13,8 +13,10 @@ the source ``j`` (``omega`` until it has heard anything). At each step:
 
 Under joint strong connectivity (Assumption 1) every index is finite from step
 ``(N-1)T`` on (Lemma 3) and at most ``2(N-1)T`` afterwards (Lemma 5); with Theorem 1's
-gains every agent's error decays like ``rho^k``, with deadbeat gains it vanishes after
-``n + 2N(N-1)T`` steps (Corollary 1).
+gains every agent's error decays at the designed rate ``max_j rho_j`` (Theorem 1), with
+deadbeat gains it vanishes to rounding after ``n + 2N(N-1)T`` steps (Corollary 1). In
+floating point this holds because Lemma 1's zero pattern is exact
+(``docs/theory.md``: the error recursion and what is measured).
 
 Tie-break: among equally fresh neighbours the smallest node index is adopted.
 """
