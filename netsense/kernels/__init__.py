@@ -11,6 +11,7 @@ this code, so it sits below every other layer.
 May import: numpy, numba. Nothing else from netsense.
 """
 
+from netsense.kernels import notice as _notice
 from netsense.kernels.rules import OMEGA
 from netsense.kernels.update import (
     StepBuffers,
@@ -32,3 +33,5 @@ __all__ = [
     "freshness_choice", "gather_substates", "innovation_correction", "propagate",
     "slot_messages", "uniform_mix", "usable_slots",
 ]
+
+_notice.install()  # one line on stderr when numba starts compiling netsense's code
