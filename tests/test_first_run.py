@@ -104,3 +104,16 @@ def test_after_warmup_a_new_process_compiles_nothing(tmp_path):
         tmp_path)
     assert _compiled(res) == [], res.stdout
     assert NOTICE not in res.stderr
+
+
+def test_bench_first_run_smoke(tmp_path):
+    sys.path.insert(0, str(ROOT / "tests"))
+    from experiment_loader import load_experiment
+
+    mod = load_experiment("bench_first_run")
+    assert mod.main(["--smoke", "--out", str(tmp_path), "--no-progress"]) == 0
+    rows = (tmp_path / "bench_first_run_smoke.csv").read_text().splitlines()
+    assert rows[0].startswith("case,scenario,cache") and len(rows) == 5
+    cold, warm = rows[3].split(","), rows[4].split(",")
+    assert cold[2] == "cold" and int(cold[-1]) > 0  # a fresh cache compiles
+    assert warm[2] == "warm" and int(warm[-1]) == 0  # the second process loads it all
