@@ -112,7 +112,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     parser.add_argument("--repeats", type=int, default=3,
-                        help="fresh processes per import timing (median)")
+                        help="fresh processes per import timing (median) and fresh caches "
+                             "per first-step case (the fastest; netsense warmup runs once)")
     parser.add_argument("--no-warmup", action="store_true", help="skip timing netsense warmup")
     parser.add_argument("--smoke", action="store_true", help="tiny run (tests)")
     parser.add_argument("--out", type=Path, default=RESULTS)
@@ -136,12 +137,17 @@ def main(argv=None) -> int:
         shared = Path(tmp) / "shared"  # the import timings: a warm cache is irrelevant
         for case, sid, cache in tqdm(jobs, desc="first run", disable=args.no_progress):
             if case in ("import", "import+make"):
-                runs = [child(case, shared) for _ in range(args.repeats)]
-                row = {"compiled": 0, "total_s": statistics.median(r["total_s"] for r in runs)}
-            else:
-                # cold: a cache of its own; warm: the same cache, second process
-                row = child(case, Path(tmp) / f"{case}-{sid}", sid)
-            rows.append({"case": case, "scenario": sid, "cache": cache, **row})
+                got = [child(case, shared) for _ in range(args.repeats)]
+                rows.append({"case": case, "scenario": sid, "cache": cache, "compiled": 0,
+                             "total_s": statistics.median(r["total_s"] for r in got)})
+                continue
+            # repeat r: cold in a cache of its own (tmp/case-sid-r), then warm on the same
+            # cache in a second process; the row is the repeat with the shortest total
+            # (the machine is shared: the minimum is the least disturbed run)
+            reps = 1 if case == "warmup" else args.repeats
+            got = [child(case, Path(tmp) / f"{case}-{sid}-{r}", sid) for r in range(reps)]
+            rows.append({"case": case, "scenario": sid, "cache": cache,
+                         **min(got, key=lambda r: r["total_s"])})
     args.out.mkdir(parents=True, exist_ok=True)
     stem = "bench_first_run_smoke" if args.smoke else "bench_first_run"
     csv_path = args.out / f"{stem}.csv"
@@ -185,7 +191,8 @@ def plot(rows: list[dict], path: Path) -> None:
                     "BatchedEnv snippet" if c == "batched_snippet" else s) for c, s in labels],
                   rotation=15, fontsize=8)
     ax.set_ylabel("seconds, fresh process (incl. import)")
-    ax.set_title("Time to the first step", fontsize=10)
+    ax.set_title("Time to the first step (snippet: all 30 steps; warmup: whole run)",
+                 fontsize=10)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

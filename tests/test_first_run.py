@@ -117,3 +117,33 @@ def test_bench_first_run_smoke(tmp_path):
     cold, warm = rows[3].split(","), rows[4].split(",")
     assert cold[2] == "cold" and int(cold[-1]) > 0  # a fresh cache compiles
     assert warm[2] == "warm" and int(warm[-1]) == 0  # the second process loads it all
+
+
+def test_each_driver_build_compiles_for_one_signature():
+    """Single envs and batches whose members drift apart (restarts mid-episode) call every
+    driver with one set of argument types per build: an array that arrives sometimes
+    C-contiguous and sometimes strided would compile a build twice (seconds each)."""
+    res = _python(
+        "import json\n"
+        "from netsense.env.policies import make_policy\n"
+        "from netsense.env.registry import make\n"
+        "from netsense.env.vector import BatchedEnv\n"
+        "from netsense.env.warmup import compiled_drivers\n"
+        "for sid in ('fig1_scalar-v0', 'link_failures-v0', 'fault_sensor_outage-v0',\n"
+        "            'large_n20_N100-v2'):\n"
+        "    env = make(sid)\n"
+        "    policy = make_policy('freshness', env)\n"
+        "    obs, infos = env.reset(seed=0)\n"
+        "    for _ in range(3):\n"
+        "        obs, r, te, tr, infos = env.step(policy.act_dict(env, obs, infos))\n"
+        "    env = BatchedEnv(sid, num_envs=64)\n"
+        "    policy = make_policy('freshness', env.core)\n"
+        "    obs, info = env.reset(seed=0)\n"
+        "    for k in range(6):\n"
+        "        if k == 3:\n"
+        "            obs, info = env.reset_at(list(range(32)))\n"
+        "        obs, r, te, tr, info = env.step(policy.act(obs, info['action_mask']))\n"
+        "print(json.dumps({name: [len(drv.serial.signatures), len(drv.parallel.signatures)]\n"
+        "                  for name, drv in compiled_drivers()}))\n")
+    counts = json.loads(res.stdout.strip().splitlines()[-1])
+    assert counts and all(max(c) <= 1 for c in counts.values()), counts
