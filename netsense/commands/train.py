@@ -30,10 +30,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--algo", choices=ALGOS, default=None,
                         help="maskable_ppo (sb3) or mappo / ippo (torchrl; default mappo)")
     parser.add_argument("--steps", type=positive_int, default=50_000,
-                        help="total agent-steps of experience (default: 50000)")
-    parser.add_argument("--out", required=True, help="output directory")
+                        help="agent-steps of experience, rounded up to whole PPO rollouts "
+                             "(default: 50000)")
+    parser.add_argument("--out", default=None,
+                        help="output directory (default: runs/SCENARIO, the path "
+                             "`netsense benchmark --policies learned:runs/{scenario}/policy.zip` "
+                             "reads)")
     parser.add_argument("--seed", type=nonnegative_int, default=0, help="seed (default: 0)")
-    parser.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None, metavar="SEED",
+    parser.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None,
+                        metavar="SEED",
                         help="torchrl: train one run per seed into OUT/seed_<s> (default: "
                              "--seed)")
     parser.add_argument("--num-envs", type=positive_int, default=4,
@@ -102,10 +107,12 @@ def run(args: argparse.Namespace) -> int:
                       batch_size=args.batch_size, learning_rate=args.lr, gamma=args.gamma,
                       ent_coef=args.ent_coef, overrides=parse_overrides(args.override))
     refs = baseline_returns(cfg, ("freshness", "uniform_consensus"))
-    res = train(cfg, args.out, progress=not args.no_progress, baselines=refs)
+    out = args.out if args.out is not None else f"runs/{args.scenario}"
+    res = train(cfg, out, progress=not args.no_progress, baselines=refs)
     last = res.curve[-1]["mean_episode_reward"] if res.curve else float("nan")
-    print(f"trained {args.algo} on {args.scenario} for {args.steps} agent-steps in "
-          f"{res.wall_s:.1f} s; final mean episode return {last:.4g}; "
+    asked = "" if res.agent_steps == args.steps else f" ({args.steps} asked, whole rollouts)"
+    print(f"trained {args.algo} on {args.scenario} for {res.agent_steps} agent-steps{asked} "
+          f"in {res.wall_s:.1f} s; final mean episode return {last:.4g}; "
           f"masked actions taken: {res.mask_violations}/{res.actions_checked}")
     print(f"wrote {res.policy_path}, {res.curve_csv}, {res.curve_png}")
     return 0
@@ -120,7 +127,7 @@ def _run_torchrl(args: argparse.Namespace) -> int:
     if algo == "maskable_ppo":
         raise ValueError("--algo maskable_ppo needs --backend sb3")
     seeds = args.seeds if args.seeds else [args.seed]
-    out = Path(args.out)
+    out = Path(args.out if args.out is not None else f"runs/{args.scenario}")
     summary = []
     for seed in seeds:
         cfg = PPOConfig(scenario=args.scenario, algo=algo, network=args.network,

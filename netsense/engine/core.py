@@ -461,8 +461,11 @@ class BatchedCore:
             self.comm.fuse(self.reported_indices(), self.nbr, self.msg, self.k)
         if self._meas_always:
             self.y_arrived = self._ones_BN
-        elif self.ptr.min() == self.ptr.max():  # all members at one chunk position: a view
-            self.y_arrived = self.buf_meas[:, int(self.ptr[0])]
+        elif self.ptr.min() == self.ptr.max():  # all members at one chunk position:
+            # C-contiguous, as the gather below gives (B * N bools), so that the compiled
+            # passes that read it are compiled for one layout only (a strided view made the
+            # threaded update and observation compile twice: +10 s cold)
+            self.y_arrived = np.ascontiguousarray(self.buf_meas[:, int(self.ptr[0])])
         else:
             self.y_arrived = self.buf_meas[self._bidx, self.ptr]
         self._mask = None

@@ -28,8 +28,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.optimize import linprog
 
 from netsense.sensing.delays import DelayLanguage, EventLanguage, PrefixTree, event_string
 
@@ -210,6 +208,8 @@ class LPTemplate:
 
     def at(self, mu1: float):
         """``(c, A_ub, b_ub, A_eq, b_eq, bounds)`` for ``scipy.optimize.linprog`` at ``mu1``."""
+        import scipy.sparse as sp  # scipy's solvers load on first use
+
         r, c, v, scaled = self.ub
         A_ub = sp.csr_matrix((np.where(scaled, v * mu1, v), (r, c)),
                              shape=(len(self.b_ub[0]), self.n_var))
@@ -426,6 +426,8 @@ def solve_fixed(problem: EqualizedProblem, mu1: float, *, template: LPTemplate |
     """
     if not np.isfinite(mu1) or mu1 < 0:
         raise ValueError(f"mu1 must be a finite number >= 0, got {mu1!r}")
+    from scipy.optimize import linprog
+
     tpl = template or build_lp(problem)
     c, A_ub, b_ub, A_eq, b_eq, bounds = tpl.at(mu1)
     t0 = time.perf_counter()

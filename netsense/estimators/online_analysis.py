@@ -27,7 +27,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from netsense.estimators.online import lambda_matrix
 
@@ -271,6 +270,8 @@ def gamma_star_bounded(c: float, lam_bar: float, Dx: float, Dn: float) -> float:
 
 def gamma_star_numeric(H, lo: float = 1e-4, hi: float = 1e3) -> float:
     """Minimise a bound ``H(gamma)`` over ``[lo, hi]`` (log-scale golden search)."""
+    from scipy.optimize import minimize_scalar
+
     res = minimize_scalar(lambda s: float(H(np.exp(s))), bounds=(np.log(lo), np.log(hi)),
                           method="bounded", options={"xatol": 1e-8})
     return float(np.exp(res.x))

@@ -16,11 +16,11 @@ tests it on a finite sequence and :func:`smallest_period` finds the smallest suc
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import networkx as nx
 import numpy as np
 from numba import prange
 from numba.np.random.generator_core import next_double
@@ -28,12 +28,16 @@ from numba.np.random.generator_core import next_double
 from netsense.kernels import checks
 from netsense.kernels.jit import NO_STREAMS, Driver, bit_generator, bit_streams
 
+if TYPE_CHECKING:
+    import networkx as nx
+
 
 # ----------------------------------------------------------------------------- helpers
 def as_adjacency(graph, num_nodes: int | None = None) -> np.ndarray:
     """Convert an edge list ``[(l, i), ...]`` (``l -> i``), a networkx DiGraph or an
     adjacency array into the ``(N, N)`` boolean in-neighbour adjacency."""
-    if isinstance(graph, nx.DiGraph):
+    nx = sys.modules.get("networkx")  # a DiGraph exists only once networkx is imported
+    if nx is not None and isinstance(graph, nx.DiGraph):
         N = graph.number_of_nodes() if num_nodes is None else num_nodes
         adj = np.zeros((N, N), dtype=bool)
         for l, i in graph.edges():
@@ -61,6 +65,8 @@ def as_adjacency(graph, num_nodes: int | None = None) -> np.ndarray:
 
 def to_networkx(adj: np.ndarray) -> nx.DiGraph:
     """DiGraph with an edge ``l -> i`` for every ``adj[i, l]``."""
+    import networkx as nx  # imported on first use (import netsense stays light)
+
     g = nx.DiGraph()
     g.add_nodes_from(range(adj.shape[0]))
     i, l = np.nonzero(adj)
@@ -70,6 +76,8 @@ def to_networkx(adj: np.ndarray) -> nx.DiGraph:
 
 def is_strongly_connected(adj: np.ndarray) -> bool:
     """Whether the directed graph ``adj`` is strongly connected (networkx)."""
+    import networkx as nx
+
     return bool(nx.is_strongly_connected(to_networkx(adj)))
 
 
@@ -428,7 +436,8 @@ class MarkovLinkFailures(GraphProcess):
                                      f"got {np.shape(st)}")
         if out is not None:
             _check_slot_out(out, (M, K, N, max_degree))
-        up = held[:, ei, el] if M else np.zeros((0, E), bool)
+        # C order (numpy lays the advanced-index result out as F): one compiled layout
+        up = np.ascontiguousarray(held[:, ei, el]) if M else np.zeros((0, E), bool)
         # draws = "base" slot tables: each run's uniforms are drawn inside the compiled
         # pass, from its own generator through numpy's next_double (the same stream as
         # rng.random), so no (M, K, E) array of uniforms is built

@@ -18,6 +18,7 @@ that guarantee their arrays (the batched core calls ``update._apply_actions`` an
 May import: numpy, numba. Nothing else from netsense.
 """
 
+from netsense.kernels import notice as _notice
 from netsense.kernels.rules import OMEGA
 from netsense.kernels.update import (
     StepBuffers,
@@ -40,3 +41,5 @@ __all__ = [
     "freshness_choice", "gather_substates", "innovation_correction", "propagate",
     "slot_messages", "substate_messages", "uniform_mix", "usable_slots",
 ]
+
+_notice.install()  # one line on stderr when numba starts compiling netsense's code

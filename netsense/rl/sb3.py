@@ -242,6 +242,9 @@ class TrainResult:
         Training wall time in seconds.
     mask_violations, actions_checked : int
         Actions taken during training that broke their mask (must be 0), out of all.
+    agent_steps : int
+        Agent-steps actually trained: ``config.steps`` rounded up to whole rollouts of
+        ``n_steps`` x vector slots (SB3 never stops inside a rollout).
     """
 
     policy_path: Path
@@ -251,6 +254,7 @@ class TrainResult:
     wall_s: float
     mask_violations: int
     actions_checked: int
+    agent_steps: int = 0
 
 
 def _callback(total: int, progress: bool):
@@ -335,7 +339,8 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
                         gamma=config.gamma, gae_lambda=config.gae_lambda,
                         ent_coef=config.ent_coef, seed=config.seed, device="cpu",
                         policy_kwargs={"net_arch": list(config.net_arch)}, verbose=verbose)
-    cb = _callback(config.steps, progress)
+    rollout = config.n_steps * env.num_envs  # SB3 trains whole rollouts: the real total
+    cb = _callback(-(-config.steps // rollout) * rollout, progress)
     t0 = time.perf_counter()
     model.learn(total_timesteps=config.steps, callback=cb)
     wall = time.perf_counter() - t0
@@ -352,11 +357,12 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
     refs = dict(baselines or {})
     curve_png = _plot_curve(cb.rows, out / "training_curve.png", config.scenario, refs)
     meta = {**asdict(config), "algo": "maskable_ppo", "wall_s": round(wall, 2),
+            "agent_steps": int(model.num_timesteps),
             "mask_violations": masks.mask_violations, "actions_checked": masks.actions_checked,
             "baseline_returns": refs}
     (out / "train_config.json").write_text(json.dumps(meta, indent=2, default=list) + "\n")
     return TrainResult(policy_path, curve_csv, curve_png, cb.rows, wall,
-                       masks.mask_violations, masks.actions_checked)
+                       masks.mask_violations, masks.actions_checked, int(model.num_timesteps))
 
 
 def _plot_curve(rows: list[dict], path: Path, title: str,

@@ -16,7 +16,7 @@ contender alike; compare the *ratios*):
     core's arrays from the caches and its threads fall asleep, so this figure is lower
     and noisier; it is reported for transparency, the ratios use ``core``.
 ``kernel``
-    The bare numpy update on the same arrays — the roofline of issue 8: gather of the
+    The bare numpy update on the same arrays — the roofline: gather of the
     chosen agents' estimates (one flat ``np.take``) and the batched block-triangular
     multiply (two BLAS products), nothing else; written in plain numpy
     (:mod:`netsense.speed.runners`).
@@ -27,7 +27,7 @@ contender alike; compare the *ratios*):
     never shares a process with the core.
 
 Rates are agent-steps/s ``= B N / (time of one step)``; each figure is the best of
-``repeats`` blocks of ``steps`` steps. Targets (issue 8): core >= 10x VMAS at
+``repeats`` blocks of ``steps`` steps. Targets: core >= 10x VMAS at
 ``B = 1024, N = 10`` and core >= 0.5x the kernel at every shape.
 
 Modules: :mod:`~netsense.speed.runners` (the benchmark model and the timed contenders),

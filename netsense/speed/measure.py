@@ -25,7 +25,7 @@ from netsense.speed.runners import (
     vmas_available,
 )
 
-#: ``(B, N, n)`` of issue 8, item 4.
+#: ``(B, N, n)`` of the speed table (README, batched section).
 SHAPES: tuple[tuple[int, int, int], ...] = ((1024, 10, 10), (1024, 30, 20), (64, 100, 20))
 
 

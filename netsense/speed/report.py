@@ -1,5 +1,5 @@
 """What ``netsense bench batched`` prints and writes: the speed table, the verdicts on
-the targets of issue 8, CSV files, and the command itself (the :mod:`netsense.cli`
+the speed targets, CSV files, and the command itself (the :mod:`netsense.cli`
 contract: :data:`HELP`, :func:`add_arguments`, :func:`run`; :func:`main` standalone).
 """
 
@@ -27,7 +27,7 @@ def source_revision(path: str = ".") -> str:
         return "?"
 
 
-#: Targets of issue 8.
+#: Speed targets: the core >= 10x VMAS at (1024, 10, 10), >= 0.5x the bare kernel.
 TARGET_VS_VMAS = 10.0
 TARGET_VS_KERNEL = 0.5
 
@@ -67,13 +67,13 @@ def verdicts(rows: Sequence[dict]) -> list[str]:
 
 #: One-line help of ``netsense bench batched``.
 HELP = ("Agent-steps/s of the batched core vs the bare update kernel and VMAS simple_spread "
-        "(issue 8 targets), optional profile and memory.")
+        "(targets: >= 10x VMAS, >= 0.5x the kernel), optional profile and memory.")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Options of ``netsense bench batched`` (the :mod:`netsense.cli` contract)."""
     p.add_argument("--shapes", nargs="+", default=[",".join(map(str, s)) for s in SHAPES],
-                   metavar="B,N,n", help="shapes (default: the three of issue 8)")
+                   metavar="B,N,n", help="shapes (default: 1024,10,10 1024,30,20 64,100,20)")
     p.add_argument("--steps", type=int, default=64, help="steps per timed block")
     p.add_argument("--repeats", type=int, default=3, help="blocks per contender (best)")
     p.add_argument("--no-vmas", action="store_true", help="skip VMAS")

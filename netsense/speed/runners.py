@@ -108,7 +108,7 @@ class _ReplayRunner:
 class _KernelRunner:
     """The bare numpy update: gather of chosen estimates + block-triangular multiply.
 
-    Written here in plain numpy (the roofline of issue 8), not with the package's compiled
+    Written here in plain numpy (the roofline), not with the package's compiled
     kernels: one flat ``np.take`` for ``Z[b, src[b, i, block_of[c]], c]`` and the two
     matrix products ``Z_sel A_diag^T + Z A_lower^T`` (BLAS, with its own threads).
     """
