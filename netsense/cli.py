@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
@@ -44,6 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="netsense",
         description="Networked state estimation: distributed observers, environments, benchmarks.",
     )
+    parser.add_argument("--debug", action="store_true",
+                        help="on an error, show the full traceback instead of one line")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(_commands.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
@@ -64,8 +67,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
+    except BrokenPipeError:  # `netsense list | head`: the reader left; say nothing more
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
     except USER_ERRORS as exc:
-        print(f"netsense {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        if args.debug:
+            raise
+        print(f"netsense {args.command}: error: {_one_line(exc)} (--debug for the traceback)",
+              file=sys.stderr)
         return 2
     except SystemExit as exc:  # a command's own "raise SystemExit('message')"
         if isinstance(exc.code, str):
