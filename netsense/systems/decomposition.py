@@ -47,8 +47,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
-import scipy.sparse as sps
-import scipy.sparse.linalg as spsla
 
 from netsense.kernels import checks
 
@@ -325,6 +323,7 @@ def _newton_system(A_full, C_full, block_of, scale_A, scale_C):
     :func:`~netsense.systems.random_structured` every block has one at the spectral
     radius) the entry between them can only be zeroed through the others.
     """
+    import scipy.sparse as sps  # lazy: the make path must not import scipy.sparse
     n = A_full.shape[0]
     a, b = np.nonzero(block_of[:, None] > block_of[None, :])
     m = a.size
@@ -415,6 +414,8 @@ def _pairwise_guess(A_full, C_full, block_of, scale_A, scale_C) -> np.ndarray:
 
 def _newton_correction(A_full, C_full, block_of, scale_A, scale_C) -> np.ndarray:
     """Skew ``S`` of the least-squares Newton step (see :func:`_newton_system`)."""
+    import scipy.sparse as sps
+    import scipy.sparse.linalg as spsla
     n = A_full.shape[0]
     J, r, a, b = _newton_system(A_full, C_full, block_of, scale_A, scale_C)
     if J.shape[1] <= _DENSE_MAX:
