@@ -71,19 +71,22 @@ class Driver:
     """A driver compiled twice from one source: ``serial`` and ``parallel``.
 
     ``min_runs``: fewest members (the ``prange`` axis) for which the threaded build is
-    worth it whatever the work, for drivers whose threaded build is erratic on few long
-    members (measured for the Markov slot pass, :data:`netsense.graphs.MARKOV_THREADED_RUNS`).
+    worth it whatever the work (at least 2: one member never runs threaded), higher for
+    drivers whose threaded build is erratic on few long members (measured for the Markov
+    slot pass, :data:`netsense.graphs.MARKOV_THREADED_RUNS`).
     """
 
-    def __init__(self, fn, *, min_runs: int = 1) -> None:
+    def __init__(self, fn, *, min_runs: int = 2) -> None:
         self.serial = njit(cache=True, _nrt=False)(_renamed(fn, "serial"))
         self.parallel = njit(cache=True, parallel=True, _nrt=False)(_renamed(fn, "parallel"))
-        self.min_runs = int(min_runs)
+        self.min_runs = max(2, int(min_runs))
 
-    def at(self, work: int, runs: int | None = None):
+    def at(self, work: int, *, runs: int):
         """The build for a call that touches ``work`` array elements over ``runs``
-        members (the threaded one holds a process-wide lock while it runs)."""
-        if work < PARALLEL_WORK or (runs is not None and runs < self.min_runs):
+        members (the ``prange`` axis; the threaded build holds a process-wide lock
+        while it runs). Fewer than two members (a single environment) always run
+        serially."""
+        if runs < self.min_runs or work < PARALLEL_WORK:
             return self.serial
         return self._threaded
 

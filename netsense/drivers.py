@@ -3,7 +3,7 @@
 Every driver is a :class:`netsense.compiled.Driver` (a serial and a threaded build of one
 source, without reference counting); its caller (the wrappers in :mod:`netsense.kernels`
 and :mod:`netsense.observation`, or :class:`netsense.envcore.BatchedCore`) allocates the
-outputs and scratch rows and picks the build with ``Driver.at(work)``. ``apply_all`` is
+outputs and scratch rows and picks the build with ``Driver.at(work, runs=B)``. ``apply_all`` is
 the environment's update in one pass (plant, validation, indices, estimates, errors; see
 :func:`netsense.kernels.apply_actions`); ``load_all`` loads a step's slots, outputs and
 messages. The rest of a step is :func:`netsense.rewards.finish_step` and

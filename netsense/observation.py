@@ -44,11 +44,11 @@ def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
     """
     out = np.empty(nbr.shape, dtype=bool)
     if link is None:
-        drivers.messages_all.at(out.size)(nbr, transmit, np.ones((1, 1, 1, 1), bool), False,
-                                          out)
+        drivers.messages_all.at(out.size, runs=out.shape[0])(
+            nbr, transmit, np.ones((1, 1, 1, 1), bool), False, out)
     else:
-        drivers.messages_all.at(out.size)(nbr, transmit, np.asarray(link, bool)[:, None],
-                                          True, out)
+        drivers.messages_all.at(out.size, runs=out.shape[0])(
+            nbr, transmit, np.asarray(link, bool)[:, None], True, out)
     return out
 
 
@@ -130,7 +130,7 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
             work.table_own is not None and np.array_equal(work.table_own, own)):
         _mask_table(work.mask_table, own, M, D, work.slots)
         work.table_own = own.copy()
-    _fill.at(size)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
+    _fill.at(size, runs=B)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
                    bool(exact_f32), bool(observations), bool(masks), own, work.om,
                    work.age, work.own_rows, work.zz, work.mask_table)
 

@@ -129,12 +129,14 @@ def test_driver_threads_only_from_its_work_and_member_thresholds():
 
     d = compiled.Driver(lambda x: None, min_runs=4)
     big = compiled.PARALLEL_WORK
-    assert d.at(big - 1) is d.serial
+    assert d.at(big - 1, runs=4) is d.serial
     assert d.at(big, runs=3) is d.serial  # enough work, too few members
     assert d.at(big, runs=4) == d._threaded
-    assert d.at(big) == d._threaded  # no member count given: the work decides
-    e = compiled.Driver(lambda x: None)  # default: one member is enough
-    assert e.at(big, runs=1) == e._threaded
+    e = compiled.Driver(lambda x: None)  # default: two members, never one
+    assert e.at(1 << 40, runs=1) is e.serial
+    assert e.at(big, runs=2) == e._threaded
+    with pytest.raises(TypeError):
+        e.at(big)  # every call site says how many members it runs
     # the Markov slot pass: serial below its member threshold at any work
     assert _markov_slots.at(1 << 40, runs=MARKOV_THREADED_RUNS - 1) is _markov_slots.serial
     assert _markov_slots.at(1 << 40, runs=MARKOV_THREADED_RUNS) == _markov_slots._threaded
