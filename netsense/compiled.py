@@ -44,8 +44,12 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import os
+import stat
+import tempfile
 import threading
 import types
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -53,18 +57,100 @@ import numpy as np
 from numba import njit
 from numba import types as nbtypes
 from numba.core import cgutils
+from numba.core import config as numba_config
 from numba.core.extending import intrinsic
 from numba.np.random import generator_core  # noqa: F401  (numba's bit-generator model)
 
 #: Work (array elements touched) from which a call runs on numba's thread pool.
 PARALLEL_WORK = 1 << 16
 
-__all__ = ["NO_STREAMS", "PARALLEL_WORK", "Driver", "bit_generator", "bit_streams"]
+__all__ = ["NO_STREAMS", "PARALLEL_WORK", "CacheWarning", "Driver", "bit_generator",
+           "bit_streams", "njit_cached"]
 
 # numba's workqueue threading layer (a choice for busy machines, see the module docstring)
 # refuses concurrent parallel calls from several Python threads (it aborts the process);
 # netsense's threaded drivers therefore run one at a time, whatever the layer.
 _PARALLEL_LOCK = threading.Lock()
+
+
+# ----------------------------------------------------------------------------- disk cache
+class CacheWarning(RuntimeWarning):
+    """numba cannot write its cache where it looks (next to the package, ``NUMBA_CACHE_DIR``,
+    the user's cache directory): netsense caches its compiled code in a private temporary
+    directory instead, or compiles it in every process. Issued once per process."""
+
+
+_FALLBACK: dict[str, str | None] = {}  # "dir": the fallback cache directory, once chosen
+
+
+def njit_cached(**options):
+    """``numba.njit(cache=True, **options)`` that works where no cache can be written.
+
+    numba picks a cache directory when it decorates a function and raises ``RuntimeError:
+    cannot cache function ...: no locator available`` when none of its places is writable
+    (a package installed read-only, run by a user without a writable home). Then the
+    function is cached in :func:`_fallback_cache_dir` (a private directory under the
+    system's temporary directory) and, if even that fails, compiled without a cache; the
+    first such fallback issues one :class:`CacheWarning` for the whole package. Setting
+    ``NUMBA_CACHE_DIR`` to a writable directory avoids both.
+    """
+    def decorate(fn):
+        try:
+            return njit(cache=True, **options)(fn)
+        except RuntimeError as exc:
+            if "no locator available" not in str(exc):
+                raise
+        if "dir" not in _FALLBACK:
+            _FALLBACK["dir"] = where = _fallback_cache_dir()
+            warnings.warn(
+                f"netsense: numba cannot write its cache next to the package "
+                f"({Path(__file__).parent}), in NUMBA_CACHE_DIR or in the user's cache "
+                f"directory; "
+                + (f"compiled code is cached in {where} instead" if where else
+                   "compiled code is not cached (every process compiles it again)")
+                + ". Set NUMBA_CACHE_DIR to a writable directory to choose the place.",
+                CacheWarning, stacklevel=2)
+        where = _FALLBACK["dir"]
+        if where is not None:
+            # numba reads its cache directory when it decorates (the path is kept by the
+            # function's cache): point it at the fallback for this decoration only
+            before = numba_config.CACHE_DIR
+            numba_config.CACHE_DIR = where
+            try:
+                return njit(cache=True, **options)(fn)
+            except RuntimeError:  # (not a file on disk, or the directory went away)
+                pass
+            finally:
+                numba_config.CACHE_DIR = before
+        return njit(**options)(fn)
+
+    return decorate
+
+
+def _fallback_cache_dir() -> str | None:
+    """A directory only this user can write, for numba's cache: ``netsense-numba-<uid>``
+    in the system's temporary directory (reused by later processes), else a fresh
+    ``mkdtemp`` one, else None. A shared directory that someone else owns or could write
+    is never used (numba's cache files are loaded as code)."""
+    try:
+        base = tempfile.gettempdir()
+    except (OSError, FileNotFoundError):
+        return None
+    uid = getattr(os, "getuid", lambda: None)()
+    if uid is not None:
+        path = os.path.join(base, f"netsense-numba-{uid}")
+        try:
+            os.makedirs(path, mode=0o700, exist_ok=True)
+            st = os.lstat(path)
+            if (stat.S_ISDIR(st.st_mode) and st.st_uid == uid and not st.st_mode & 0o077
+                    and os.access(path, os.W_OK | os.X_OK)):
+                return path
+        except OSError:
+            pass
+    try:
+        return tempfile.mkdtemp(prefix="netsense-numba-")
+    except OSError:
+        return None
 
 
 class Driver:
@@ -77,8 +163,8 @@ class Driver:
     """
 
     def __init__(self, fn, *, min_runs: int = 2) -> None:
-        self.serial = njit(cache=True, _nrt=False)(_renamed(fn, "serial"))
-        self.parallel = njit(cache=True, parallel=True, _nrt=False)(_renamed(fn, "parallel"))
+        self.serial = njit_cached(_nrt=False)(_renamed(fn, "serial"))
+        self.parallel = njit_cached(parallel=True, _nrt=False)(_renamed(fn, "parallel"))
         self.min_runs = max(2, int(min_runs))
 
     def at(self, work: int, *, runs: int):
@@ -158,7 +244,7 @@ def _bit_generator(typingctx, fns, state):
     return sig, codegen
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def bit_generator(fns, state):
     """numba's view of one numpy bit generator: ``fns`` and ``state`` from
     :func:`bit_streams`. numba's own draws (``next_double``, ``next_uint64`` of

@@ -13,9 +13,9 @@ messages. The rest of a step is :func:`netsense.rewards.finish_step` and
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
-from netsense.compiled import Driver
+from netsense.compiled import Driver, njit_cached
 from netsense.lanes import square_sums
 from netsense.rules import (
     advance_row,
@@ -142,7 +142,7 @@ def freshness_obs_all(obs, o_om, o_age, o_sarr, o_som, o_sage, keys, act):
             act[b, i, M] = 1
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _start_member(first, b, okb):
     """A member's validation records: none found yet (``first[b] = -1``); keep and
     average always allowed (``okb[0] = okb[D + 1] = True``, see ``check_row``). Set by

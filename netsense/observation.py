@@ -25,10 +25,10 @@ Values (per agent ``i`` of member ``b``; ``H`` the horizon):
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from netsense import drivers
-from netsense.compiled import Driver
+from netsense.compiled import Driver, njit_cached
 from netsense.lanes import copy_span, square_sums
 
 __all__ = ["MASK_TABLE_BYTES", "FillBuffers", "fill", "slot_messages"]
@@ -135,7 +135,7 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
                    work.age, work.own_rows, work.zz, work.mask_table)
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _log1p(x):
     """``log(1 + x)`` for ``x >= 0`` (nan and inf pass through), within a few float64 ulps.
 
@@ -152,7 +152,7 @@ def _log1p(x):
     return np.log(u) * (x / (u - 1.0))
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _finite_or_repair(v):
     if np.isnan(v):
         return 0.0
@@ -227,7 +227,7 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
                 copy_span(o, o_sage + d * M, age_tab[row], 0, M)
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _index_tables(tau_b, H, exact_f32, om_tab, age_tab):
     N, M = tau_b.shape
     H32 = np.float32(H)
@@ -245,7 +245,7 @@ def _index_tables(tau_b, H, exact_f32, om_tab, age_tab):
         age_tab[N, j] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _own_row(m, o, D):
     W = D + 2
     for t in range(m.shape[0]):  # everything allowed, then clear what is not
@@ -255,7 +255,7 @@ def _own_row(m, o, D):
             m[o * W + w] = 0
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _clear_slots(m, msg_row, M, D):
     W = D + 2
     for d in range(D):
@@ -264,7 +264,7 @@ def _clear_slots(m, msg_row, M, D):
                 m[j * W + 1 + d] = 0
 
 
-@njit(cache=True, _nrt=False)
+@njit_cached(_nrt=False)
 def _mask_table(table, own, M, D, slots):
     """``table[i, p]``: agent ``i``'s mask row when slot ``d`` holds a message iff bit
     ``d`` of ``p`` is set (the rule of :func:`_own_row` and :func:`_clear_slots`)."""

@@ -4,6 +4,7 @@ knob, fork-based workers and a package that cannot write numba's cache."""
 from __future__ import annotations
 
 import gc
+import os
 import warnings
 
 import numpy as np
@@ -70,3 +71,121 @@ def test_a_threaded_build_is_counted(monkeypatch):
     tau = np.zeros((64, 4, 4), dtype=np.int64)
     kernels.advance_indices(tau, np.zeros_like(tau))
     assert counts == {f"advance_all_parallel_{compiled.inlined_digest()}": 1}
+
+
+# ----------------------------------------------------------------------------- read-only
+_READ_ONLY_CHILD = """
+import warnings
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    import numpy as np
+    import netsense
+    from netsense.compiled import CacheWarning
+    from netsense.policies import make_policy
+    env = netsense.make("message_cost-v0", horizon=3)
+    pol = make_policy("freshness", env)
+    obs, infos = env.reset(seed=0)
+    while env.agents:
+        obs, rew, *_, infos = env.step(pol.act_dict(env, obs, infos))
+    assert np.isfinite(list(rew.values())).all()
+print("FILE", netsense.__file__)
+print("CACHE_WARNINGS", sum(issubclass(w.category, CacheWarning) for w in caught))
+for w in caught:
+    if issubclass(w.category, CacheWarning):
+        print("MESSAGE", w.message)
+"""
+
+
+def _without_dac_override():
+    """preexec_fn: as root, drop the capabilities that let root write read-only files
+    (from the bounding set, so the child's python never regains them on exec): root then
+    obeys file modes like any user. Other users obey them anyway."""
+    import ctypes
+
+    if os.geteuid() != 0:
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    for cap in (1, 2, 3):  # CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH, CAP_FOWNER
+        if libc.prctl(24, cap, 0, 0, 0) != 0:  # PR_CAPBSET_DROP
+            raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP)")
+
+
+def _can_drop_dac_override() -> bool:
+    import subprocess
+    import sys
+
+    try:
+        out = subprocess.run([sys.executable, "-c", "pass"], preexec_fn=_without_dac_override,
+                             capture_output=True, timeout=60, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return False
+    return out.returncode == 0
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid"), reason="POSIX file modes")
+def test_a_read_only_installed_wheel_imports_and_steps(tmp_path):
+    """The wheel installed read-only, used by someone without a writable home and without
+    NUMBA_CACHE_DIR: numba finds no place for its cache (``cannot cache function
+    'bit_generator': no locator available`` before the fallback). netsense must import,
+    step, and say so in one CacheWarning."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if not _can_drop_dac_override():
+        pytest.skip("root here cannot drop CAP_DAC_OVERRIDE, so cannot see read-only files")
+    root = Path(__file__).resolve().parents[1]
+    src = tmp_path / "src"  # a copy: building writes build/ and *.egg-info next to it
+    src.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(root / name, src / name)
+    shutil.copytree(root / "netsense", src / "netsense",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
+    wheels = tmp_path / "wheels"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+                    "-q", "-w", str(wheels), str(src)], check=True, capture_output=True,
+                   timeout=600)
+    (wheel,) = wheels.glob("netsense-*.whl")
+    site = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target",
+                    str(site), str(wheel)], check=True, capture_output=True, timeout=600)
+    ro = tmp_path / "ro"  # a home that cannot be created, a read-only working directory
+    ro.mkdir()
+    subprocess.run(["chmod", "-R", "a-w", str(site), str(ro)], check=True)
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "PYTHON"))}
+    tmp = tmp_path / "tmp"  # the fallback's temporary directory (not the shared /tmp)
+    tmp.mkdir()
+    env.update(PYTHONPATH=str(site), HOME=str(ro / "nonexistent"), TMPDIR=str(tmp))
+    try:
+        out = subprocess.run([sys.executable, "-c", _READ_ONLY_CHILD], env=env, cwd=ro,
+                             preexec_fn=_without_dac_override, capture_output=True,
+                             text=True, timeout=900, check=False)
+    finally:
+        subprocess.run(["chmod", "-R", "u+w", str(site), str(ro)], check=True)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert f"FILE {site}" in out.stdout  # the installed copy, not the source tree
+    assert "CACHE_WARNINGS 1" in out.stdout, out.stdout
+    assert "NUMBA_CACHE_DIR" in out.stdout and f"cached in {tmp}" in out.stdout, out.stdout
+    assert not any(site.rglob("*.nbi"))  # nothing written into the install
+    assert any((tmp / f"netsense-numba-{os.getuid()}").rglob("*.nbi"))  # cached there
+
+
+def test_functions_numba_cannot_cache_compile_anyway_with_one_warning(tmp_path, monkeypatch):
+    # functions without a source file have no cache place at all: numba raises "no
+    # locator available" at decoration; the fallback compiles them uncached, one warning
+    import tempfile
+
+    monkeypatch.setattr(compiled, "_FALLBACK", {})
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    ns: dict = {}
+    exec(compile("def f(x):\n    return x + 1\n\ndef g(x):\n    return 2 * x\n",
+                 "<no file>", "exec"), ns)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        f = compiled.njit_cached()(ns["f"])
+        g = compiled.njit_cached(inline="always")(ns["g"])
+    assert f(1) == 2 and g(2) == 4
+    assert [w.category for w in caught] == [compiled.CacheWarning]
+    assert compiled._FALLBACK["dir"] == str(tmp_path / f"netsense-numba-{os.getuid()}")
