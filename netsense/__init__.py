@@ -7,9 +7,12 @@ Core entry points (see the README for an example):
 * :class:`FreshnessObserver` / :class:`ConsensusObserver` — the distributed observers;
 * graph processes and the Assumption 1 checker in :mod:`netsense.graphs`;
 * plants in :mod:`netsense.systems`;
-* :func:`make` / :func:`list_scenarios` — the PettingZoo environment's scenario registry.
+* :func:`make` / :func:`list_scenarios` — the PettingZoo environment's scenario registry;
+* :func:`set_num_threads` / :func:`get_num_threads` — threads of batched calls
+  (``docs/threads.md``).
 """
 
+from netsense.compiled import get_num_threads, set_num_threads
 from netsense.decomposition import Decomposition, decompose, is_observable
 from netsense.design import ObserverDesign, deadbeat_gain, design_observer, rate_gain
 from netsense.graphs import (
@@ -35,6 +38,6 @@ __all__ = [
     "Gossip", "GraphProcess", "MarkovLinkFailures", "NoNoise", "ObserverDesign",
     "PeriodicGraphs", "Plant", "RandomJointlyConnected", "UniformNoise",
     "check_joint_connectivity", "deadbeat_gain", "decompose", "design_observer",
-    "fig1_graphs", "fig1_scalar", "is_observable", "list_scenarios", "make",
-    "random_structured", "rate_gain", "smallest_period",
+    "fig1_graphs", "fig1_scalar", "get_num_threads", "is_observable", "list_scenarios",
+    "make", "random_structured", "rate_gain", "set_num_threads", "smallest_period",
 ]

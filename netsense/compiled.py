@@ -53,6 +53,7 @@ import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
+import numba
 import numpy as np
 from numba import njit
 from numba import types as nbtypes
@@ -65,12 +66,87 @@ from numba.np.random import generator_core  # noqa: F401  (numba's bit-generator
 PARALLEL_WORK = 1 << 16
 
 __all__ = ["NO_STREAMS", "PARALLEL_WORK", "CacheWarning", "Driver", "bit_generator",
-           "bit_streams", "njit_cached"]
+           "bit_streams", "get_num_threads", "njit_cached", "set_num_threads"]
 
-# numba's workqueue threading layer (a choice for busy machines, see the module docstring)
-# refuses concurrent parallel calls from several Python threads (it aborts the process);
-# netsense's threaded drivers therefore run one at a time, whatever the layer.
+# numba's workqueue threading layer (fork-safe, see docs/threads.md) refuses concurrent
+# parallel calls from several Python threads (it aborts the process); netsense's threaded
+# drivers therefore run one at a time, whatever the layer.
 _PARALLEL_LOCK = threading.Lock()
+
+
+# ----------------------------------------------------------------------------- threads
+#: Environment variable read at import: the most threads a batched call uses (``0`` or
+#: ``1``: every call serial; default numba's pool, ``NUMBA_NUM_THREADS``).
+NUM_THREADS_ENV = "NETSENSE_NUM_THREADS"
+
+
+def _parse_threads(value, what: str) -> int | None:
+    if value is None:
+        return None
+    try:
+        k = int(value)
+    except (TypeError, ValueError):
+        k = -1
+    if isinstance(value, bool) or k < 0 or (not isinstance(value, str) and k != value):
+        raise ValueError(f"{what} must be an integer >= 0 (0 or 1: serial), got {value!r}")
+    return k
+
+
+_num_threads: int | None = _parse_threads(os.environ.get(NUM_THREADS_ENV), NUM_THREADS_ENV)
+_serial_only = _num_threads is not None and _num_threads < 2  # (read by Driver.at)
+_forked_from_omp = False  # a fork() child of a process whose GNU OpenMP pool had started
+
+
+def set_num_threads(k: int | None) -> None:
+    """Use at most ``k`` threads in netsense's batched calls, process-wide.
+
+    ``0`` or ``1``: every call runs serially; ``None``: numba's thread pool, all of it
+    (``NUMBA_NUM_THREADS``, default one thread per core). More than the pool gives the
+    pool. The environment variable ``NETSENSE_NUM_THREADS`` sets the same at import.
+    A single environment (``B = 1``) runs serially whatever ``k``.
+    """
+    global _num_threads, _serial_only
+    _num_threads = _parse_threads(k, "set_num_threads(k): k")
+    _serial_only = _num_threads is not None and _num_threads < 2
+
+
+def get_num_threads() -> int:
+    """The most threads a batched call uses now (1: serial), see :func:`set_num_threads`;
+    1 in a process forked after its parent had started numba's GNU OpenMP pool."""
+    if _serial_only or _forked_from_omp:
+        return 1
+    pool = int(numba_config.NUMBA_NUM_THREADS)
+    return pool if _num_threads is None else min(_num_threads, pool)
+
+
+def _gnu_omp_started() -> bool:
+    """numba's thread pool runs on GNU OpenMP in this process (which a fork() child must
+    not use: numba terminates the child at its first threaded call)."""
+    from numba.np.ufunc import parallel
+
+    if not getattr(parallel, "_is_initialized", False):
+        return False
+    if getattr(parallel, "_threading_layer", None) != "omp":
+        return False
+    try:
+        from numba.np.ufunc import omppool
+    except ImportError:  # pragma: no cover
+        return False
+    return getattr(omppool, "openmp_vendor", "GNU") == "GNU"
+
+
+def _after_fork_in_child() -> None:
+    """A fork() child runs every call serially if the parent had started GNU OpenMP
+    (bit-identical results; the parent's pool does not exist in the child), and gets a
+    fresh lock (another thread of the parent may have held it at the fork)."""
+    global _forked_from_omp, _PARALLEL_LOCK
+    _PARALLEL_LOCK = threading.Lock()
+    if not _forked_from_omp and _gnu_omp_started():
+        _forked_from_omp = True
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 # ----------------------------------------------------------------------------- disk cache
@@ -172,13 +248,23 @@ class Driver:
         members (the ``prange`` axis; the threaded build holds a process-wide lock
         while it runs). Fewer than two members (a single environment) always run
         serially."""
-        if runs < self.min_runs or work < PARALLEL_WORK:
+        if runs < self.min_runs or work < PARALLEL_WORK or _serial_only or _forked_from_omp:
             return self.serial
         return self._threaded
 
     def _threaded(self, *args):
         with _PARALLEL_LOCK:
-            return self.parallel(*args)
+            k = _num_threads
+            if k is None:
+                return self.parallel(*args)
+            before = numba.get_num_threads()  # (numba's count is per Python thread)
+            if before <= k:
+                return self.parallel(*args)
+            numba.set_num_threads(k)
+            try:
+                return self.parallel(*args)
+            finally:
+                numba.set_num_threads(before)
 
 
 #: Modules whose compiled functions every driver may inline or call: the row functions,

@@ -24,7 +24,7 @@ def _count_threaded_builds(monkeypatch) -> dict[str, int]:
     """Replace the threaded build of every driver of the package by a counting wrapper;
     returns the counts (by driver name), filled as drivers run threaded."""
     counts: dict[str, int] = {}
-    drivers = [o for o in gc.get_objects() if isinstance(o, compiled.Driver)]
+    drivers = [o for o in gc.get_objects() if type(o) is compiled.Driver]  # (no proxies)
     assert len(drivers) > 10  # the package's drivers were found
 
     for d in drivers:
@@ -189,3 +189,114 @@ def test_functions_numba_cannot_cache_compile_anyway_with_one_warning(tmp_path, 
     assert f(1) == 2 and g(2) == 4
     assert [w.category for w in caught] == [compiled.CacheWarning]
     assert compiled._FALLBACK["dir"] == str(tmp_path / f"netsense-numba-{os.getuid()}")
+
+
+# ----------------------------------------------------------------------------- the knob
+def _batch_step(B: int = 64):
+    from netsense.envcore import BatchedCore
+    from netsense.policies import FreshnessPolicy
+    from netsense.speed import bench_model
+
+    core = BatchedCore(bench_model(6, 4, horizon=20), B)
+    pol = FreshnessPolicy(core.layout)
+    obs, mask = core.reset(0)
+    for _ in range(3):
+        out = core.step(pol.act(obs, mask))
+        obs, mask = out.obs, out.action_mask
+    return obs, core.errors.copy()
+
+
+def test_set_num_threads_one_keeps_every_batch_serial(monkeypatch):
+    import numba
+
+    monkeypatch.setattr(compiled, "PARALLEL_WORK", 0)
+    counts = _count_threaded_builds(monkeypatch)
+    before = compiled._num_threads
+    try:
+        compiled.set_num_threads(1)
+        assert compiled.get_num_threads() == 1
+        serial = _batch_step()
+        assert counts == {}
+        compiled.set_num_threads(2)
+        threaded = _batch_step()
+        assert sum(counts.values()) > 0
+        assert numba.get_num_threads() == numba.config.NUMBA_NUM_THREADS  # restored
+        compiled.set_num_threads(10**6)  # more than the pool: the pool
+        assert compiled.get_num_threads() == numba.config.NUMBA_NUM_THREADS
+    finally:
+        compiled.set_num_threads(before)
+    for a, b in zip(serial, threaded, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, "two", True])
+def test_set_num_threads_rejects_what_is_no_thread_count(bad):
+    with pytest.raises(ValueError, match="integer >= 0"):
+        compiled.set_num_threads(bad)
+
+
+def test_the_environment_variable_sets_the_knob():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import netsense, netsense.compiled as c; print(netsense.get_num_threads(), "
+            "c.get_num_threads())")
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root), "NETSENSE_NUM_THREADS": "1"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=root, text=True,
+                         capture_output=True, timeout=600, check=True)
+    assert out.stdout.split() == ["1", "1"]
+    env["NETSENSE_NUM_THREADS"] = "many"
+    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=root, text=True,
+                         capture_output=True, timeout=600, check=False)
+    assert out.returncode != 0 and "NETSENSE_NUM_THREADS must be an integer" in out.stderr
+
+
+# ----------------------------------------------------------------------------- fork
+_FORK_CHILD = """
+import multiprocessing as mp, os, sys
+import numba
+from netsense import compiled
+import tests.test_threads as t
+compiled.PARALLEL_WORK = 0  # every batched call threaded in the parent
+expect = t._batch_step()
+print("LAYER", numba.threading_layer(), flush=True)
+
+def work(_):
+    return compiled.get_num_threads(), t._batch_step()
+
+with mp.get_context("fork").Pool(2) as pool:  # (a killed worker would hang map())
+    got = pool.map_async(work, range(2)).get(timeout=300)
+for threads, arrays in got:
+    for a, b in zip(arrays, expect):
+        assert (a == b).all()
+    print("CHILD_THREADS", threads, flush=True)
+print("OK")
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="fork() only")
+@pytest.mark.parametrize("layer", ["omp", "workqueue"])
+def test_fork_workers_after_threaded_calls_complete(layer):
+    # GNU OpenMP in a fork()ed child: numba terminates the child at its first threaded
+    # call ("fork() called from a process already using GNU OpenMP"). netsense's drivers
+    # run serially there instead (same bits); workqueue is fork-safe and keeps threads.
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one thread: nothing runs threaded")
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root), "NUMBA_THREADING_LAYER": layer}
+    env.pop("NETSENSE_NUM_THREADS", None)
+    out = subprocess.run([sys.executable, "-c", _FORK_CHILD], env=env, cwd=root, text=True,
+                         capture_output=True, timeout=900, check=False)
+    assert out.returncode == 0 and "OK" in out.stdout, out.stdout + out.stderr[-3000:]
+    assert f"LAYER {layer}" in out.stdout
+    threads = {line.split()[1] for line in out.stdout.splitlines()
+               if line.startswith("CHILD_THREADS")}
+    assert threads == ({"1"} if layer == "omp" else {str(numba.config.NUMBA_NUM_THREADS)})
