@@ -3,24 +3,33 @@
 A *driver* loops over batch members (``prange``) and calls the row functions of
 :mod:`netsense.kernels` or :mod:`netsense.observation`. :class:`Driver` compiles it twice
 from the same Python source, once serial and once with ``parallel=True``, and
-:meth:`Driver.at` picks by the size of the call: a single environment (``B = 1``) runs
-serially, where starting threads costs more than it saves; large batches use numba's
-thread pool (``NUMBA_NUM_THREADS``, default one thread per core). Every member is computed
-by the same row functions, independently, so both builds give bit-identical results
+:meth:`Driver.at` picks by the size of the call. Every member is computed by the same row
+functions, independently, so both builds give bit-identical results
 (``tests/test_kernels_compiled.py``).
 
-Threads: numba's threading layer is left as the user configures it
-(``NUMBA_THREADING_LAYER``; numba's default tries TBB, then OpenMP, which is what runs
-here). OpenMP's workers spin after every call: fastest on free cores, but on cores busy
-with other work every threaded call waits for a time slice (see the README's batched
-section for measurements and ``workqueue`` as the remedy). Threaded
-calls are serialised by a lock, so several Python threads may step their own batches under
-any layer.
+Threads (``docs/threads.md``, with the measurements behind each choice), all decided here:
+
+* a call runs threaded only with at least two members (so the single environment,
+  ``B = 1``, never does), at least :data:`PARALLEL_WORK` array elements of work and more
+  than one thread allowed;
+* the thread count: :func:`set_num_threads` / ``NETSENSE_NUM_THREADS`` (0 or 1: serial),
+  at most numba's pool (``NUMBA_NUM_THREADS``, default one per core);
+* OpenMP workers wait passively (``OMP_WAIT_POLICY=passive`` is set at import unless the
+  user set ``OMP_WAIT_POLICY`` or ``GOMP_SPINCOUNT``): spinning workers made every
+  threaded call wait for a time slice whenever another process used a core;
+* numba's threading layer stays the user's choice (``NUMBA_THREADING_LAYER``; numba's
+  default is TBB if installed, else OpenMP);
+* a process forked after its parent started numba's GNU OpenMP pool runs every driver
+  serially (numba would terminate it at its first threaded call);
+* threaded calls are serialised by a lock, so several Python threads may step their own
+  batches under any layer (workqueue aborts on concurrent calls).
 
 Drivers are cached on disk by numba (``cache=True``) under names that end with a digest of
 the modules they inline (:func:`inlined_digest`): numba checks only the defining file's
 timestamp, so an edit of :mod:`netsense.rules` alone would otherwise leave every driver
-running its old machine code.
+running its old machine code. Where numba can write no cache (a read-only install without
+a writable home), :func:`njit_cached` caches in a private temporary directory or compiles
+uncached, with one :class:`CacheWarning`.
 
 Drivers are compiled without numba's reference counting (``_nrt=False``): they allocate
 nothing (outputs and scratch rows come from the Python wrapper), so no array needs a
@@ -62,8 +71,10 @@ from numba.core import config as numba_config
 from numba.core.extending import intrinsic
 from numba.np.random import generator_core  # noqa: F401  (numba's bit-generator model)
 
-#: Work (array elements touched) from which a call runs on numba's thread pool.
-PARALLEL_WORK = 1 << 16
+#: Work (array elements touched) from which a call runs on numba's thread pool. Waking a
+#: passive worker costs ~40-60 us on the 2-vCPU benchmark VM, so a threaded pass pays from
+#: ~150 us of serial work: 0.3-1.2 ns per element for the step's passes (docs/threads.md).
+PARALLEL_WORK = 1 << 18
 
 __all__ = ["NO_STREAMS", "PARALLEL_WORK", "CacheWarning", "Driver", "bit_generator",
            "bit_streams", "get_num_threads", "njit_cached", "set_num_threads"]
@@ -75,6 +86,14 @@ _PARALLEL_LOCK = threading.Lock()
 
 
 # ----------------------------------------------------------------------------- threads
+# OpenMP's workers spin after each threaded call by default: on a core another process
+# uses, every call then waits for the spinning worker's time slice (10-30x slower steps,
+# docs/threads.md). Passive workers sleep at once. libgomp reads this when numba's pool
+# starts (the first threaded call), so setting it here, unless the user chose a policy,
+# is in time; it applies to every OpenMP runtime the process loads later.
+if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
+    os.environ["OMP_WAIT_POLICY"] = "passive"
+
 #: Environment variable read at import: the most threads a batched call uses (``0`` or
 #: ``1``: every call serial; default numba's pool, ``NUMBA_NUM_THREADS``).
 NUM_THREADS_ENV = "NETSENSE_NUM_THREADS"

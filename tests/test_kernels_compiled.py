@@ -451,13 +451,13 @@ def _ring(N, offsets=(1, 2, 5)):
 
 
 def test_compiled_uniform_draws_continue_each_generators_stream():
-    # 256 runs x 12 steps x 27 edges: the threaded build draws
+    # 256 runs x 40 steps x 27 edges: the threaded build draws
     from netsense.compiled import PARALLEL_WORK, bit_streams
     from netsense.graphs import MARKOV_THREADED_RUNS
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
     seeds = list(range(100, 100 + MARKOV_THREADED_RUNS))
-    K, E = 12, int(proc.base.sum())
+    K, E = 40, int(proc.base.sum())
     assert len(seeds) * K * E >= PARALLEL_WORK
     rngs = [np.random.default_rng(s) for s in seeds]
     assert bit_streams(rngs) is not None
@@ -543,12 +543,12 @@ def test_slot_messages_follow_neighbour_transmit_and_link():
 
 
 def test_gaussian_sample_many_continues_each_generators_stream():
-    # 300 runs x (16, 7, 3): the threaded build draws; every value and every generator's
+    # 300 runs x (48, 7, 3): the threaded build draws; every value and every generator's
     # final position must be what numpy's own standard_normal gives run by run
     from netsense.compiled import PARALLEL_WORK
     from netsense.sensing.noise import GaussianNoise
 
-    noise, shape, seeds = GaussianNoise(0.37), (16, 7, 3), range(500, 800)
+    noise, shape, seeds = GaussianNoise(0.37), (48, 7, 3), range(500, 800)
     assert len(seeds) * int(np.prod(shape)) >= PARALLEL_WORK
     rngs = [np.random.default_rng(s) for s in seeds]
     out = np.full((len(seeds), *shape), np.nan)
