@@ -300,3 +300,20 @@ def test_fork_workers_after_threaded_calls_complete(layer):
     threads = {line.split()[1] for line in out.stdout.splitlines()
                if line.startswith("CHILD_THREADS")}
     assert threads == ({"1"} if layer == "omp" else {str(numba.config.NUMBA_NUM_THREADS)})
+
+
+# ----------------------------------------------------------------------------- benchmark
+def test_busy_core_benchmark_smoke(tmp_path):
+    # the plumbing only (processes, busy loops, files); the timing is not asserted
+    import csv
+
+    from tests.experiment_loader import load_experiment
+
+    mod = load_experiment("bench_busy_cores")
+    assert mod.main(["--smoke", "--out", str(tmp_path)]) == 0
+    with (tmp_path / "bench_busy_cores.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert rows and list(rows[0]) == list(mod.COLUMNS)
+    assert {r["condition"] for r in rows} == {"idle", "busy"}
+    assert (tmp_path / "bench_busy_cores.png").stat().st_size > 0
+    assert "busy / idle" in (tmp_path / "bench_busy_cores.txt").read_text()
