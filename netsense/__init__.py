@@ -10,7 +10,9 @@ Core entry points (see the README for an example):
 * :func:`make` / :func:`list_scenarios` — the PettingZoo environment's scenario registry;
 * :class:`BatchedCore` / :class:`BatchedEnv` — ``B`` environments stepped at once;
 * :class:`NumericalError` / :class:`NumericalWarning` — a state or estimate that stopped
-  being finite (``docs/errors.md``: what raises what).
+  being finite (``docs/errors.md``: what raises what);
+* :func:`set_num_threads` / :func:`get_num_threads` — threads of batched calls
+  (``docs/threads.md``).
 
 The package is layered (README, "Architecture"): ``kernels`` < ``sensing`` < ``systems`` <
 ``graphs`` < ``estimators`` < ``observers`` < ``engine`` < ``env`` < the tools. The names
@@ -28,6 +30,8 @@ __version__ = "0.1.0"
 #: Public name -> module that defines it.
 _EXPORTS = {
     "OMEGA": "netsense.kernels.rules",
+    "get_num_threads": "netsense.kernels.jit",
+    "set_num_threads": "netsense.kernels.jit",
     "NumericalError": "netsense.kernels.checks",
     "NumericalWarning": "netsense.kernels.checks",
     "Decomposition": "netsense.systems.decomposition",
@@ -96,6 +100,7 @@ if TYPE_CHECKING:  # static checkers see the eager form
         smallest_period,
     )
     from netsense.kernels.checks import NumericalError, NumericalWarning
+    from netsense.kernels.jit import get_num_threads, set_num_threads
     from netsense.kernels.rules import OMEGA
     from netsense.observers.consensus import ConsensusObserver
     from netsense.observers.freshness import FreshnessObserver

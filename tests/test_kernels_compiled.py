@@ -16,8 +16,8 @@ from netsense.engine import observation
 from netsense.engine.core import BatchedCore
 from netsense.env.registry import build_model, load
 from netsense.graphs.processes import MarkovLinkFailures
-from netsense.kernels import jit as compiled
-from netsense.kernels import update as kernels
+from netsense.kernels.update import jit as compiled
+from netsense.kernels.update import update as kernels
 
 OMEGA = kernels.OMEGA
 
@@ -131,12 +131,14 @@ def test_driver_threads_only_from_its_work_and_member_thresholds():
 
     d = compiled.Driver(lambda x: None, min_runs=4)
     big = compiled.PARALLEL_WORK
-    assert d.at(big - 1) is d.serial
+    assert d.at(big - 1, runs=4) is d.serial
     assert d.at(big, runs=3) is d.serial  # enough work, too few members
     assert d.at(big, runs=4) == d._threaded
-    assert d.at(big) == d._threaded  # no member count given: the work decides
-    e = compiled.Driver(lambda x: None)  # default: one member is enough
-    assert e.at(big, runs=1) == e._threaded
+    e = compiled.Driver(lambda x: None)  # default: two members, never one
+    assert e.at(1 << 40, runs=1) is e.serial
+    assert e.at(big, runs=2) == e._threaded
+    with pytest.raises(TypeError):
+        e.at(big)  # every call site says how many members it runs
     # the Markov slot pass: serial below its member threshold at any work
     assert _markov_slots.at(1 << 40, runs=MARKOV_THREADED_RUNS - 1) is _markov_slots.serial
     assert _markov_slots.at(1 << 40, runs=MARKOV_THREADED_RUNS) == _markov_slots._threaded
@@ -451,13 +453,13 @@ def _ring(N, offsets=(1, 2, 5)):
 
 
 def test_compiled_uniform_draws_continue_each_generators_stream():
-    # 256 runs x 12 steps x 27 edges: the threaded build draws
+    # 256 runs x 40 steps x 27 edges: the threaded build draws
     from netsense.graphs.processes import MARKOV_THREADED_RUNS
     from netsense.kernels.jit import PARALLEL_WORK, bit_streams
 
     proc = MarkovLinkFailures(_ring(9), 0.3, 0.4, draws="base")
     seeds = list(range(100, 100 + MARKOV_THREADED_RUNS))
-    K, E = 12, int(proc.base.sum())
+    K, E = 40, int(proc.base.sum())
     assert len(seeds) * K * E >= PARALLEL_WORK
     rngs = [np.random.default_rng(s) for s in seeds]
     assert bit_streams(rngs) is not None
@@ -502,7 +504,7 @@ def test_threaded_drivers_called_from_several_python_threads_under_workqueue():
     code = """
 import numpy as np, numba
 from concurrent.futures import ThreadPoolExecutor
-from netsense.kernels import jit as compiled
+from netsense.kernels.update import jit as compiled
 import tests.test_kernels_compiled as t
 steps = [t._random_step(40 + k, B=6) for k in range(4)]
 kws = [{"luenberger": (s["y"], s["arrived"], s["C"], s["L"])} for s in steps]
@@ -543,12 +545,12 @@ def test_slot_messages_follow_neighbour_transmit_and_link():
 
 
 def test_gaussian_sample_many_continues_each_generators_stream():
-    # 300 runs x (16, 7, 3): the threaded build draws; every value and every generator's
+    # 300 runs x (48, 7, 3): the threaded build draws; every value and every generator's
     # final position must be what numpy's own standard_normal gives run by run
     from netsense.kernels.jit import PARALLEL_WORK
     from netsense.sensing.noise import GaussianNoise
 
-    noise, shape, seeds = GaussianNoise(0.37), (16, 7, 3), range(500, 800)
+    noise, shape, seeds = GaussianNoise(0.37), (48, 7, 3), range(500, 800)
     assert len(seeds) * int(np.prod(shape)) >= PARALLEL_WORK
     rngs = [np.random.default_rng(s) for s in seeds]
     out = np.full((len(seeds), *shape), np.nan)
@@ -657,7 +659,7 @@ def test_driver_cache_names_follow_the_rules_they_inline():
     import hashlib
     from pathlib import Path
 
-    from netsense.kernels import drivers
+    from netsense.kernels.update import drivers
 
     here = Path(compiled.__file__).parent
     h = hashlib.sha256()

@@ -447,7 +447,7 @@ class BatchedCore:
         y = self._y_load
         v = self.buf_v.reshape(B, self.chunk, N * r) if self._has_mnoise else self._no_v
         link = self._no_link if self._msg_always else self.buf_msg
-        drivers.load_all.at(B * N * (self.D + self.n * r))(
+        drivers.load_all.at(B * N * (self.D + self.n * r), runs=B)(
             self.buf_nbr, self.ptr, self.x, self._C_flat_T, self._has_mnoise, v,
             self.transmit, not self._msg_always, link, self.nbr, y, self.msg)
         self._adjacency = None

@@ -26,9 +26,9 @@ Values (per agent ``i`` of member ``b``; ``H`` the horizon):
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
-from netsense.kernels.jit import Driver
+from netsense.kernels.jit import Driver, njit_cached
 from netsense.kernels.lanes import copy_span, square_sums
 
 __all__ = ["MASK_TABLE_BYTES", "FillBuffers", "fill"]
@@ -118,12 +118,12 @@ def fill(obs: np.ndarray, mask: np.ndarray, starts: np.ndarray, k: np.ndarray,
             work.table_own is not None and np.array_equal(work.table_own, own)):
         _mask_table(work.mask_table, own, M, D, work.slots)
         work.table_own = own.copy()
-    _fill.at(size)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
+    _fill.at(size, runs=B)(obs, mask, starts, k, float(horizon), y, y_arrived, tau, Z, nbr, msg,
                    bool(exact_f32), bool(observations), bool(masks), own, work.om,
                    work.age, work.own_rows, work.zz, work.mask_table)
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _log1p(x):
     """``log(1 + x)`` for ``x >= 0`` (nan and inf pass through), within a few float64 ulps.
 
@@ -140,7 +140,7 @@ def _log1p(x):
     return np.log(u) * (x / (u - 1.0))
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _finite_or_repair(v):
     if np.isnan(v):
         return 0.0
@@ -215,7 +215,7 @@ def _fill(obs, mask, starts, k, H, y, y_arrived, tau, Z, nbr, msg, exact_f32, do
                 copy_span(o, o_sage + d * M, age_tab[row], 0, M)
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _index_tables(tau_b, H, exact_f32, om_tab, age_tab):
     N, M = tau_b.shape
     H32 = np.float32(H)
@@ -233,7 +233,7 @@ def _index_tables(tau_b, H, exact_f32, om_tab, age_tab):
         age_tab[N, j] = 0.0
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _own_row(m, o, D):
     W = D + 2
     for t in range(m.shape[0]):  # everything allowed, then clear what is not
@@ -243,7 +243,7 @@ def _own_row(m, o, D):
             m[o * W + w] = 0
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _clear_slots(m, msg_row, M, D):
     W = D + 2
     for d in range(D):
@@ -252,7 +252,7 @@ def _clear_slots(m, msg_row, M, D):
                 m[j * W + 1 + d] = 0
 
 
-@njit(cache=True, _nrt=False)
+@njit_cached(_nrt=False)
 def _mask_table(table, own, M, D, slots):
     """``table[i, p]``: agent ``i``'s mask row when slot ``d`` holds a message iff bit
     ``d`` of ``p`` is set (the rule of :func:`_own_row` and :func:`_clear_slots`)."""

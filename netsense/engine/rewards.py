@@ -109,7 +109,7 @@ def finish_step(x: np.ndarray, err: np.ndarray, act: np.ndarray, M: int,
     has_sil = silenced is not None
     sil = np.asarray(silenced, bool) if has_sil else np.zeros((1, 1), bool)
     has_lim = divergence_limit is not None
-    _finish.at(x.size + err.size * (5 + act.shape[2]))(  # elements read and written
+    _finish.at(x.size + err.size * (5 + act.shape[2]), runs=x.shape[0])(  # elements r/w
         x, err, act, M, sil, has_sil, alive, float(reward.error_floor),
         float(reward.error_clip), float(reward.team_weight), float(reward.error_weight),
         float(reward.message_cost), float(divergence_limit) if has_lim else 0.0, has_lim,

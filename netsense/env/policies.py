@@ -94,7 +94,7 @@ class FreshnessPolicy(Policy):
                              f"got {obs.dtype} {obs.shape}")
         B, N = obs.shape[:2]
         out = np.empty((B, N, M + 1), dtype=np.int64)
-        drivers.freshness_obs_all.at(obs.size)(
+        drivers.freshness_obs_all.at(obs.size, runs=B)(
             obs, L.own_omega.start, L.own_age.start, L.slot_arrived.start,
             L.slot_omega.start, L.slot_age.start, np.empty((B, self.D + 1, M)), out)
         return out

@@ -3,7 +3,7 @@
 Every driver is a :class:`netsense.kernels.jit.Driver` (a serial and a threaded build of one
 source, without reference counting); its caller (the wrappers in :mod:`netsense.kernels.update`
 and :mod:`netsense.engine.observation`, or :class:`netsense.engine.core.BatchedCore`) allocates the
-outputs and scratch rows and picks the build with ``Driver.at(work)``. ``apply_all`` is
+outputs and scratch rows and picks the build with ``Driver.at(work, runs=B)``. ``apply_all`` is
 the environment's update in one pass (plant, validation, indices, estimates, errors; see
 :func:`netsense.kernels.update.apply_actions`); ``load_all`` loads a step's slots, outputs and
 messages. The rest of a step is :func:`netsense.engine.rewards.finish_step` and
@@ -13,9 +13,9 @@ messages. The rest of a step is :func:`netsense.engine.rewards.finish_step` and
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
-from netsense.kernels.jit import Driver
+from netsense.kernels.jit import Driver, njit_cached
 from netsense.kernels.lanes import square_sums
 from netsense.kernels.rules import (
     advance_row,
@@ -146,7 +146,7 @@ def freshness_obs_all(obs, o_om, o_age, o_sarr, o_som, o_sage, keys, act):
             act[b, i, M] = 1
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def _start_member(first, b, okb):
     """A member's validation records: none found yet (``first[b] = -1``); keep and
     average always allowed (``okb[0] = okb[D + 1] = True``, see ``check_row``). Set by

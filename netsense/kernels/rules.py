@@ -26,8 +26,7 @@ row function        rule
 
 from __future__ import annotations
 
-from numba import njit
-
+from netsense.kernels.jit import njit_cached
 from netsense.kernels.lanes import block_triangular_pair, block_triangular_row, row_times_matrix
 
 #: Encoding of the freshness index's dummy value omega (eq. (8)ff.).
@@ -40,7 +39,7 @@ OMEGA = -1
 # arithmetic is IEEE in program order, hence identical wherever a row function runs.
 # Rows are addressed as (array, b, i) rather than passed as slices (a slice is a new array
 # object per call; with reference counting, at N = 30, it cost as much as the rule).
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def advance_row(tau, b, i, own, src, sb, si, out, ob, oi):  # eqs. (9), (11), (14)
     for j in range(out.shape[2]):
         t = tau[b, src[sb, si, j], j]
@@ -49,7 +48,7 @@ def advance_row(tau, b, i, own, src, sb, si, out, ob, oi):  # eqs. (9), (11), (1
         out[ob, oi, own[i]] = 0
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def average_row(tau, b, i, own, nbr, use, out, ob, oi):  # age of an average, eq. (6)
     for j in range(out.shape[2]):
         t = tau[b, i, j]
@@ -67,7 +66,7 @@ def average_row(tau, b, i, own, nbr, use, out, ob, oi):  # age of an average, eq
         out[ob, oi, own[i]] = 0
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def mix_row(Z, b, i, nbr, use, out, ob, oi):  # eq. (6)
     count = 1.0
     for d in range(nbr.shape[2]):
@@ -81,13 +80,13 @@ def mix_row(Z, b, i, nbr, use, out, ob, oi):  # eq. (6)
         out[ob, oi, c] = (Z[b, i, c] + s) / count
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def gather_row(Z, b, src, sb, si, block_of, out, ob, oi):
     for c in range(Z.shape[2]):
         out[ob, oi, c] = Z[b, src[sb, si, block_of[c]], c]
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def propagate_rows(Z_sel, sb, Z, b, ADT, ALT, out, ob):
     """Every agent's row of eqs. (7), (10), (12) for one member (see
     :func:`netsense.kernels.update.propagate`): ``out[ob, i] = A_diag z_sel + A_lower z`` with
@@ -102,7 +101,7 @@ def propagate_rows(Z_sel, sb, Z, b, ADT, ALT, out, ob):
         block_triangular_row(out, ob, N - 1, Z_sel, sb, N - 1, ADT, Z, b, N - 1, ALT)
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def innovation_row(Z, b, i, y, arrived, C, L, lb, lo, hi, innov, out, ob, oi):  # eq. (7)
     r, n = C.shape[1], C.shape[2]
     for c in range(n):
@@ -121,7 +120,7 @@ def innovation_row(Z, b, i, y, arrived, C, L, lb, lo, hi, innov, out, ob, oi):  
         out[ob, oi, c] = s
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def vecmat_row(x, b, M, out, ob):  # out[ob] = x[b] @ M (eqs. (1), (2))
     """``out[ob] = x[b] @ M``: every column from ``0.0``, ``+ x[b, q] * M[q, c]`` for ``q``
     ascending (in lanes, :func:`netsense.kernels.lanes.row_times_matrix`; C-contiguous 2-d
@@ -129,7 +128,7 @@ def vecmat_row(x, b, M, out, ob):  # out[ob] = x[b] @ M (eqs. (1), (2))
     row_times_matrix(out, ob, x, b, M)
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
     """Validate agent ``i``'s actions (see :func:`netsense.kernels.update.check_actions`);
     ``okt`` is a scratch of ``D + 2`` with ``okt[0] = okt[D + 1] = True``."""
@@ -163,7 +162,7 @@ def check_row(act, b, i, msg, own, okt, ch, sb, si, masked, first):
                 break
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def message_row(nbr, b, i, transmit, link, lb, lp, has_link, out, ob, oi):
     """Slot ``d`` of agent ``i`` holds a message: its neighbour ``l = nbr[b, i, d] >= 0``
     transmitted (``transmit[b, l]``) and the link ``l -> i`` delivered
@@ -179,7 +178,7 @@ def message_row(nbr, b, i, transmit, link, lb, lp, has_link, out, ob, oi):
         out[ob, oi, d] = ok
 
 
-@njit(cache=True, inline="always")
+@njit_cached(inline="always")
 def freshness_row(keys, kb, out, ob, oi):  # eqs. (8)-(13)
     """The freshness choice of one agent: ``out[ob, oi, j]`` is the slot to adopt
     substate ``j`` from, ``-1`` to keep the own estimate.

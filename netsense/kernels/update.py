@@ -67,7 +67,7 @@ def freshness_choice(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     D = nbr.shape[2]
     slot = np.empty((B, N, M), dtype=np.int64)
     src = np.empty((B, N, M), dtype=np.int64)
-    drivers.freshness_all.at(B * N * M * (D + 1))(
+    drivers.freshness_all.at(B * N * M * (D + 1), runs=B)(
         tau, nbr, use, np.empty((B, D + 1, M)), slot, src)
     return src, slot
 
@@ -84,7 +84,7 @@ def advance_indices(tau: np.ndarray, src: np.ndarray, own: np.ndarray | None = N
     src = _sources_in(src, tau.shape)
     own = _own_in(own, tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
-    drivers.advance_all.at(tau.size)(tau, _own(own, tau), np.asarray(src), out)
+    drivers.advance_all.at(tau.size, runs=tau.shape[0])(tau, _own(own, tau), np.asarray(src), out)
     return out
 
 
@@ -101,8 +101,8 @@ def average_indices(tau: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     tau, nbr, valid, transmit = _slots_in(tau, nbr, valid, transmit)
     own = _own_in(own, tau)
     out = np.empty(tau.shape, dtype=tau.dtype)
-    drivers.average_all.at(tau.size)(tau, _own(own, tau), np.asarray(nbr),
-                              usable_slots(nbr, valid, transmit), out)
+    drivers.average_all.at(tau.size, runs=tau.shape[0])(
+        tau, _own(own, tau), np.asarray(nbr), usable_slots(nbr, valid, transmit), out)
     return out
 
 
@@ -117,7 +117,7 @@ def gather_substates(Z: np.ndarray, src: np.ndarray, block_of: np.ndarray) -> np
     block_of = checks.array("block_of", block_of, (Z.shape[2],), kind="i")
     checks.index_range("block_of", block_of, 0, src.shape[2])
     out = np.empty(Z.shape)
-    drivers.gather_all.at(Z.size)(Z, np.asarray(src), np.asarray(block_of), out)
+    drivers.gather_all.at(Z.size, runs=Z.shape[0])(Z, np.asarray(src), np.asarray(block_of), out)
     return out
 
 
@@ -131,7 +131,8 @@ def uniform_mix(Z: np.ndarray, nbr: np.ndarray, valid: np.ndarray,
     _, nbr, valid, transmit = _slots_in(np.empty(Z.shape[:2] + (0,), np.int64), nbr, valid,
                                         transmit)
     out = np.empty(Z.shape)
-    drivers.mix_all.at(Z.size)(Z, np.asarray(nbr), usable_slots(nbr, valid, transmit), out)
+    drivers.mix_all.at(Z.size, runs=Z.shape[0])(Z, np.asarray(nbr),
+                                                usable_slots(nbr, valid, transmit), out)
     return out
 
 
@@ -156,7 +157,7 @@ def propagate(Z_sel: np.ndarray, Z: np.ndarray, A_diag: np.ndarray,
                          f"A_diag, A_lower; got {Z_sel.shape}, {Z.shape}, "
                          f"{np.shape(A_diag)}, {np.shape(A_lower)}")
     out = np.empty(Z_sel.shape)
-    drivers.propagate_all.at(Z_sel.size * Z_sel.shape[-1])(Z_sel, Z, ADT, ALT, out)
+    drivers.propagate_all.at(Z_sel.size * n, runs=Z_sel.shape[0])(Z_sel, Z, ADT, ALT, out)
     return out
 
 
@@ -192,7 +193,7 @@ def innovation_correction(Z: np.ndarray, y: np.ndarray, arrived: np.ndarray | No
     out = np.empty(Z.shape)
     C = np.asarray(C_bar_pad, dtype=float)
     rows = gain_rows(L) if rows is None else np.asarray(rows, dtype=np.int64)
-    drivers.innovation_all.at(Z.size)(Z, y, arr, C, L, rows, out, np.empty((B, C.shape[1])))
+    drivers.innovation_all.at(Z.size, runs=B)(Z, y, arr, C, L, rows, out, np.empty((B, C.shape[1])))
     return out
 
 
@@ -224,7 +225,7 @@ def vecmat(x: np.ndarray, M: np.ndarray) -> np.ndarray:
     x = np.ascontiguousarray(x, dtype=float)
     M = np.ascontiguousarray(M, dtype=float)
     out = np.empty((x.shape[0], M.shape[1]))
-    drivers.vecmat_all.at(x.shape[0] * M.size // 8)(x, M, out)  # light: rarely worth threads
+    drivers.vecmat_all.at(x.shape[0] * M.size // 8, runs=x.shape[0])(x, M, out)  # light
     return out
 
 
@@ -268,7 +269,8 @@ def _check_actions(act: np.ndarray, msg: np.ndarray, choice: np.ndarray,
     """:func:`check_actions` without checks (the core's path: its arrays are its own)."""
     first = np.empty((act.shape[0], 4), dtype=np.int64)  # (both set per member by the
     okt = np.empty((act.shape[0], msg.shape[2] + 2), dtype=np.bool_)  # driver's threads)
-    drivers.check_actions.at(act.size)(act, msg, _own(own, choice), choice, masked, first, okt)
+    drivers.check_actions.at(act.size, runs=act.shape[0])(act, msg, _own(own, choice), choice,
+                                                          masked, first, okt)
     return _status(first)
 
 
@@ -451,7 +453,7 @@ def _apply_actions(Z: np.ndarray, tau: np.ndarray, act: np.ndarray, nbr: np.ndar
              ((Z, work.Z_next), (tau, work.tau_next), (x, work.x_next))):
         raise ValueError("work's outputs overlap the inputs Z, tau or x (a step reads the "
                          "state while it writes the next one: alternate two StepBuffers)")
-    drivers.apply_all.at(Z.size * n + tau.size)(
+    drivers.apply_all.at(Z.size * n + tau.size, runs=B)(
         Z, tau, _own(own, tau), act, nbr, msg, block_of, A_diag_T, A_lower_T, corr,
         luenberger is not None, y, arrived, C, L, rows, x, A_T, w, W_T, has_w, T,
         work.Z_next, work.tau_next, work.err, work.x_next, work.masked, work.first,
@@ -594,9 +596,9 @@ def slot_messages(nbr: np.ndarray, transmit: np.ndarray,
         link = checks.mask("link", link, (B, N, N))
     out = np.empty(nbr.shape, dtype=bool)
     if link is None:
-        drivers.messages_all.at(out.size)(nbr, transmit, np.ones((1, 1, 1, 1), bool), False,
-                                          out)
+        drivers.messages_all.at(out.size, runs=out.shape[0])(
+            nbr, transmit, np.ones((1, 1, 1, 1), bool), False, out)
     else:
-        drivers.messages_all.at(out.size)(nbr, transmit, np.asarray(link, bool)[:, None],
-                                          True, out)
+        drivers.messages_all.at(out.size, runs=out.shape[0])(
+            nbr, transmit, np.asarray(link, bool)[:, None], True, out)
     return out

@@ -83,7 +83,7 @@ class GaussianNoise(NoiseModel):
             return super().sample_many(rngs, shape, out)
         _check_many(out, len(rngs), shape)
         flat = out.reshape(len(rngs), -1)
-        _normals.at(flat.size)(streams[0], streams[1], float(self.std), flat)
+        _normals.at(flat.size, runs=flat.shape[0])(streams[0], streams[1], float(self.std), flat)
         return out
 
     @property
