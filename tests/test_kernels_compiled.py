@@ -16,8 +16,8 @@ from netsense.engine import observation
 from netsense.engine.core import BatchedCore
 from netsense.env.registry import build_model, load
 from netsense.graphs.processes import MarkovLinkFailures
-from netsense.kernels.update import jit as compiled
-from netsense.kernels.update import update as kernels
+from netsense.kernels import jit as compiled
+from netsense.kernels import update as kernels
 
 OMEGA = kernels.OMEGA
 
@@ -504,7 +504,7 @@ def test_threaded_drivers_called_from_several_python_threads_under_workqueue():
     code = """
 import numpy as np, numba
 from concurrent.futures import ThreadPoolExecutor
-from netsense.kernels.update import jit as compiled
+from netsense.kernels import jit as compiled
 import tests.test_kernels_compiled as t
 steps = [t._random_step(40 + k, B=6) for k in range(4)]
 kws = [{"luenberger": (s["y"], s["arrived"], s["C"], s["L"])} for s in steps]
@@ -659,7 +659,7 @@ def test_driver_cache_names_follow_the_rules_they_inline():
     import hashlib
     from pathlib import Path
 
-    from netsense.kernels.update import drivers
+    from netsense.kernels import drivers
 
     here = Path(compiled.__file__).parent
     h = hashlib.sha256()

@@ -17,7 +17,7 @@ import netsense.kernels.drivers  # noqa: F401  (every module that builds drivers
 import netsense.sensing.noise  # noqa: F401
 from netsense.env.policies import make_policy
 from netsense.env.registry import list_scenarios, make
-from netsense.kernels.update import jit as compiled
+from netsense.kernels import jit as compiled
 
 
 def _count_threaded_builds(monkeypatch) -> dict[str, int]:
@@ -64,7 +64,7 @@ def test_the_single_large_env_stays_serial_at_the_default_thresholds(sid, monkey
 
 def test_a_threaded_build_is_counted(monkeypatch):
     # the counter itself sees a threaded call (a batch of many members)
-    from netsense.kernels.update import update as kernels
+    from netsense.kernels import update as kernels
 
     monkeypatch.setattr(compiled, "PARALLEL_WORK", 0)
     counts = _count_threaded_builds(monkeypatch)
@@ -257,7 +257,7 @@ def test_the_environment_variable_sets_the_knob():
 _FORK_CHILD = """
 import multiprocessing as mp, os, sys
 import numba
-from netsense.kernels.update import jit as compiled
+from netsense.kernels import jit as compiled
 import tests.test_threads as t
 compiled.PARALLEL_WORK = 0  # every batched call threaded in the parent
 expect = t._batch_step()
