@@ -1,6 +1,6 @@
 """Step time with the other cores idle and busy, per batch size and thread configuration.
 
-The question of issue 13, item 1: does a process that holds a core make the batched step
+The threads issue, item 1: does a process that holds a core make the batched step
 collapse? One step is :meth:`netsense.engine.core.BatchedCore.step` plus the freshness
 policy's ``act`` (both compiled passes; what an RL loop runs), on the benchmark model of
 :func:`netsense.speed.bench_model` at ``N = 10, n = 10`` (Markov link failures and
@@ -25,7 +25,7 @@ within each of ``--repeats`` rounds, so drifts of the machine hit all of them al
 
 Writes ``results/bench_busy_cores.csv`` (one row per process), ``.txt`` (medians,
 spreads and busy/idle ratios) and ``.png``. Run: ``python experiments/bench_busy_cores.py``
-(about 10 minutes; ``--smoke`` for a seconds-long check of the plumbing, no timing).
+(about 5 minutes on 2 cores; ``--smoke`` for a seconds-long check of the plumbing, no timing).
 """
 
 # %%
@@ -54,23 +54,32 @@ CONFIGS: dict[str, dict[str, str]] = {
 #: Variables of the caller that would change a configuration: removed for every child.
 CLEARED = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "NUMBA_THREADING_LAYER",
            "NUMBA_NUM_THREADS", "NETSENSE_NUM_THREADS", "OMP_NUM_THREADS")
-COLUMNS = ("round", "condition", "config", "B", "N", "n", "step_ms", "block_min_ms",
+COLUMNS = ("round", "condition", "config", "B", "model", "N", "n", "step_ms", "block_min_ms",
            "block_max_ms", "steps", "layer", "threads", "loadavg", "cpu_pressure")
 #: The issue's bound: busy at most this many times idle, at every size, by default.
 BOUND = 2.5
 
 
 # %% One measurement (runs in the child process)
-def child(B: int, N: int, n: int, steps: int, blocks: int, warmup: int = 70) -> dict:
-    """Median seconds of one step over ``blocks`` blocks of ``steps`` steps."""
+def child(B: int, N: int, n: int, steps: int, blocks: int, warmup: int = 70,
+          scenario: str | None = None) -> dict:
+    """Median seconds of one step over ``blocks`` blocks of ``steps`` steps (of the bench
+    model at ``(N, n)``, or of a registered ``scenario``)."""
     import numba
 
     import netsense
     from netsense.engine.core import BatchedCore
     from netsense.env.policies import FreshnessPolicy
-    from netsense.speed import bench_model
 
-    core = BatchedCore(bench_model(N, n, horizon=10**9), B)
+    if scenario:
+        from netsense.env.vector import load_model
+
+        model = load_model(scenario, horizon=10**9)[0]
+    else:
+        from netsense.speed import bench_model
+
+        model = bench_model(N, n, horizon=10**9)
+    core = BatchedCore(model, B)
     pol = FreshnessPolicy(core.layout)
     obs, mask = core.reset(0)
     for _ in range(warmup):  # compile or load every pass, one refill included
@@ -87,18 +96,19 @@ def child(B: int, N: int, n: int, steps: int, blocks: int, warmup: int = 70) -> 
         layer = numba.threading_layer()
     except ValueError:  # no threaded call ran: the pool never started
         layer = "-"
-    return {"step_ms": statistics.median(times) * 1e3, "block_min_ms": min(times) * 1e3,
-            "block_max_ms": max(times) * 1e3, "layer": layer,
-            "threads": netsense.get_num_threads()}
+    return {"N": core.N, "n": core.n, "step_ms": statistics.median(times) * 1e3,
+            "block_min_ms": min(times) * 1e3, "block_max_ms": max(times) * 1e3, "layer": layer,
+            # (numba's count where netsense has no knob: the code before this script)
+            "threads": getattr(netsense, "get_num_threads", numba.get_num_threads)()}
 
 
 def _measure(config: str, B: int, N: int, n: int, steps: int, blocks: int,
-             warmup: int) -> dict:
+             warmup: int, scenario: str | None) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in CLEARED}
     env.update(CONFIGS[config])
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH"))
                                         if p)
-    spec = f"{B},{N},{n},{steps},{blocks},{warmup}"
+    spec = f"{B},{N},{n},{steps},{blocks},{warmup}" + (f",{scenario}" if scenario else "")
     out = subprocess.run([sys.executable, __file__, "--child", spec], env=env,
                          capture_output=True, text=True, check=False, timeout=1800)
     if out.returncode != 0:
@@ -151,7 +161,7 @@ class BusyLoops:
 # %% The run
 def run(sizes, configs, repeats: int, blocks: int, busy_procs: int, N: int, n: int,
         steps_for, warmup: int = 70, calm: float | None = None,
-        max_wait: float = 600) -> list[dict]:
+        max_wait: float = 600, scenario: str | None = None) -> list[dict]:
     """Every (round, condition, B, config) in its own process; rows of :data:`COLUMNS`."""
     from tqdm import tqdm
 
@@ -165,14 +175,29 @@ def run(sizes, configs, repeats: int, blocks: int, busy_procs: int, N: int, n: i
                         for config in configs:
                             steps = steps_for(B)
                             pressure = wait_for_calm(calm, max_wait)
-                            res = _measure(config, B, N, n, steps, blocks, warmup)
+                            res = _measure(config, B, N, n, steps, blocks, warmup,
+                                           scenario)
                             rows.append({"round": r, "condition": condition,
-                                         "config": config, "B": B, "N": N, "n": n,
+                                         "config": config, "B": B,
+                                         "model": scenario or "bench_model",
+                                         "N": res.pop("N"), "n": res.pop("n"),
                                          "steps": steps, "loadavg": os.getloadavg()[0],
                                          "cpu_pressure": pressure, **res})
                             bar.update()
     finally:
         bar.close()
+    return rows
+
+
+def read_csv(path: Path) -> list[dict]:
+    """The rows of an earlier run's CSV, with numbers as numbers."""
+    with path.open() as fh:
+        rows = list(csv.DictReader(fh))
+    for r in rows:
+        for k in ("round", "B", "N", "n", "steps", "threads"):
+            r[k] = int(r[k])
+        for k in ("step_ms", "block_min_ms", "block_max_ms", "loadavg", "cpu_pressure"):
+            r[k] = float(r[k])
     return rows
 
 
@@ -201,7 +226,7 @@ def table(summary: list[dict], rows: list[dict], busy_procs: int) -> str:
              f"{os.cpu_count()} cores; busy = {busy_procs} busy-looping process(es); "
              f"1-min load average during the run {min(loads):.1f}-{max(loads):.1f}, CPU "
              f"pressure before each measurement {min(psi):.0f}-{max(psi):.0f} %",
-             "step = BatchedCore.step + FreshnessPolicy.act, bench_model(N = "
+             f"step = BatchedCore.step + FreshnessPolicy.act, {rows[0]['model']} (N = "
              f"{rows[0]['N']}, n = {rows[0]['n']}); median over rounds [min-max] of each "
              "process's median block",
              "", "| config | B | layer | idle ms/step | busy ms/step | busy / idle |",
@@ -240,7 +265,7 @@ def plot(summary: list[dict], path: Path) -> None:
         for xi, c in zip(x, cells, strict=True):
             ax.annotate(f"{c['ratio']:.1f}x", (xi, max(c["idle"], c["busy"])),
                         ha="center", va="bottom", fontsize=8)
-        ax.set_yscale("log")
+        ax.set_ylim(bottom=0)
         ax.set_xticks(x, configs, rotation=20)
         ax.set_title(f"B = {B}")
         ax.set_ylabel("ms per step")
@@ -260,6 +285,7 @@ def main(argv=None) -> int:
     p.add_argument("--blocks", type=int, default=5, help="timed blocks per process")
     p.add_argument("--busy-procs", type=int, default=max(1, (os.cpu_count() or 2) - 1))
     p.add_argument("--shape", default="10,10", help="N,n of the benchmark model")
+    p.add_argument("--scenario", help="a registered scenario instead of the benchmark model")
     p.add_argument("--out", type=Path, default=RESULTS, help="directory for the results")
     p.add_argument("--calm", type=float, default=None, metavar="PERCENT",
                    help="before each measurement wait until the CPU pressure (Linux PSI "
@@ -267,10 +293,14 @@ def main(argv=None) -> int:
     p.add_argument("--max-wait", type=float, default=600, help="seconds --calm waits at most")
     p.add_argument("--smoke", action="store_true",
                    help="tiny run (B = 4, default config, one block of 4 steps)")
+    p.add_argument("--from-csv", type=Path, metavar="CSV",
+                   help="summarise and plot an earlier run's CSV instead of measuring")
     p.add_argument("--child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.child:
-        print(json.dumps(child(*(int(v) for v in args.child.split(",")))))
+        parts = args.child.split(",")  # B, N, n, steps, blocks, warmup[, scenario]
+        scenario = parts[6] if len(parts) > 6 else None
+        print(json.dumps(child(*(int(v) for v in parts[:6]), scenario=scenario)))
         return 0
     unknown = set(args.configs.split(",")) - set(CONFIGS)
     if unknown:
@@ -288,8 +318,11 @@ def main(argv=None) -> int:
 
         def steps_for(B):  # whole 64-step chunks (each holds one refill), ~20+ ms a block
             return 64 * max(1, 8 // max(1, B // 16)) if B < 128 else 64
-    rows = run(sizes, configs, repeats, blocks, args.busy_procs, N, n, steps_for, warmup,
-               args.calm, args.max_wait)
+    if args.from_csv:
+        rows = read_csv(args.from_csv)
+    else:
+        rows = run(sizes, configs, repeats, blocks, args.busy_procs, N, n, steps_for, warmup,
+                   args.calm, args.max_wait, args.scenario)
     summary = summarise(rows)
     text = table(summary, rows, args.busy_procs)
     print(text)

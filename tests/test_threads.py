@@ -10,10 +10,11 @@ import warnings
 import numpy as np
 import pytest
 
+# every module that builds drivers, imported before the drivers are collected
 import netsense.engine.observation  # noqa: F401
 import netsense.engine.rewards  # noqa: F401
-import netsense.graphs.processes  # noqa: F401  before the drivers are collected)
-import netsense.kernels.drivers  # noqa: F401  (every module that builds drivers, imported
+import netsense.graphs.processes  # noqa: F401
+import netsense.kernels.drivers  # noqa: F401
 import netsense.sensing.noise  # noqa: F401
 from netsense.env.policies import make_policy
 from netsense.env.registry import list_scenarios, make

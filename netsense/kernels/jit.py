@@ -88,10 +88,10 @@ _PARALLEL_LOCK = threading.Lock()
 
 # ----------------------------------------------------------------------------- threads
 # OpenMP's workers spin after each threaded call by default: on a core another process
-# uses, every call then waits for the spinning worker's time slice (10-30x slower steps,
-# docs/threads.md). Passive workers sleep at once. libgomp reads this when numba's pool
-# starts (the first threaded call), so setting it here, unless the user chose a policy,
-# is in time; it applies to every OpenMP runtime the process loads later.
+# uses, every call then waits for the spinning worker's time slice (steps up to 29x slower
+# measured, docs/threads.md). Passive workers sleep at once. libgomp reads this when
+# numba's pool loads it (the first threaded call), so setting it here, unless the user
+# chose a policy, is in time; every OpenMP runtime the process loads later reads it too.
 if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
     os.environ["OMP_WAIT_POLICY"] = "passive"
 
