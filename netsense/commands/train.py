@@ -93,7 +93,21 @@ def parse_overrides(items: list[str]) -> dict:
     return out
 
 
+def _check_inputs(args: argparse.Namespace) -> dict:
+    """Unknown scenario and bad overrides fail before any learning stack is imported."""
+    from netsense.env.registry import list_scenarios
+
+    if args.scenario not in list_scenarios():
+        raise ValueError(f"unknown scenario {args.scenario!r} (see `netsense list`)")
+    overrides = parse_overrides(args.override)
+    from netsense.env.vector import load_model
+
+    load_model(args.scenario, **overrides)  # bad override values name their field here
+    return overrides
+
+
 def run(args: argparse.Namespace) -> int:
+    _check_inputs(args)
     if args.backend == "torchrl":
         return _run_torchrl(args)
     if args.algo not in (None, "maskable_ppo"):
