@@ -116,7 +116,6 @@ def test_the_checker_sees_a_violation(tmp_path):
     src = tmp_path / "mod.py"
     src.write_text("def f():\n    from netsense.env import registry\n"
                    "from . import drivers\n")
-    global MODULES
     found = _imports("netsense.kernels.mod", src)
     assert found == {"netsense.env.registry", "netsense.kernels.drivers"}
     assert rank("netsense.env.registry") > rank("netsense.kernels.mod")

@@ -107,9 +107,9 @@ def _check_inputs(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    _check_inputs(args)
+    overrides = _check_inputs(args)
     if args.backend == "torchrl":
-        return _run_torchrl(args)
+        return _run_torchrl(args, overrides)
     if args.algo not in (None, "maskable_ppo"):
         raise ValueError(f"--algo {args.algo} needs --backend torchrl")
     args.algo = "maskable_ppo"
@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(scenario=args.scenario, steps=args.steps, seed=args.seed,
                       num_vec_envs=args.num_envs, n_steps=args.n_steps,
                       batch_size=args.batch_size, learning_rate=args.lr, gamma=args.gamma,
-                      ent_coef=args.ent_coef, overrides=parse_overrides(args.override))
+                      ent_coef=args.ent_coef, overrides=overrides)
     refs = baseline_returns(cfg, ("freshness", "uniform_consensus"))
     out = args.out if args.out is not None else f"runs/{args.scenario}"
     res = train(cfg, out, progress=not args.no_progress, baselines=refs)
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_torchrl(args: argparse.Namespace) -> int:
+def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
     from pathlib import Path
 
     from netsense.rl.mappo import PPOConfig, train_ppo
@@ -151,7 +151,7 @@ def _run_torchrl(args: argparse.Namespace) -> int:
                         lr=args.lr, gamma=args.gamma, entropy_coef=args.ent_coef,
                         eval_interval=args.eval_interval, eval_envs=args.eval_envs,
                         bc=args.bc, device=args.device,
-                        overrides=parse_overrides(args.override))
+                        overrides=overrides)
         if args.bc:
             cfg = cfg.conservative()
         res = train_ppo(cfg, out / f"seed_{seed}", progress=not args.no_progress)
