@@ -5,8 +5,9 @@ Agent-steps of experience per second of training wall time, for
 ==================  ==========================================================================
 path                what runs
 ==================  ==========================================================================
-``torchrl-tx``      MAPPO (state critic, MLP actor) on the transmit-only stand-in (freshness
-                    adopts, the agent decides the transmit bit; :mod:`netsense.rl.transmit_only`)
+``torchrl-tx``      MAPPO (state critic, MLP actor) in the communication-only control mode
+                    ``"transmit"`` (freshness fusion adopts, the agent decides the transmit
+                    bit; :mod:`netsense.engine.control`)
 ``torchrl-full``    MAPPO (state critic, MLP actor) in full control
 ``torchrl-set``     the same with the set network (:class:`netsense.rl.models.SetPolicyNet`)
 ``sb3-batched``     MaskablePPO on :func:`netsense.env.vector.make_sb3_vec_env` (full control)

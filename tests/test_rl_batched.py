@@ -73,31 +73,52 @@ def test_adoptions_from_full_actions():
 
 
 def test_netsense_rl_imports_no_torch():
-    code = ("import sys, netsense, netsense.rl, netsense.rl.credit, netsense.rl.transmit_only;"
+    code = ("import sys, netsense, netsense.rl, netsense.rl.credit;"
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == "False"
 
 
-def test_transmit_only_always_on_is_the_freshness_observer():
-    from netsense.engine.core import BatchedCore
+@pytest.mark.parametrize("mode", ["transmit", "substates"])
+def test_adoptions_in_comm_modes_are_the_fusion_rules_choice(mode):
+    # everyone transmitting (every substate), the communication-only core runs the
+    # full-control freshness policy bit for bit; the slots credit reads from the fusion
+    # rule must be the slots that policy adopts (on substates with a non-empty block of
+    # Lemma 1: "adopting" an empty one moves nothing, and it is never sent per substate)
     from netsense.env.policies import FreshnessPolicy
-    from netsense.env.vector import load_model
-    from netsense.rl.transmit_only import FreshnessAdoptionCore
+    from netsense.rl.torchrl_batched import make_core
 
-    model, _ = load_model(SCEN, **SHORT)
-    ref, wrapped = BatchedCore(model, 3), FreshnessAdoptionCore(BatchedCore(model, 3))
-    o, m = ref.reset(5)
-    _, mt = wrapped.reset(5)
-    assert mt.shape == (3, ref.N, 2) and list(wrapped.nvec) == [2]
-    pol = FreshnessPolicy(ref.layout)
+    full = make_core(SCEN, 3, control="full", **SHORT)
+    comm = make_core(SCEN, 3, control=mode, **SHORT)
+    o, m = full.reset(5)
+    comm.reset(5)
+    pol = FreshnessPolicy(full.layout)
+    real = ~comm.comm.empty
+    adopted = 0
     for _ in range(12):
-        out = ref.step(pol.act(o, m))
+        a = pol.act(o, m)
+        bits = comm.comm.allowed().astype(np.int64)  # every allowed bit
+        want = credit.adopted_slots(full, a)[..., real]
+        np.testing.assert_array_equal(credit.adopted_slots(comm, bits)[..., real], want)
+        adopted += int((want >= 0).sum())
+        out = full.step(a)
         o, m = out.obs, out.action_mask
-        got = wrapped.step(np.ones((3, ref.N, 1), np.int64))
-        np.testing.assert_array_equal(got.reward, out.reward)
-        np.testing.assert_array_equal(got.obs, out.obs)
+        comm.step(bits)
+    assert adopted > 0
+
+
+def test_counterfactual_refuses_uniform_fusion():
+    from netsense.rl.torchrl_batched import make_core
+
+    core = make_core(SCEN, 1, control="transmit", **SHORT)
+    core.reset(0)
+    assert credit.adopted_slots(core, np.ones((1, core.N, 1), np.int64)).shape == (
+        1, core.N, core.M)
+    core = make_core(SCEN, 1, control={"mode": "transmit", "fusion": "uniform"}, **SHORT)
+    core.reset(0)
+    with pytest.raises(ValueError, match="uniform"):
+        credit.adopted_slots(core, np.ones((1, core.N, 1), np.int64))
 
 
 # ------------------------------------------------------------------ TorchRL
@@ -105,7 +126,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("torchrl")
 
 
-@pytest.mark.parametrize("control", ["full", "transmit"])
+@pytest.mark.parametrize("control", ["full", "transmit", "substates"])
 def test_env_specs_and_masked_random_rollout(control):
     from torchrl.envs.utils import check_env_specs
 
@@ -147,6 +168,8 @@ def _small(algo, network, **kw):
     ("mappo", "mlp", "full", "team"),
     ("ippo", "set", "full", "counterfactual"),
     ("mappo", "set", "transmit", "agent"),
+    ("mappo", "set", "substates", "counterfactual"),
+    ("ippo", "mlp", "transmit", "scenario"),
 ])
 def test_training_smoke(tmp_path, algo, network, control, reward):
     from netsense.rl.mappo import load_policy, train_ppo

@@ -59,8 +59,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tr = parser.add_argument_group("torchrl backend")
     tr.add_argument("--network", choices=("mlp", "set"), default="mlp",
                     help="actor: shared MLP or the set network over message slots")
-    tr.add_argument("--control", choices=("full", "transmit"), default="full",
-                    help="full control or the transmit-only stand-in (freshness adopts)")
+    tr.add_argument("--control", choices=("full", "transmit", "substates"), default=None,
+                    help="control mode (default: the scenario's): full, or communication "
+                         "only with one bit (transmit) or one bit per substate (substates); "
+                         "the scenario's fusion rule adopts")
     tr.add_argument("--reward", choices=("scenario", "team", "agent", "counterfactual"),
                     default="scenario", help="credit assignment (docs/rl.md)")
     tr.add_argument("--critic", choices=("state", "joint", "local"), default=None,
@@ -74,7 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help="evaluation episodes (default: 16)")
     tr.add_argument("--bc", default=None, metavar="POLICY",
                     help="behaviour-cloning warm start from a scripted policy (freshness, "
-                         "uniform, open_loop, random), then conservative fine-tuning")
+                         "uniform, open_loop, random, or a communication baseline such as "
+                         "event:2 in a communication-only mode), then conservative "
+                         "fine-tuning")
     tr.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
                     help="learner device (auto: CUDA when available)")
 

@@ -11,7 +11,6 @@ module                           what                                           
 ``netsense.rl.rllib``            RLlib multi-agent PPO, one shared masked policy         ``rllib``
 ``netsense.rl.torchrl``          TorchRL ``PettingZooWrapper`` (the BenchMARL path)      ``torchrl``
 ``netsense.rl.credit``           team / per-agent / counterfactual sender rewards        (core)
-``netsense.rl.transmit_only``    transmit-only stand-in: freshness adopts                (core)
 ``netsense.rl.torchrl_batched``  TorchRL ``EnvBase`` over ``BatchedCore``                ``torchrl``
 ``netsense.rl.models``           masked distribution, MLP / set policies, critics        ``torchrl``
 ``netsense.rl.mappo``            batched MAPPO / IPPO, BC warm start                     ``torchrl``
@@ -21,4 +20,4 @@ Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense
 """
 
 __all__ = ["credit", "mappo", "models", "rllib", "sb3", "torchrl", "torchrl_batched",
-           "transmit_only", "wrappers"]
+           "wrappers"]

@@ -40,9 +40,9 @@ learner may be trained on the reward of one of these options instead
     so the credit reaches the transmitting action one step late, through the discount.
 
 Which slot a receiver adopted: in full control the action of substate ``j`` *is* the
-adopted slot (``a_j = d + 1``); a control mode whose adoption is scripted reports it
-through an ``adopted_slots(actions)`` method of its core (see
-:func:`adopted_slots`). Only numpy here; the TorchRL env calls these functions.
+adopted slot (``a_j = d + 1``); in a communication-only mode the fusion rule's choice of
+the step (``core.comm.choice``) is (:func:`adopted_slots`). Only numpy here; the TorchRL
+env calls these functions.
 """
 
 from __future__ import annotations
@@ -66,17 +66,26 @@ def full_control(core) -> bool:
 def adopted_slots(core, actions: np.ndarray) -> np.ndarray:
     """``(B, N, M)`` int: the slot each agent adopts per substate at this step, ``-1`` none.
 
-    Uses ``core.adopted_slots(actions)`` when the core has it (control modes with a
-    scripted fusion rule); otherwise the actions must be full control, where
-    ``a[..., j] = d + 1`` adopts slot ``d``.
+    Call it before ``core.step(actions)``. In a communication-only control mode
+    (``core.comm``, :class:`netsense.engine.control.CommControl`) the fusion rule has
+    already chosen the adoptions of this step (``core.comm.choice``, the full mode's
+    entries ``a[:M]``); a uniform fusion averages and adopts no single slot, so it has no
+    sender to credit (``ValueError``). In full control ``a[..., j] = d + 1`` adopts slot
+    ``d``.
     """
-    if hasattr(core, "adopted_slots"):
-        return np.asarray(core.adopted_slots(actions))
-    if not full_control(core):
-        raise ValueError("this control mode reports no adoptions (its core has no "
-                         "adopted_slots method) and its actions are not full control; the "
-                         "counterfactual reward needs one of the two")
-    a = np.asarray(actions)[..., :core.M]
+    comm = getattr(core, "comm", None)
+    if comm is not None:
+        if comm.control.fusion == "uniform":
+            raise ValueError("fusion 'uniform' averages every message: no receiver adopts "
+                             "one sender's slot, so the counterfactual reward has nothing "
+                             "to credit (use fusion 'freshness' or 'tree')")
+        a = comm.choice
+    elif full_control(core):
+        a = np.asarray(actions)[..., :core.M]
+    else:
+        raise ValueError(f"action layout {list(np.asarray(core.nvec))} reports no "
+                         "adoptions: the counterfactual reward needs full control or a "
+                         "communication-only mode")
     return np.where((a >= 1) & (a <= core.D), a - 1, -1)
 
 

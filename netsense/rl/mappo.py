@@ -56,12 +56,29 @@ from netsense.rl.models import (
 from netsense.rl.torchrl_batched import CONTROLS, NetSenseBatchedEnv, make_core
 
 __all__ = ["ALGOS", "NETWORKS", "BatchedPolicy", "PPOConfig", "behaviour_clone",
-           "build_actor", "evaluate", "load_policy", "scripted_actions", "train_ppo"]
+           "build_actor", "evaluate", "load_policy", "scripted_actions", "train_ppo",
+           "training_seeds"]
 
 ALGOS = ("mappo", "ippo")
 NETWORKS = ("mlp", "set")
-#: Seeds of evaluation episodes start here (training members use ``seed * 10**6 + b``).
+#: Seeds of the periodic evaluation during training start here (monitoring only; the
+#: protocol of :mod:`netsense.benchmark.protocol` evaluates on its own seeds).
 EVAL_SEED = 10**9
+#: Held-out members of the behaviour-cloning check are seeded from here.
+BC_HELDOUT_SEED = 900_000
+
+
+def training_seeds(config: PPOConfig) -> list[int]:
+    """Explicit episode seeds a run uses: member ``b`` of the first batch gets
+    ``seed * num_envs + b`` (scripted data for behaviour cloning too); held-out
+    cloning data ``BC_HELDOUT_SEED + b``. All below
+    :data:`netsense.benchmark.protocol.TRAIN_SEED_LIMIT` (checked by
+    :class:`PPOConfig`); later episodes draw seeds from a generator over ``[0, 2^62)``."""
+    B = int(config.num_envs)
+    out = list(range(config.seed * B, (config.seed + 1) * B))
+    if config.bc:
+        out += list(range(BC_HELDOUT_SEED, BC_HELDOUT_SEED + B))
+    return out
 
 
 @dataclass(frozen=True)
@@ -76,8 +93,9 @@ class PPOConfig:
         Centralised (``critic`` ``"state"`` or ``"joint"``) or local critic.
     network : {"mlp", "set"}
         Actor network (:mod:`netsense.rl.models`).
-    control : {"full", "transmit"}
-        Control mode of the core (:func:`netsense.rl.torchrl_batched.make_core`).
+    control : {None, "full", "transmit", "substates"}
+        Control mode (:func:`netsense.rl.torchrl_batched.make_core`); ``None`` keeps the
+        scenario's.
     reward : str
         Reward option (:data:`netsense.rl.credit.REWARDS`).
     steps : int
@@ -125,7 +143,7 @@ class PPOConfig:
     scenario: str
     algo: str = "mappo"
     network: str = "mlp"
-    control: str = "full"
+    control: str | None = None
     reward: str = "scenario"
     steps: int = 200_000
     seed: int = 0
@@ -169,6 +187,13 @@ class PPOConfig:
                      "bc_steps", "bc_epochs"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
+            raise ValueError(f"PPOConfig.seed must be an integer >= 0, got {self.seed!r}")
+        if (self.seed + 1) * self.num_envs > BC_HELDOUT_SEED:
+            raise ValueError(f"PPOConfig.seed: training members are seeded seed * num_envs "
+                             f"+ b, which must stay below {BC_HELDOUT_SEED} (evaluation "
+                             f"seeds are kept apart); got seed {self.seed} with num_envs "
+                             f"{self.num_envs}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"PPOConfig.device must be auto, cpu or cuda, got {self.device!r}")
 
@@ -217,30 +242,21 @@ def _critic(config: PPOConfig, env: NetSenseBatchedEnv, device) -> TensorDictMod
 
 
 # ------------------------------------------------------------------ scripted data
-def scripted_actions(name: str, core):
+def scripted_actions(name: str, core, seed: int = 0):
     """``(obs, mask) -> actions`` of a scripted policy in ``core``'s action layout.
 
-    ``name`` is one of :data:`netsense.env.policies.POLICIES`. On a core of another
-    control mode that wraps a full-control core (``core.core``), the scripted full actions
-    are computed on that core's observation and mask and reduced to the mode's actions:
-    the transmit column for ``nvec == [2]``.
+    ``name``: a communication baseline of :mod:`netsense.env.comm_policies`
+    (``event:2``, ``sources:0``, ...; communication-only modes) or a policy of
+    :data:`netsense.env.policies.POLICIES` (in a communication-only mode the fusion
+    rule's name means "always transmit", ``open_loop`` "never"). ``seed`` seeds the
+    randomised ones.
     """
+    from netsense.env.comm_policies import COMM_POLICIES, make_comm_policy
     from netsense.env.policies import make_policy
 
-    full = core if credit.full_control(core) else getattr(core, "core", None)
-    if full is None or not credit.full_control(full):
-        raise ValueError("scripted policies act on full-control cores or on wrappers of one")
-    policy = make_policy(name, full, **({"seed": 0} if name == "random" else {}))
-    if full is core:
-        return policy.act
-    if [int(v) for v in core.nvec] != [2]:
-        raise ValueError(f"no reduction of full actions to nvec {list(core.nvec)}")
-
-    def act(obs, mask):
-        o, m = full.observe()
-        return policy.act(o, m)[..., -1:]
-
-    return act
+    if name.partition(":")[0] in COMM_POLICIES:
+        return make_comm_policy(name, core, seed=seed).act
+    return make_policy(name, core, **({"seed": seed} if name == "random" else {})).act
 
 
 def _collect_scripted(config: PPOConfig, name: str, steps: int, seed: int):
@@ -248,7 +264,7 @@ def _collect_scripted(config: PPOConfig, name: str, steps: int, seed: int):
     members, ``ceil(steps / num_envs)`` steps each), as tensors ``(rows, N, ...)``."""
     core = make_core(config.scenario, config.num_envs, control=config.control,
                      **config.overrides)
-    act = scripted_actions(name, core)
+    act = scripted_actions(name, core, seed)
     obs, mask = core.reset(seed)
     rng = np.random.default_rng(seed)
     O, Mk, A = [], [], []
@@ -269,12 +285,13 @@ def _collect_scripted(config: PPOConfig, name: str, steps: int, seed: int):
 
 def behaviour_clone(net: torch.nn.Module, config: PPOConfig, scripted: str, *,
                     steps: int | None = None, epochs: int | None = None, lr: float = 1e-3,
-                    seed: int = 7, device=None) -> dict:
+                    seed: int | None = None, device=None) -> dict:
     """Warm start: minimise the cross-entropy of the masked policy on scripted actions.
 
     Data: about ``steps`` env-steps (default ``config.bc_steps``) of ``config.num_envs``
-    members driven by ``scripted`` (training members seeded from ``seed``, a quarter as
-    many held-out steps from members seeded from ``seed + 10**6``).
+    members driven by ``scripted`` (members seeded from ``seed``, default the training
+    seeds ``config.seed * num_envs + b``; a quarter as many held-out steps from members
+    seeded from :data:`BC_HELDOUT_SEED`).
 
     Returns
     -------
@@ -287,9 +304,10 @@ def behaviour_clone(net: torch.nn.Module, config: PPOConfig, scripted: str, *,
     steps = int(steps or config.bc_steps)
     epochs = int(epochs or config.bc_epochs)
     device = device or next(net.parameters()).device
+    seed = config.seed * config.num_envs if seed is None else int(seed)
     obs, mask, act = (t.to(device) for t in _collect_scripted(config, scripted, steps, seed))
     h_obs, h_mask, h_act = (t.to(device) for t in _collect_scripted(
-        config, scripted, max(steps // 4, 1), seed + 10**6))
+        config, scripted, max(steps // 4, 1), BC_HELDOUT_SEED))
     core_nvec = make_core(config.scenario, 1, control=config.control,
                           **config.overrides).nvec
 
@@ -464,7 +482,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                                          + "\n")
     core = make_core(config.scenario, config.num_envs, control=config.control,
                      **config.overrides)
-    env = NetSenseBatchedEnv(core, reward=config.reward, seed=config.seed * 10**6)
+    env = NetSenseBatchedEnv(core, reward=config.reward, seed=config.seed * config.num_envs)
     N, B, T = core.N, core.B, config.rollout
     net = actor_net(config, core, device)
     bc = None

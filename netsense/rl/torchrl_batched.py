@@ -27,9 +27,10 @@ key                              content
 ===============================  ==========================================================
 
 The action layout is the core's (``core.nvec``, ``core.mask_size``): full control
-(``[D + 2] * M + [2]``) for :class:`BatchedCore`, ``[2]`` for
-:class:`netsense.rl.transmit_only.FreshnessAdoptionCore`, or any other control mode whose
-core has the same array API.
+``[D + 2] * M + [2]``, ``[2]`` in the communication-only mode ``"transmit"`` and
+``[2] * M`` in ``"substates"`` (:mod:`netsense.engine.control`; the observation then
+carries the communication fields ``news``, ``silence``, ``channel_load``, ``collided``,
+``agent_id``).
 
 Resets: ``reset()`` seeds member ``b`` with ``seed + b`` (``set_seed``); TorchRL's
 partial resets (``"_reset"`` of shape ``(B, 1)``, as collectors send for finished members)
@@ -52,27 +53,45 @@ from netsense.rl import credit
 
 __all__ = ["CONTROLS", "NetSenseBatchedEnv", "global_state", "make_core", "state_size"]
 
-#: Control modes :func:`make_core` builds.
-CONTROLS = ("full", "transmit")
+#: Control modes :func:`make_core` accepts (``None``: the scenario's own ``[control]``).
+CONTROLS = (None, "full", "transmit", "substates")
 
 
-def make_core(scenario: str | CoreModel, num_envs: int, *, control: str = "full",
-              **overrides):
-    """The core of ``num_envs`` copies of a scenario in a control mode.
+def control_overrides(scenario: str, control: str | dict | None, overrides: dict) -> dict:
+    """``overrides`` with the scenario's ``[control]`` section updated by ``control``: a
+    mode name (the section's other keys, e.g. the fusion rule, kept) or a dict of keys
+    (``{"mode": "transmit", "fusion": "tree"}``); unchanged for ``control=None``."""
+    if control is None:
+        return dict(overrides)
+    if isinstance(control, str):
+        if control not in CONTROLS:
+            raise ValueError(f"control must be one of {CONTROLS[1:]} or a dict, got "
+                             f"{control!r}")
+        control = {"mode": control}
+    if not isinstance(control, dict):
+        raise ValueError(f"control must be a mode name, a dict or None, got "
+                         f"{type(control).__name__}")
+    from netsense.env.registry import load, with_overrides
 
-    ``"full"``: :class:`BatchedCore` (keep / adopt / average per substate, transmit);
-    ``"transmit"``: :class:`netsense.rl.transmit_only.FreshnessAdoptionCore` (freshness
-    adopts, the agent decides the transmit bit).
+    sc = with_overrides(load(scenario), **overrides)
+    return {**overrides, "control": {**sc.control, **control}}
+
+
+def make_core(scenario: str | CoreModel, num_envs: int, *, control: str | dict | None = None,
+              **overrides) -> BatchedCore:
+    """The :class:`BatchedCore` of ``num_envs`` copies of a scenario in a control mode.
+
+    ``control``: ``None`` keeps the scenario's ``[control]``; ``"full"`` (keep / adopt /
+    average per substate, transmit), ``"transmit"`` or ``"substates"`` (communication
+    only: the scenario's fusion rule adopts, the agents send;
+    :mod:`netsense.engine.control`) set its mode; a dict sets any of its keys.
     """
-    if control not in CONTROLS:
-        raise ValueError(f"control must be one of {CONTROLS}, got {control!r}")
+    if control is not None and not isinstance(scenario, str):
+        raise ValueError("control needs a scenario id; a CoreModel carries its own mode")
+    if isinstance(scenario, str):
+        overrides = control_overrides(scenario, control, overrides)
     model, _ = load_model(scenario, **overrides)
-    core = BatchedCore(model, int(num_envs))
-    if control == "transmit":
-        from netsense.rl.transmit_only import FreshnessAdoptionCore
-
-        return FreshnessAdoptionCore(core)
-    return core
+    return BatchedCore(model, int(num_envs))
 
 
 def state_size(N: int, M: int) -> int:
@@ -107,8 +126,9 @@ class NetSenseBatchedEnv(EnvBase):
 
     Parameters
     ----------
-    core : BatchedCore or a core of another control mode
-        What to step (:func:`make_core`); its batch size is the env's.
+    core : BatchedCore
+        What to step (:func:`make_core`), in any control mode; its batch size is the
+        env's.
     reward : str
         One of :data:`netsense.rl.credit.REWARDS`.
     seed : int, optional
@@ -139,9 +159,12 @@ class NetSenseBatchedEnv(EnvBase):
         self._alive = np.asarray(core.alive, bool)
         if reward == "counterfactual":
             # the factors of block_errors: T^{-1} and the substate of every coordinate
-            if not (hasattr(core, "adopted_slots") or credit.full_control(core)):
-                raise ValueError("the counterfactual reward needs a core that reports "
-                                 "adoptions (adopted_slots) or full-control actions")
+            if core.comm is None and not credit.full_control(core):
+                raise ValueError("the counterfactual reward needs full control or a "
+                                 "communication-only mode (it reads the adoptions)")
+            if core.comm is not None and core.comm.control.fusion == "uniform":
+                raise ValueError("the counterfactual reward credits adopted messages; "
+                                 "fusion 'uniform' averages and adopts none")
             self._T_inv = np.linalg.inv(core.T)
             blocks = np.zeros((core.n, core.M))
             col = np.full(N, -1)
