@@ -13,9 +13,12 @@ path                what runs
 ``sb3-batched``     MaskablePPO on :func:`netsense.env.vector.make_sb3_vec_env` (full control)
 ``sb3-supersuit``   MaskablePPO through SuperSuit (:func:`netsense.rl.sb3.train`, full control,
                     the default ``netsense train`` path)
+``sb3-supersuit-tx``  the same on the communication-only scenario
 ==================  ==========================================================================
 
-on one scenario (default ``message_cost-v1``, N = 10), in ``--rounds`` interleaved rounds
+The ``-tx`` paths run ``--comm-scenario`` (default ``comm_process_noise-v0``: N = 10,
+transmit bit only), the others ``--scenario`` (default ``message_cost-v1``: N = 10, full
+control). Every path is measured in ``--rounds`` interleaved rounds
 (every path once per round, in turn, so that load from other processes on a shared machine
 falls on all paths alike); each path is warmed up once (numba compilation, torch
 initialisation) before the first round. The wall time is that of the learning loop
@@ -26,7 +29,7 @@ SB3 trainer sets one torch thread too). Writes ``bench_train_throughput.csv`` (o
 round and path), ``bench_train_throughput.txt`` (median, min and max per path) and
 ``bench_train_throughput.png`` into ``--out``::
 
-    python experiments/bench_train_throughput.py                   # about 5 minutes
+    python experiments/bench_train_throughput.py                   # about 6 minutes
     python experiments/bench_train_throughput.py --rounds 1 --iters 1 --sb3-steps 2000 \\
         --num-envs 8 --rollout 8 --out /tmp/x --tag smoke          # smoke size
 """
@@ -46,15 +49,15 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results"
-PATHS = ("torchrl-tx", "torchrl-full", "torchrl-set", "sb3-batched", "sb3-supersuit")
+PATHS = ("torchrl-tx", "sb3-supersuit-tx", "torchrl-full", "torchrl-set", "sb3-batched",
+         "sb3-supersuit")
 
 
 def _torchrl(scenario: str, path: str, B: int, T: int, iters: int, N: int, minibatch: int,
              epochs: int) -> dict:
     from netsense.rl.mappo import PPOConfig, train_ppo
 
-    cfg = PPOConfig(scenario, algo="mappo", control="transmit" if path == "torchrl-tx" else
-                    "full", network="set" if path == "torchrl-set" else "mlp",
+    cfg = PPOConfig(scenario, algo="mappo", network="set" if path == "torchrl-set" else "mlp",
                     steps=B * T * N * iters, num_envs=B, rollout=T, epochs=epochs,
                     minibatch=minibatch, critic_hidden=(64, 64), device="auto")
     res = train_ppo(cfg, None, evaluate_every=False)
@@ -92,17 +95,22 @@ def run_path(path: str, args, scratch: Path, *, warm: bool = False) -> dict:
     """One measurement of ``path`` (a tiny one with ``warm``)."""
     from netsense.rl.torchrl_batched import make_core
 
-    N = make_core(args.scenario, 1).N
+    scenario = _scenario(path, args)
+    N = make_core(scenario, 1).N
     if path.startswith("torchrl"):
         B = 4 if warm else args.num_envs
         T = 4 if warm else args.rollout
         mb = args.set_minibatch if path == "torchrl-set" else args.minibatch
         iters = 1 if warm else (args.set_iters if path == "torchrl-set" else args.iters)
-        return _torchrl(args.scenario, path, B, T, iters, N, min(mb, B * T), args.epochs)
+        return _torchrl(scenario, path, B, T, iters, N, min(mb, B * T), args.epochs)
     if path == "sb3-batched":
         B = max(1, args.sb3_envs // N)
-        return _sb3_batched(args.scenario, 256 * B * N if warm else args.sb3_steps, B)
-    return _sb3_supersuit(args.scenario, 512 if warm else args.sb3_steps, scratch)
+        return _sb3_batched(scenario, 256 * B * N if warm else args.sb3_steps, B)
+    return _sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch)
+
+
+def _scenario(path: str, args) -> str:
+    return args.comm_scenario if path.endswith("-tx") else args.scenario
 
 
 # %%
@@ -111,7 +119,10 @@ def main(argv: list[str] | None = None) -> Path:
     from tqdm.auto import tqdm
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--scenario", default="message_cost-v1")
+    p.add_argument("--scenario", default="message_cost-v1",
+                   help="scenario of the full-control paths")
+    p.add_argument("--comm-scenario", default="comm_process_noise-v0",
+                   help="scenario of the communication-only (-tx) paths")
     p.add_argument("--paths", nargs="+", default=list(PATHS), choices=PATHS)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--num-envs", type=int, default=256, help="B of the TorchRL paths")
@@ -140,7 +151,7 @@ def main(argv: list[str] | None = None) -> Path:
     for r in range(args.rounds):
         for path in args.paths:
             m = run_path(path, args, scratch)
-            rows.append({"round": r, "path": path, "scenario": args.scenario,
+            rows.append({"round": r, "path": path, "scenario": _scenario(path, args),
                          "agent_steps": m["agent_steps"], "wall_s": round(m["wall_s"], 3),
                          "agent_steps_per_s": round(m["agent_steps"] / m["wall_s"], 1),
                          "collect_s": round(m.get("collect_s", float("nan")), 3),
@@ -182,7 +193,8 @@ def _report(rows: list[dict], args, path: Path) -> None:
              f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end, "
              f"torch {torch.__version__}, learner device "
              f"{'cuda' if torch.cuda.is_available() else 'cpu'}",
-             f"# scenario {args.scenario}; TorchRL: B = {args.num_envs}, T = {args.rollout}, "
+             f"# scenarios {args.comm_scenario} (-tx paths, communication only) and "
+             f"{args.scenario} (full control); TorchRL: B = {args.num_envs}, T = {args.rollout}, "
              f"{args.iters} iterations, {args.epochs} epochs, minibatch {args.minibatch} "
              f"env-steps (set network: {args.set_minibatch}, {args.set_iters} iterations); "
              f"SB3: {args.sb3_steps} "
@@ -210,8 +222,8 @@ def _plot(rows: list[dict], args, path: Path) -> None:
     ax.axhline(50_000, ls="--", color="k", lw=0.8, label="50k target (communication-only)")
     ax.set_yscale("log")
     ax.set_ylabel("agent-steps / s (collection + learning)")
-    ax.set_title(f"training throughput, {args.scenario}, median of {args.rounds} "
-                 "(bars: min-max)", fontsize=9)
+    ax.set_title(f"training throughput (-tx: {args.comm_scenario}, others: {args.scenario}), "
+                 f"median of {args.rounds} (bars: min-max)", fontsize=8)
     ax.legend(fontsize=8)
     ax.tick_params(axis="x", labelsize=8)
     fig.tight_layout()

@@ -262,3 +262,81 @@ def test_bench_train_throughput_smoke(tmp_path):
     assert [r["path"] for r in rows] == ["torchrl-tx", "sb3-batched"]
     assert all(float(r["agent_steps_per_s"]) > 0 for r in rows)
     assert (tmp_path / "smoke.png").exists() and (tmp_path / "smoke.txt").exists()
+
+
+# ------------------------------------------------------------------ policy files
+@pytest.fixture(scope="module")
+def tiny_policies(tmp_path_factory):
+    """A set-network and an MLP policy trained for one iteration on the transmit task."""
+    from netsense.rl.mappo import PPOConfig, train_ppo
+
+    out = {}
+    for network in ("set", "mlp"):
+        run = tmp_path_factory.mktemp(network)
+        cfg = PPOConfig("comm_process_noise-v0", network=network, steps=4 * 8 * 10,
+                        num_envs=4, rollout=8, minibatch=16, epochs=1, eval_interval=0,
+                        eval_envs=2, set_hidden=8, hidden=(16,), overrides=SHORT, seed=3)
+        train_ppo(cfg, run)
+        out[network] = run / "policy.pt"
+    return out
+
+
+def test_protocol_evaluates_pt_policies_in_their_control_mode(tiny_policies):
+    from netsense.benchmark import protocol as pr
+    from netsense.rl.mappo import load_policy
+    from netsense.rl.torchrl_batched import make_core
+
+    path = tiny_policies["set"]
+    seeds = pr.eval_seeds(3)
+    got = pr.evaluate("comm_process_noise-v0", f"learned:{path}", seeds, SHORT)
+    # the same policy acting by hand on a core of the same seeds
+    core = make_core("comm_process_noise-v0", 3, **SHORT)
+    pol = load_policy(path, core)
+    o, m = core.reset(seeds)
+    sent = np.zeros(3)
+    for _ in range(SHORT["horizon"]):
+        out = core.step(pol.act(o, m))
+        o, m = out.obs, out.action_mask
+        sent += core.transmit.sum(1)
+    np.testing.assert_allclose(got["msgs_per_agent_step"], sent / (core.N * SHORT["horizon"]))
+    # on a full-control scenario the stored control puts it in its transmit mode; the set
+    # network runs there although M differs (10 substates, trained on 5)
+    rows = pr.frontier("message_cost-v1", episodes=2, families={}, learned=[str(path)],
+                       overrides=SHORT, progress=False)
+    learned = [r for r in rows if r["family"] == "learned"]
+    assert [r["evaluation"] for r in learned] == ["greedy", "sampled"]
+    assert {r["control"] for r in learned} == {"transmit"}
+
+
+def test_pt_policy_through_the_pettingzoo_benchmark_equals_the_batched_protocol(tiny_policies):
+    from netsense import benchmark as bm
+    from netsense.benchmark import protocol as pr
+
+    path = tiny_policies["set"]
+    seeds = pr.eval_seeds(2)
+    batched = pr.evaluate("comm_process_noise-v0", f"learned:{path}", seeds, SHORT)
+    jobs = bm.make_jobs(["comm_process_noise-v0"], [f"learned:{path}"], seeds,
+                        overrides=SHORT)
+    res = bm.execute(jobs, backend="serial", progress=False)
+    np.testing.assert_allclose(batched["reward"], [r["metrics"]["reward"] for r in res],
+                               rtol=1e-9)
+
+
+def test_pt_policy_files_are_checked(tiny_policies, tmp_path):
+    from netsense.benchmark import protocol as pr
+    from netsense.rl.mappo import load_policy
+    from netsense.rl.torchrl_batched import make_core
+
+    # an MLP is tied to the layout it was trained on (here N = 10, M = 5)
+    small = make_core("fig1_scalar-v0", 1, control="transmit")
+    with pytest.raises(ValueError, match="layout it was trained on"):
+        load_policy(tiny_policies["mlp"], small)
+    bad = tmp_path / "policy.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="not a readable policy file"):
+        pr.evaluate("comm_process_noise-v0", f"learned:{bad}", pr.eval_seeds(1), SHORT)
+    with pytest.raises(ValueError, match="no policy file"):
+        load_policy(tmp_path / "missing.pt")
+    # training seeds 3 * 4 + b = 12..15: evaluating on them is refused
+    with pytest.raises(ValueError, match="used in training"):
+        pr.evaluate("comm_process_noise-v0", f"learned:{tiny_policies['set']}", [13], SHORT)

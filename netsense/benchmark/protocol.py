@@ -18,10 +18,13 @@ What a number from ``netsense benchmark --frontier`` means (cite this module's d
 * **Intervals.** Mean over the episodes with a 95 % percentile bootstrap confidence
   interval (:func:`bootstrap_ci`: ``scipy.stats.bootstrap``, 9999 resamples, generator
   seeded with 0, so the interval is reproducible).
-* **Learned policies** (``learned:PATH``, MaskablePPO ``policy.zip``) are evaluated twice
-  on the same seeds: ``greedy`` (the most likely allowed action) and ``sampled`` (actions
-  drawn from the policy, torch seeded with the first evaluation seed). They run in the
-  control mode they were trained in (the scenario's, plus the given overrides).
+* **Learned policies** (``learned:PATH``: a ``.pt`` policy of the batched trainer,
+  :mod:`netsense.rl.mappo`, or a MaskablePPO ``policy.zip``) are evaluated twice on the
+  same seeds: ``greedy`` (the most likely allowed action) and ``sampled`` (actions drawn
+  from the policy, torch seeded with the first evaluation seed). They run in the control
+  mode they were trained in (a ``.pt`` file stores it; a ``policy.zip`` runs in the
+  scenario's, plus the given overrides). A policy whose training seeds overlap the
+  evaluation seeds is refused.
 * **Frontier.** Every communication baseline of :mod:`netsense.env.comm_policies` at each
   knob of :data:`FAMILIES`, plus ``always`` and ``never``, in the scenario's
   communication-only mode; a scenario with full control is run in ``mode =
@@ -45,6 +48,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
+from netsense.benchmark.rollouts import is_batched_policy, learned_overrides
 
 __all__ = ["CSV_COLUMNS", "DEFAULT_EPISODES", "EVAL_SEED0", "FAMILIES", "PROTOCOL_METRICS",
            "TRAIN_SEED_LIMIT", "bootstrap_ci", "check_disjoint", "evaluate", "eval_seeds",
@@ -92,7 +97,12 @@ def check_disjoint(train_seeds: Sequence[int], seeds: Sequence[int]) -> None:
 
 
 def _train_seeds(path: Path) -> list[int]:
-    """Explicit seeds of the training run that wrote ``path`` (its train_config.json)."""
+    """Explicit seeds of the training run that wrote ``path`` (a ``.pt`` policy's stored
+    config, a MaskablePPO policy's train_config.json)."""
+    if is_batched_policy(path):
+        from netsense.rl.mappo import policy_config, read_policy, training_seeds
+
+        return training_seeds(policy_config(read_policy(path)))
     cfg = path.parent / "train_config.json"
     if not cfg.exists():
         return []
@@ -143,8 +153,16 @@ def _mode(scenario: str, overrides: dict) -> str:
 
 
 # ----------------------------------------------------------------------------- rollouts
-def _learned_actor(path: str, deterministic: bool, seed: int):
+def _learned_actor(path: str, deterministic: bool, seed: int, core=None):
     import torch
+
+    if is_batched_policy(path):
+        from netsense.rl.mappo import load_policy
+
+        pol = load_policy(path, core, deterministic=deterministic)
+        if not deterministic:
+            torch.manual_seed(int(seed))
+        return pol.act
 
     from netsense.rl.sb3 import LearnedPolicy
 
@@ -177,15 +195,18 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("seeds must be non-empty")
+    name, _, arg = policy.partition(":")
+    learned = name in ("learned", "learned_sampled")
+    if learned:
+        if not arg:
+            raise ValueError(f"{name} needs a path: {name}:PATH")
+        overrides = learned_overrides(scenario, arg, overrides)
     model, _ = load_model(scenario, **dict(overrides or {}))
     B = len(seeds)
     core = BatchedCore(model, B)
-    name, _, arg = policy.partition(":")
-    if name in ("learned", "learned_sampled"):
-        if not arg:
-            raise ValueError(f"{name} needs a path: {name}:PATH")
+    if learned:
         check_disjoint(_train_seeds(Path(arg)), seeds)
-        act = _learned_actor(arg, name == "learned", seeds[0])
+        act = _learned_actor(arg, name == "learned", seeds[0], core)
     else:
         act = _scripted(policy, core, seeds).act
     obs, mask = core.reset(seeds)
@@ -256,8 +277,9 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
         Family -> knob settings (default :data:`FAMILIES`); ``always`` and ``never`` are
         always run.
     learned : sequence of str
-        Paths of MaskablePPO policies (``{scenario}`` is replaced by the scenario id); each
-        is evaluated greedy and sampled.
+        Paths of learned policies (``.pt`` of the batched trainer or a MaskablePPO
+        ``policy.zip``; ``{scenario}`` is replaced by the scenario id); each is evaluated
+        greedy and sampled.
     overrides : dict, optional
         Scenario overrides (the learned policies run with exactly these).
     progress : bool
@@ -281,7 +303,8 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
     for fam, knob, spec, how, over in tqdm(runs, desc=f"frontier {scenario}",
                                            disable=not progress):
         vals = evaluate(scenario, spec, seeds, over)
-        mode = _mode(scenario, over) if fam == "learned" else control
+        mode = (_mode(scenario, learned_overrides(scenario, knob, over)) if fam == "learned"
+                else control)
         rows.append({"scenario": scenario, "control": mode, "family": fam,
                      "policy": spec, "knob": "" if knob is None else knob, "evaluation": how,
                      "episodes": len(seeds), "seed_first": seeds[0], "seed_last": seeds[-1],

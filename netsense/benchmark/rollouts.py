@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -28,6 +29,27 @@ DEFAULT_POLICIES = ("freshness", "uniform_consensus", "open_loop", "random", "kf
 
 class NotApplicable(ValueError):
     """A policy that does not apply to a scenario (e.g. tree consensus on random graphs)."""
+
+
+def is_batched_policy(path: str | Path) -> bool:
+    """``.pt`` files are policies of the batched TorchRL trainer (:mod:`netsense.rl.mappo`);
+    anything else is read as a MaskablePPO ``policy.zip``."""
+    return str(path).endswith(".pt")
+
+
+def learned_overrides(scenario: str, path: str | Path, overrides: dict | None) -> dict:
+    """The overrides a learned policy is evaluated with: ``overrides``, and for a ``.pt``
+    policy the ``[control]`` mode and fusion rule it acted in during training (so a
+    communication policy runs in its communication-only mode on any scenario)."""
+    over = dict(overrides or {})
+    if not is_batched_policy(path):
+        return over
+    from netsense.rl.mappo import policy_config, read_policy
+    from netsense.rl.torchrl_batched import control_overrides
+
+    state = read_policy(path)
+    control = state.get("control") or policy_config(state).control
+    return control_overrides(scenario, control, over)
 
 
 def _make_env(scenario: str, overrides: dict | None):
@@ -92,16 +114,32 @@ def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
     bits the agents chose. :func:`netsense.benchmark.batched.rollout_seeds` is the batched
     counterpart (one run for many seeds, the same record per seed).
     """
+    learned = policy.startswith("learned")
+    path = policy.split(":", 1)[1] if learned and ":" in policy else None
+    if learned and not path:
+        raise ValueError("the learned policy needs a path: learned:PATH")
+    if learned:
+        overrides = learned_overrides(scenario, path, overrides)
     env = _make_env(scenario, overrides)
     core = env.core
-    learned = policy.startswith("learned")
-    if learned:
+    if learned and is_batched_policy(path):
+        import torch
+
+        from netsense.rl.mappo import load_policy
+
+        agent_env = env
+        sampled = policy.startswith("learned_sampled")
+        batched = load_policy(path, core, deterministic=not sampled)
+        if sampled:  # reproducible draws: torch seeded with the episode's seed
+            torch.manual_seed(int(seed))
+
+        def act(o, i):  # the env's observations are the core's rows
+            a = batched.act(*core.observe())[0]
+            return {ag: a[j] for j, ag in enumerate(env.possible_agents) if ag in env.agents}
+    elif learned:
         from netsense.rl.sb3 import LearnedPolicy
         from netsense.rl.wrappers import MaskedFlatObs
 
-        path = policy.split(":", 1)[1] if ":" in policy else None
-        if not path:
-            raise ValueError("the learned policy needs a path: learned:PATH")
         agent_env = MaskedFlatObs(env)
         sampled = policy.startswith("learned_sampled")
         model = LearnedPolicy(path, deterministic=not sampled)

@@ -40,8 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         choices=list(FAMILIES),
                         help=f"--frontier: baseline families (default: {' '.join(FAMILIES)})")
     parser.add_argument("--learned", action="append", default=[], metavar="PATH",
-                        help="--frontier: a MaskablePPO policy.zip ({scenario} is replaced "
-                             "by the scenario id); repeatable")
+                        help="--frontier: a learned policy, policy.pt of `netsense train "
+                             "--backend torchrl` (run in the control mode it was trained in) "
+                             "or a MaskablePPO policy.zip ({scenario} is replaced by the "
+                             "scenario id); repeatable")
     parser.add_argument("--eps", type=positive_float, default=1e-2,
                         help="relative-error threshold of 'steps to eps' (default: 0.01)")
     parser.add_argument("--out", required=True, help="output directory")

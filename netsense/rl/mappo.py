@@ -56,8 +56,8 @@ from netsense.rl.models import (
 from netsense.rl.torchrl_batched import CONTROLS, NetSenseBatchedEnv, make_core
 
 __all__ = ["ALGOS", "NETWORKS", "BatchedPolicy", "PPOConfig", "behaviour_clone",
-           "build_actor", "evaluate", "load_policy", "scripted_actions", "train_ppo",
-           "training_seeds"]
+           "build_actor", "evaluate", "load_policy", "policy_config", "policy_control",
+           "read_policy", "scripted_actions", "train_ppo", "training_seeds"]
 
 ALGOS = ("mappo", "ippo")
 NETWORKS = ("mlp", "set")
@@ -451,9 +451,18 @@ class PPOResult:
         return self.agent_steps / max(self.wall_s, 1e-9)
 
 
-def _checkpoint(path: Path, config: PPOConfig, actor_net, critic, it: int, steps: int) -> None:
+def _checkpoint(path: Path, config: PPOConfig, actor_net, critic, it: int, steps: int,
+                core) -> None:
+    """Weights with what is needed to run them elsewhere: the config, the control section
+    the policy acted in (mode and fusion, resolved from the scenario) and the layout
+    sizes it was trained on."""
+    ctl = core.model.control
     torch.save({"config": asdict(config), "actor": actor_net.state_dict(),
-                "critic": critic.state_dict(), "iteration": it, "agent_steps": steps}, path)
+                "critic": critic.state_dict(), "iteration": it, "agent_steps": steps,
+                "control": {"mode": ctl.mode, "fusion": ctl.fusion},
+                "trained_on": {"N": core.N, "D": core.D, "M": core.M,
+                               "obs_dim": core.layout.size,
+                               "nvec": [int(v) for v in core.nvec]}}, path)
 
 
 def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: bool = False,
@@ -579,7 +588,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
             ev = evaluate(actor, config, deterministic=False)
             row.update({f"eval_sampled_{k}": v for k, v in ev.items()})
             _checkpoint(out / f"checkpoint_{it + 1:05d}.pt", config, net, critic, it + 1,
-                        agent_steps)
+                        agent_steps, core)
         rows.append(row)
         if log is not None:
             log.add(row)
@@ -588,7 +597,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     bar.close()
     collector.shutdown()
     if out is not None:
-        _checkpoint(out / "policy.pt", config, net, critic, iters, agent_steps)
+        _checkpoint(out / "policy.pt", config, net, critic, iters, agent_steps, core)
         log.close()
         meta = {"wall_s": round(wall, 2), "agent_steps": agent_steps,
                 "agent_steps_per_s": round(agent_steps / wall, 1),
@@ -598,6 +607,42 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
 
 
 # ------------------------------------------------------------------ inference
+def read_policy(path: str | Path) -> dict:
+    """The contents of a ``policy.pt`` / checkpoint of :func:`train_ppo`, checked.
+
+    Raises ``ValueError`` naming the file when it is missing, unreadable or not a
+    checkpoint of this trainer.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"no policy file at {path} (train one with `netsense train "
+                         "--backend torchrl`)")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # noqa: BLE001 - any failure to load is a bad file
+        text = " ".join(str(exc).split())[:200]
+        raise ValueError(f"{path}: not a readable policy file (truncated or corrupted?): "
+                         f"{type(exc).__name__}: {text}") from None
+    if not isinstance(state, dict) or not {"config", "actor"} <= set(state):
+        raise ValueError(f"{path}: not a checkpoint of netsense's batched trainer (no "
+                         "'config' and 'actor' entries)")
+    return state
+
+
+def policy_config(state: dict) -> PPOConfig:
+    """The :class:`PPOConfig` stored in a checkpoint (:func:`read_policy`)."""
+    cfg = dict(state["config"])
+    for key in ("hidden", "critic_hidden"):
+        cfg[key] = tuple(cfg[key])
+    return PPOConfig(**cfg)
+
+
+def policy_control(path: str | Path) -> dict | None:
+    """The ``[control]`` keys (mode, fusion) the policy at ``path`` acted with (``None``
+    for files written before this was stored: the config's ``control`` then says it)."""
+    return read_policy(path).get("control")
+
+
 class BatchedPolicy:
     """A trained actor as a batched policy: ``act(obs (B, N, obs_dim), mask) -> actions``.
 
@@ -607,20 +652,28 @@ class BatchedPolicy:
         ``policy.pt`` or a checkpoint of :func:`train_ppo`.
     core : optional
         The core the policy will act on (default: one of the training scenario). A set
-        network runs on any layout; an MLP needs the training layout.
+        network runs on any layout of its kind (communication fields or not) and action
+        layout; an MLP needs the training layout (checked).
     deterministic : bool
         Most likely allowed action (default) or a sample.
     """
 
     def __init__(self, path: str | Path, core=None, *, deterministic: bool = True) -> None:
-        state = torch.load(Path(path), map_location="cpu", weights_only=False)
-        cfg = dict(state["config"])
-        cfg["hidden"] = tuple(cfg["hidden"])
-        cfg["critic_hidden"] = tuple(cfg["critic_hidden"])
-        self.config = PPOConfig(**cfg)
+        state = read_policy(path)
+        self.config = policy_config(state)
         if core is None:
-            core = make_core(self.config.scenario, 1, control=self.config.control,
+            control = state.get("control") or self.config.control
+            core = make_core(self.config.scenario, 1, control=control,
                              **self.config.overrides)
+        trained = state.get("trained_on")
+        if self.config.network == "mlp" and trained is not None:
+            now = {"N": core.N, "obs_dim": core.layout.size,
+                   "nvec": [int(v) for v in core.nvec]}
+            diff = {k: (trained[k], v) for k, v in now.items() if trained[k] != v}
+            if diff:
+                raise ValueError(f"{path}: an MLP policy runs only on the layout it was "
+                                 f"trained on; (trained, here): {diff}. Train the set "
+                                 "network (--network set) to change N or D")
         self.net = actor_net(self.config, core, torch.device("cpu"))
         self.net.load_state_dict(state["actor"])
         self.net.eval()
