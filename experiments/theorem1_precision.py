@@ -37,10 +37,14 @@ rounding amplified by ``G``, it must scale with the unit roundoff; an implementa
    The error is always measured in longdouble. ``G`` is theorem1_numerics'
    ``noise_gain`` (process noise ``1e-9 ||x||``, float64); the floor is compared with
    ``eps G`` of each precision.
+3. **Deadbeat.** The same on theorem1_numerics' deadbeat plants (Corollary 1's gains),
+   the floor being the relative error over the 50 steps after the bound
+   ``n + 2N(N-1)T``.
 
 Run: ``python experiments/theorem1_precision.py`` (about 2 minutes on 2 shared cores;
-``--worst 10 --below 3``). Writes ``experiments/results/theorem1_precision.csv`` and
-``theorem1_precision.png``. ``tests/test_theorem1_numerics.py`` checks the reference
+``--worst 10 --below 3`` plants of each kind). Writes
+``experiments/results/theorem1_precision.csv`` and ``theorem1_precision.png`` (its printout
+is ``theorem1_precision.txt``). ``tests/test_theorem1_numerics.py`` checks the reference
 against the package and the longdouble floor on one plant.
 """
 
@@ -58,6 +62,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import theorem1_numerics as num  # noqa: E402  (a sibling script, not a package)
 
+from netsense.graphs.bounds import corollary1_bound  # noqa: E402
 from netsense.observers.freshness import FreshnessObserver  # noqa: E402
 from netsense.systems.design import ObserverDesign  # noqa: E402
 
@@ -263,23 +268,41 @@ VARIANTS = {  # name: (plant: "package" | "structured", plant dtype, observer dt
 }
 
 
-def floors(case: num.Case, variants=VARIANTS) -> dict[str, float]:
-    """The floor (largest relative error over steps 240-360) of each variant."""
-    plant, des = case.plant(), num.design(case, rho=0.5)
-    graphs = case.graphs(STEPS)
+def floors(case: num.Case, variants=VARIANTS, *, deadbeat: bool = False) -> dict[str, float]:
+    """The floor of each variant: the largest relative error over steps 240-360 with
+    Theorem 1's gains, or with ``deadbeat`` gains over the 50 steps after Corollary 1's
+    bound ``n + 2N(N-1)T`` (theorem1_numerics.measure_deadbeat's window); ``_late``: over
+    the last 60 or 25 steps only (equal when the floor is flat)."""
+    plant = case.plant()
+    if deadbeat:
+        des = num.design(case)
+        start = int(corollary1_bound(plant.n, plant.num_agents, case.T))
+        steps, late = start + 50, start + 25
+    else:
+        des, steps, start, late = num.design(case, rho=0.5), STEPS, START, 300
+    graphs = case.graphs(steps)
     out = {}
     for name, (kind, pdt, odt) in variants.items():
         sim = package_sim(des, plant, pdt) if kind == "package" else structured_sim(des, pdt)
         rel = simulate(des, sim, graphs, case.seed, odt)
-        out[name] = float(rel[START:].max())
-        out[name + "_late"] = float(rel[300:].max())  # flat: the transient is gone
+        out[name] = float(rel[start:].max())
+        out[name + "_late"] = float(rel[late:].max())
     return out
 
 
-def scan(count: int = 200) -> list[tuple[num.Case, dict]]:
-    """theorem1_numerics' floor measurement (package observer, float64) on its plants."""
-    chosen, _ = num.cases(count, radius=(0.9, 1.1), offset=20_000, rho=0.5)
-    return [(c, num.measure_floor(c)) for c in chosen]
+def scan(count: int = 200, *, deadbeat: bool = False) -> list[tuple[num.Case, dict]]:
+    """theorem1_numerics' measurement (package observer, float64) on its plants:
+    ``(case, {"floor", "gain"})``; Theorem 1's floor plants, or the deadbeat plants with
+    the relative error after Corollary 1's bound as the floor."""
+    if not deadbeat:
+        chosen, _ = num.cases(count, radius=(0.9, 1.1), offset=20_000, rho=0.5)
+        return [(c, num.measure_floor(c)) for c in chosen]
+    chosen, _ = num.cases(count, radius=(0.7, 1.1), offset=10_000)
+    out = []
+    for c in chosen:
+        r = num.measure_deadbeat(c)
+        out.append((c, {"floor": r["after_bound"], "gain": r["gain"]}))
+    return out
 
 
 def _progress(it, **kw):
@@ -298,9 +321,12 @@ def plot(rows: list[dict], path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(5.2, 4.0))
     g = np.array([r["G"] for r in rows])
-    for key, eps, mark, label in (("floor_f64", EPS64, "o", "float64 (package plant)"),
-                                  ("floor_ld", EPS_LD, "s", "longdouble (plant and observer)")):
-        ax.loglog(eps * g, [r[key] for r in rows], mark, mfc="none", label=label)
+    for gains, mark in (("theorem1", "o"), ("deadbeat", "^")):
+        sel = np.array([r["gains"] == gains for r in rows])
+        for key, eps, color, label in (("floor_f64", EPS64, "C0", "float64"),
+                                       ("floor_ld", EPS_LD, "C1", "longdouble")):
+            ax.loglog(eps * g[sel], [r[key] for r, s in zip(rows, sel, strict=True) if s],
+                      mark, color=color, mfc="none", label=f"{label}, {gains} gains")
     lo = min(EPS_LD * g.min(), 1e-20)
     hi = max(EPS64 * g.max(), 1e-9)
     ref = np.array([lo, hi])
@@ -308,12 +334,47 @@ def plot(rows: list[dict], path: Path) -> None:
     ax.loglog(ref, 24 * ref, "k:", lw=0.8, label="24 eps G")
     ax.axhline(1e-12, color="r", lw=0.6, ls="--", label="1e-12")
     ax.set_xlabel("eps x G (G: noise gain, theorem1_numerics)")
-    ax.set_ylabel("relative error floor, steps 240-360")
-    ax.set_title("Theorem 1 gains: floor vs unit roundoff x noise gain", fontsize=9)
+    ax.set_ylabel("floor: max relative error (steps 240-360 / after the bound)", fontsize=8)
+    ax.set_title("Floor vs unit roundoff x noise gain, float64 and longdouble", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def study(args, *, deadbeat: bool) -> list[dict]:
+    """Scan, pick the worst and a few sub-1e-12 plants, check the reference on four of
+    them, and measure every variant's floor."""
+    gains = "deadbeat" if deadbeat else "theorem1"
+    scanned = scan(args.cases, deadbeat=deadbeat)
+    order = sorted(scanned, key=lambda cr: -cr[1]["floor"])
+    worst = order[: args.worst]
+    under = [cr for cr in order if cr[1]["floor"] < 1e-12]
+    pick = [under[round(i * (len(under) - 1) / max(args.below - 1, 1))]
+            for i in range(args.below)] if args.below else []
+    print(f"{gains} scan ({len(scanned)} plants, package observer, float64): floor above "
+          f"1e-12 on {sum(r['floor'] > 1e-12 for _, r in scanned)}; max "
+          f"{order[0][1]['floor']:.2e}")
+    if not deadbeat:
+        agree = [agreement(c) for c, _ in _progress(worst[:3] + pick[:1], desc="agreement")]
+        print("reference vs FreshnessObserver (float64, same measurements): same choices "
+              f"and indices at every step: {all(a['choices_equal'] for a in agree)}; one "
+              f"step from the package's state: max "
+              f"{max(a['one_step_eps'] for a in agree):.2f} eps (of the largest term); whole "
+              "run: max ||z_ref - z_pkg|| / ||x|| = "
+              + ", ".join(f"{a['run']:.1e}" for a in agree)
+              + " (floors " + ", ".join(f"{r['floor']:.1e}" for _, r in worst[:3] + pick[:1])
+              + ")")
+    rows = []
+    for case, r in _progress(worst + pick, desc=gains):
+        f = floors(case, deadbeat=deadbeat)
+        rows.append({"gains": gains, "seed": case.seed, "n": case.n, "N": case.N,
+                     "T": case.T, "sources": case.sources,
+                     "outputs": case.outputs or "ceil(n_j/4)",
+                     "spectral_radius": round(case.spectral_radius, 4),
+                     "G": r["gain"], "floor_pkg": r["floor"],
+                     **{f"floor_{k.replace('/', '_')}": v for k, v in f.items()}})
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -323,31 +384,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", type=int, default=200)
     args = parser.parse_args(argv)
 
-    scanned = scan(args.cases)
-    order = sorted(scanned, key=lambda cr: -cr[1]["floor"])
-    worst = order[: args.worst]
-    under = [cr for cr in order if cr[1]["floor"] < 1e-12]
-    pick = [under[round(i * (len(under) - 1) / max(args.below - 1, 1))]
-            for i in range(args.below)] if args.below else []
-    print(f"scan ({len(scanned)} plants, package observer, float64): floor above 1e-12 on "
-          f"{sum(r['floor'] > 1e-12 for _, r in scanned)}; max "
-          f"{order[0][1]['floor']:.2e}")
-
-    agree = [agreement(c) for c, _ in _progress(worst[:3] + pick[:1], desc="agreement")]
-    print("reference vs FreshnessObserver (float64, same measurements): same choices and "
-          f"indices at every step: {all(a['choices_equal'] for a in agree)}; one step from "
-          f"the package's state: max {max(a['one_step_eps'] for a in agree):.1f} eps "
-          f"(of the largest term); whole run: max ||z_ref - z_pkg|| / ||x|| = "
-          + ", ".join(f"{a['run']:.1e}" for a in agree))
-
-    rows = []
-    for case, r in _progress(worst + pick, desc="precision"):
-        f = floors(case)
-        rows.append({"seed": case.seed, "n": case.n, "N": case.N, "T": case.T,
-                     "sources": case.sources, "outputs": case.outputs or "ceil(n_j/4)",
-                     "spectral_radius": round(case.spectral_radius, 4),
-                     "G": r["gain"], "floor_pkg": r["floor"],
-                     **{f"floor_{k.replace('/', '_')}": v for k, v in f.items()}})
+    rows = study(args, deadbeat=False) + study(args, deadbeat=True)
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / "theorem1_precision.csv"
     with path.open("w", newline="") as fh:
@@ -357,16 +394,21 @@ def main(argv: list[str] | None = None) -> int:
             w.writerow({k: (f"{v:.3e}" if isinstance(v, float) else v) for k, v in row.items()})
     plot(rows, RESULTS / "theorem1_precision.png")
 
-    print(f"eps: float64 {EPS64:.3e}, longdouble {EPS_LD:.3e} (ratio {EPS64 / EPS_LD:.0f})")
-    head = (f"{'seed':>6} {'n':>3} {'N':>3} {'T':>2} {'src':>3} {'G':>8} {'eps64 G':>8} "
-            f"{'f64':>8} {'ld':>8} {'f64/ld':>7} {'eps_ld G':>8} {'ld_cast':>8} "
-            f"{'pl64/obsld':>10} {'plld/obs64':>10}")
+    print(f"eps: float64 {EPS64:.3e}, longdouble {EPS_LD:.3e} (ratio {EPS64 / EPS_LD:.0f}); "
+          "floors: f64 = the package's plant, float64; ld = longdouble throughout (exact "
+          "structure); ld_cast = longdouble, the package's A and T cast; pl64/obsld = "
+          "float64 plant, longdouble observer; plld/obs64 = longdouble plant, float64 "
+          "observer")
+    head = (f"{'gains':>8} {'seed':>6} {'n':>3} {'N':>3} {'T':>2} {'src':>3} {'G':>8} "
+            f"{'eps64 G':>8} {'f64':>8} {'ld':>8} {'f64/ld':>7} {'eps_ld G':>8} "
+            f"{'ld_cast':>8} {'pl64/obsld':>10} {'plld/obs64':>10}")
     print(head)
     for r in rows:
-        print(f"{r['seed']:>6} {r['n']:>3} {r['N']:>3} {r['T']:>2} {r['sources']:>3} "
-              f"{r['G']:8.1e} {EPS64 * r['G']:8.1e} {r['floor_f64']:8.1e} {r['floor_ld']:8.1e} "
-              f"{r['floor_f64'] / r['floor_ld']:7.0f} {EPS_LD * r['G']:8.1e} "
-              f"{r['floor_ld_cast']:8.1e} {r['floor_f64_ld']:10.1e} {r['floor_ld_f64']:10.1e}")
+        print(f"{r['gains']:>8} {r['seed']:>6} {r['n']:>3} {r['N']:>3} {r['T']:>2} "
+              f"{r['sources']:>3} {r['G']:8.1e} {EPS64 * r['G']:8.1e} {r['floor_f64']:8.1e} "
+              f"{r['floor_ld']:8.1e} {r['floor_f64'] / r['floor_ld']:7.0f} "
+              f"{EPS_LD * r['G']:8.1e} {r['floor_ld_cast']:8.1e} {r['floor_f64_ld']:10.1e} "
+              f"{r['floor_ld_f64']:10.1e}")
     print(f"wrote {path} and {path.with_suffix('.png')}")
     return 0
 
