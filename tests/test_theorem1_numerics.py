@@ -80,3 +80,30 @@ def test_envelope_rate_recovers_a_known_rate():
     k = np.arange(600)
     log_err = k * np.log(0.45) + 5.0 * (k % 7 == 3)  # bursts every 7 steps, window 7
     assert num.envelope_rate(log_err, 100, 7) == pytest.approx(0.45, abs=1e-9)
+
+
+# ---------------------------------------------------------------- precision of the floor
+#: One of theorem1_numerics' floor plants (offset 20_000) with a float64 floor far above
+#: 1e-12 (3.8e-10 with a plain plant simulation; G = 9.1e5, the largest of the 200):
+#: n = 12, N = 9, T = 4, nine multi-output sources.
+FLOOR_PLANT = dict(seed=20013, single_output=False, radius=(0.9, 1.1))
+
+
+def test_floor_scales_with_the_unit_roundoff():
+    """The dtype-generic reference observer is the package's observer (float64: the same
+    choices and indices, one step within rounding of the largest term, a whole run apart
+    by far less than the floor); run in longdouble on a plant whose Lemma 1 structure is
+    exact there, its floor drops with eps (2048x smaller; at least 100x asserted) to below
+    1e-12, while a longdouble observer on the float64 plant keeps the float64 floor."""
+    prec = load_experiment("theorem1_precision")
+    case = prec.num.sample_case(**FLOOR_PLANT)
+    assert (case.n, case.N, case.T, case.sources) == (12, 9, 4, 9)
+    agree = prec.agreement(case)
+    assert agree["choices_equal"]
+    assert agree["one_step_eps"] <= 4
+    f = prec.floors(case, {k: prec.VARIANTS[k] for k in ("f64", "ld", "f64/ld")})
+    assert f["f64"] > 1e-11
+    assert agree["run"] <= 0.1 * f["f64"]
+    assert f["ld"] <= f["f64"] / 100
+    assert f["ld"] < 1e-12
+    assert f["f64/ld"] >= 0.5 * f["f64"]  # the observer's arithmetic is not the cause
