@@ -240,12 +240,38 @@ def test_behaviour_cloning_learns_the_freshness_choices():
     from netsense.rl.torchrl_batched import make_core
 
     torch.manual_seed(0)
-    cfg = PPOConfig(SCEN, network="set", num_envs=8, minibatch=32, set_hidden=16,
+    cfg = PPOConfig(SCEN, network="set", num_envs=8, bc_minibatch=32, set_hidden=16,
                     overrides=SHORT)
     net = actor_net(cfg, make_core(SCEN, 1, **SHORT))
     stats = behaviour_clone(net, cfg, "freshness", steps=192, epochs=8, lr=3e-3)
     assert stats["ce_after"] < 0.5 * stats["ce_before"]
     assert stats["accuracy"] > stats["chance"] + 0.2
+
+
+def test_behaviour_cloning_copies_a_communication_baseline():
+    # sources:0 (sources send every step, relays never) is a deterministic function of the
+    # observation: the clone must match it on held-out members and act like it
+    from netsense.benchmark import protocol as pr
+    from netsense.rl.mappo import BatchedPolicy, PPOConfig, actor_net, behaviour_clone
+    from netsense.rl.torchrl_batched import make_core
+
+    torch.manual_seed(0)
+    sc = "comm_process_noise-v0"
+    cfg = PPOConfig(sc, num_envs=16, bc_steps=512, bc_epochs=30, bc_minibatch=128,
+                    overrides=SHORT)
+    net = actor_net(cfg, make_core(sc, 1, **SHORT))
+    stats = behaviour_clone(net, cfg, "sources:0")
+    assert stats["accuracy"] > 0.98, stats
+    pol = BatchedPolicy.__new__(BatchedPolicy)  # the cloned net as a batched policy
+    pol.net, pol.nvec, pol.deterministic = net.eval(), (2,), True
+    core = make_core(sc, 4, **SHORT)
+    o, m = core.reset(pr.eval_seeds(4))
+    sent = 0.0
+    for _ in range(SHORT["horizon"]):
+        out = core.step(pol.act(o, m))
+        o, m = out.obs, out.action_mask
+        sent += core.transmit.mean()
+    assert sent / SHORT["horizon"] == pytest.approx(0.5, abs=0.02)  # five sources of ten
 
 
 def test_bench_train_throughput_smoke(tmp_path):

@@ -350,7 +350,8 @@ def _plot(rows: Sequence[dict], path: Path) -> None:
                            (axes[1], "reward", "episode return (mean over agents)")):
         groups: dict[str, list[dict]] = {}
         for r in rows:
-            key = r["family"] if r["family"] != "learned" else f"learned ({r['evaluation']})"
+            key = (r["family"] if r["family"] != "learned"
+                   else f"{r.get('label') or 'learned'} ({r['evaluation']})")
             groups.setdefault(key, []).append(r)
         for c, (key, rs) in enumerate(groups.items()):
             rs = sorted(rs, key=lambda r: r[f"{xm}_mean"])

@@ -120,9 +120,14 @@ class PPOConfig:
         :data:`EVAL_SEED`).
     bc : str or None
         Scripted policy to clone before PPO (:func:`scripted_actions`).
-    bc_steps, bc_epochs : int
+    bc_steps, bc_epochs, bc_minibatch : int
         Env-steps of scripted data (split over ``num_envs`` members; each holds ``N``
-        agent-steps) and passes over it.
+        agent-steps), passes over it, env-steps per gradient step. The defaults clone a
+        deterministic baseline of ``comm_process_noise-v0`` to 99.7-99.95 % of its actions
+        (held out) and to its return; 8192 steps and 5 passes at the PPO minibatch reached
+        81-85 % and lost 6-10 return to the baseline.
+    bc_lr : float
+        Adam learning rate of the cloning.
     critic_warmup : int
         First iterations that train only the critic.
     device : str
@@ -165,8 +170,10 @@ class PPOConfig:
     eval_interval: int = 10
     eval_envs: int = 16
     bc: str | None = None
-    bc_steps: int = 8192
-    bc_epochs: int = 5
+    bc_steps: int = 32768
+    bc_epochs: int = 40
+    bc_minibatch: int = 512
+    bc_lr: float = 3e-3
     critic_warmup: int = 0
     device: str = "auto"
     numba_threads: int | None = 1
@@ -184,9 +191,13 @@ class PPOConfig:
         if self.algo == "ippo" and self.critic not in (None, "local"):
             raise ValueError("ippo uses a local critic (critic='local')")
         for name in ("steps", "num_envs", "rollout", "epochs", "minibatch", "eval_envs",
-                     "bc_steps", "bc_epochs"):
+                     "bc_steps", "bc_epochs", "bc_minibatch"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("lr", "bc_lr"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"PPOConfig.{name} must be a finite number > 0, got {v!r}")
         if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
             raise ValueError(f"PPOConfig.seed must be an integer >= 0, got {self.seed!r}")
         if (self.seed + 1) * self.num_envs > BC_HELDOUT_SEED:
@@ -284,7 +295,8 @@ def _collect_scripted(config: PPOConfig, name: str, steps: int, seed: int):
 
 
 def behaviour_clone(net: torch.nn.Module, config: PPOConfig, scripted: str, *,
-                    steps: int | None = None, epochs: int | None = None, lr: float = 1e-3,
+                    steps: int | None = None, epochs: int | None = None,
+                    lr: float | None = None,
                     seed: int | None = None, device=None) -> dict:
     """Warm start: minimise the cross-entropy of the masked policy on scripted actions.
 
@@ -303,6 +315,7 @@ def behaviour_clone(net: torch.nn.Module, config: PPOConfig, scripted: str, *,
     """
     steps = int(steps or config.bc_steps)
     epochs = int(epochs or config.bc_epochs)
+    lr = float(lr or config.bc_lr)
     device = device or next(net.parameters()).device
     seed = config.seed * config.num_envs if seed is None else int(seed)
     obs, mask, act = (t.to(device) for t in _collect_scripted(config, scripted, steps, seed))
@@ -325,7 +338,7 @@ def behaviour_clone(net: torch.nn.Module, config: PPOConfig, scripted: str, *,
     opt = torch.optim.Adam(net.parameters(), lr=lr)
     gen = torch.Generator().manual_seed(seed)
     rows = obs.shape[0]
-    mb = max(1, min(rows, config.minibatch))
+    mb = max(1, min(rows, config.bc_minibatch))
     for _ in range(epochs):
         perm = torch.randperm(rows, generator=gen).to(device)
         for s in range(0, rows, mb):
