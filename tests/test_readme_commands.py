@@ -25,6 +25,7 @@ README = ROOT / "README.md"
 
 #: Modules a command needs, by what it contains.
 RL_STACK = ("stable_baselines3", "sb3_contrib", "supersuit", "torch")
+TORCHRL_STACK = ("torch", "torchrl", "tensordict")
 
 
 def readme_blocks(text: str) -> list[list[list[str]]]:
@@ -54,8 +55,13 @@ def readme_blocks(text: str) -> list[list[list[str]]]:
 def needs(argv: list[str]) -> tuple[list[str], str | None]:
     """``(modules the command imports, reason it cannot run here or None)``."""
     mods: list[str] = []
-    if argv[1] == "train" or any(a.startswith("learned:") for a in argv):
-        mods += RL_STACK
+    if argv[1] == "train":
+        torchrl = "--backend" in argv and argv[argv.index("--backend") + 1] == "torchrl"
+        mods += TORCHRL_STACK if torchrl else RL_STACK
+    learned = [a.split(":", 1)[1] for a in argv if a.startswith("learned:")]
+    learned += [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--learned"]
+    for path in learned:
+        mods += TORCHRL_STACK if path.endswith(".pt") else RL_STACK
     if "--backend" in argv and argv[argv.index("--backend") + 1] == "ray":
         mods.append("ray")
         if "--address" in argv:

@@ -361,7 +361,7 @@ def _plot(rows: Sequence[dict], path: Path) -> None:
                           - x)
             yerr = np.abs(np.array([[r[f"{ym}_ci_low"], r[f"{ym}_ci_high"]] for r in rs]).T
                           - y)
-            learned = key.startswith("learned")
+            learned = rs[0]["family"] == "learned"
             endpoint = key in ENDPOINTS
             ax.errorbar(x, y, xerr=xerr, yerr=yerr, color="k" if endpoint else f"C{c % 10}",
                         marker="*" if learned else ("s" if endpoint else "o"),
