@@ -235,9 +235,10 @@ def sentence(points: list[dict]) -> str:
     elif hit:
         top = max(hit, key=lambda p: p["saving_at_freshness_error"])
         ok = top["saving_at_freshness_error"] >= TARGET_SAVING
+        sv = top["saving_at_freshness_error"]
         parts.append(f"at the freshness observer's error ({p0['freshness_error']:.3f}) the "
-                     f"best learned point uses {top['saving_at_freshness_error']:.0%} fewer "
-                     f"{xm} than the best scripted one "
+                     f"best learned point uses {abs(sv):.0%} {'fewer' if sv >= 0 else 'more'}"
+                     f" {xm} than the scripted frontier "
                      f"({'meets' if ok else 'misses'} the 30 % aim)")
     else:
         parts.append(f"none reaches the freshness observer's error "
