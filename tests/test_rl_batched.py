@@ -366,3 +366,27 @@ def test_pt_policy_files_are_checked(tiny_policies, tmp_path):
     # training seeds 3 * 4 + b = 12..15: evaluating on them is refused
     with pytest.raises(ValueError, match="used in training"):
         pr.evaluate("comm_process_noise-v0", f"learned:{tiny_policies['set']}", [13], SHORT)
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"control": "tx"}, "control must be one of"),
+    ({"control": 3}, "control must be a mode name"),
+    ({"control": {"mode": "broadcast"}}, "control.mode"),
+])
+def test_make_core_names_a_bad_control(kw, match):
+    from netsense.rl.torchrl_batched import make_core
+
+    with pytest.raises(ValueError, match=match):
+        make_core(SCEN, 1, **kw)
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"bc_lr": 0.0}, "bc_lr"), ({"lr": float("nan")}, "lr"), ({"bc_minibatch": 0}, "bc_minibatch"),
+    ({"seed": -1}, "seed"), ({"seed": 4000, "num_envs": 256}, "below 900000"),
+    ({"control": "tx"}, "control"),
+])
+def test_ppo_config_names_bad_fields(kw, match):
+    from netsense.rl.mappo import PPOConfig
+
+    with pytest.raises(ValueError, match=match):
+        PPOConfig(SCEN, **kw)
