@@ -137,12 +137,11 @@ def bootstrap_ci(values: Sequence[float], confidence: float = CONFIDENCE,
 def frontier_overrides(scenario: str, overrides: dict | None = None) -> dict:
     """Overrides that put ``scenario`` in a communication-only mode (``"transmit"`` with
     freshness fusion unless the scenario or ``overrides`` choose one)."""
-    from netsense.env.registry import load, with_overrides
+    from netsense.env.registry import control_overrides
 
     over = dict(overrides or {})
-    sc = with_overrides(load(scenario), **over)
-    if sc.control.get("mode", "full") == "full":
-        over["control"] = {**sc.control, "mode": "transmit"}
+    if _mode(scenario, over) == "full":
+        return control_overrides(scenario, "transmit", over)
     return over
 
 

@@ -44,12 +44,10 @@ def learned_overrides(scenario: str, path: str | Path, overrides: dict | None) -
     over = dict(overrides or {})
     if not is_batched_policy(path):
         return over
-    from netsense.rl.mappo import policy_config, read_policy
-    from netsense.rl.torchrl_batched import control_overrides
+    from netsense.env.registry import control_overrides
+    from netsense.rl.mappo import policy_control, read_policy
 
-    state = read_policy(path)
-    control = state.get("control") or policy_config(state).control
-    return control_overrides(scenario, control, over)
+    return control_overrides(scenario, policy_control(read_policy(path)), over)
 
 
 def _make_env(scenario: str, overrides: dict | None):

@@ -738,6 +738,25 @@ def with_overrides(sc: Scenario, **overrides) -> Scenario:
                                                   f"{sorted(overrides)})")
 
 
+def control_overrides(scenario: str, control: str | dict | None, overrides: dict) -> dict:
+    """``overrides`` with the scenario's ``[control]`` section updated by ``control``: a
+    mode name (the section's other keys, e.g. the fusion rule, kept) or a dict of keys
+    (``{"mode": "transmit", "fusion": "tree"}``); unchanged for ``control=None``."""
+    from netsense.engine.control import MODES
+
+    if control is None:
+        return dict(overrides)
+    if isinstance(control, str):
+        if control not in MODES:
+            raise ValueError(f"control must be one of {MODES} or a dict, got {control!r}")
+        control = {"mode": control}
+    if not isinstance(control, dict):
+        raise ValueError(f"control must be a mode name, a dict or None, got "
+                         f"{type(control).__name__}")
+    sc = with_overrides(load(scenario), **overrides)
+    return {**overrides, "control": {**sc.control, **control}}
+
+
 def make(scenario_id: str, **overrides):
     """Build the PettingZoo environment of a registered scenario.
 

@@ -49,8 +49,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["REWARDS", "adopted_slots", "agent_reward", "full_control", "sender_credit",
-           "shaped_reward", "team_reward"]
+__all__ = ["REWARDS", "adopted_slots", "agent_reward", "check_adoptions", "full_control",
+           "sender_credit", "shaped_reward", "team_reward"]
 
 #: Reward options, see the module docstring.
 REWARDS = ("scenario", "team", "agent", "counterfactual")
@@ -73,20 +73,26 @@ def adopted_slots(core, actions: np.ndarray) -> np.ndarray:
     sender to credit (``ValueError``). In full control ``a[..., j] = d + 1`` adopts slot
     ``d``.
     """
+    check_adoptions(core)
+    comm = getattr(core, "comm", None)
+    a = comm.choice if comm is not None else np.asarray(actions)[..., :core.M]
+    return np.where((a >= 1) & (a <= core.D), a - 1, -1)
+
+
+def check_adoptions(core) -> None:
+    """Raise ``ValueError`` unless :func:`adopted_slots` can tell the adoptions of
+    ``core``: full control, or a communication-only mode whose fusion adopts single slots
+    (not ``uniform``, which averages every message and credits nobody)."""
     comm = getattr(core, "comm", None)
     if comm is not None:
         if comm.control.fusion == "uniform":
             raise ValueError("fusion 'uniform' averages every message: no receiver adopts "
                              "one sender's slot, so the counterfactual reward has nothing "
                              "to credit (use fusion 'freshness' or 'tree')")
-        a = comm.choice
-    elif full_control(core):
-        a = np.asarray(actions)[..., :core.M]
-    else:
+    elif not full_control(core):
         raise ValueError(f"action layout {list(np.asarray(core.nvec))} reports no "
                          "adoptions: the counterfactual reward needs full control or a "
                          "communication-only mode")
-    return np.where((a >= 1) & (a <= core.D), a - 1, -1)
 
 
 def team_reward(reward: np.ndarray) -> np.ndarray:

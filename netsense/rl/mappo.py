@@ -123,9 +123,10 @@ class PPOConfig:
     bc_steps, bc_epochs, bc_minibatch : int
         Env-steps of scripted data (split over ``num_envs`` members; each holds ``N``
         agent-steps), passes over it, env-steps per gradient step. The defaults clone a
-        deterministic baseline of ``comm_process_noise-v0`` to 99.7-99.95 % of its actions
-        (held out) and to its return; 8192 steps and 5 passes at the PPO minibatch reached
-        81-85 % and lost 6-10 return to the baseline.
+        deterministic baseline of ``comm_process_noise-v0`` (``sources:0``, ``event:2``) to
+        99.7-99.95 % of its actions (held out) and to its return within 0.2; 8192 steps
+        and 5 passes at a minibatch of 2048 reached 81-85 % and lost 4-11 of return
+        sampled, 37-73 greedy (64 training-evaluation episodes).
     bc_lr : float
         Adam learning rate of the cloning.
     critic_warmup : int
@@ -484,7 +485,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
 
     ``out=None`` writes nothing (benchmarks). ``evaluate_every=False`` skips the periodic
     evaluations and checkpoints (benchmarks). Sets ``torch.set_flush_denormal(True)`` for
-    the process (subnormal gradients of saturated units slowed a warm-started run tenfold).
+    the process (a forward and backward pass of a warm-started actor took 0.031 s instead
+    of 0.040 s with it).
     """
     from torchrl.collectors import Collector
     from torchrl.objectives import ClipPPOLoss, ValueEstimators
@@ -492,8 +494,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
 
     device = _device(config.device)
     torch.manual_seed(config.seed)
-    # subnormal floats (saturated tanh units after a warm start give gradients ~1e-39)
-    # take the slow path on x86 CPUs: flushing them to zero changes nothing above 1e-38
+    # subnormal floats take a slow path on x86 CPUs; flushing them to zero changes
+    # nothing above 1e-38
     torch.set_flush_denormal(True)
     if config.torch_threads:
         torch.set_num_threads(int(config.torch_threads))
@@ -654,10 +656,11 @@ def policy_config(state: dict) -> PPOConfig:
     return PPOConfig(**cfg)
 
 
-def policy_control(path: str | Path) -> dict | None:
-    """The ``[control]`` keys (mode, fusion) the policy at ``path`` acted with (``None``
-    for files written before this was stored: the config's ``control`` then says it)."""
-    return read_policy(path).get("control")
+def policy_control(state: dict) -> dict | str | None:
+    """What the policy of a checkpoint (:func:`read_policy`) acted in: the stored
+    ``[control]`` keys (mode, fusion), else (files written before they were stored) the
+    config's ``control`` (a mode name, or ``None``: the scenario's)."""
+    return state.get("control") or policy_config(state).control
 
 
 class BatchedPolicy:
@@ -679,8 +682,7 @@ class BatchedPolicy:
         state = read_policy(path)
         self.config = policy_config(state)
         if core is None:
-            control = state.get("control") or self.config.control
-            core = make_core(self.config.scenario, 1, control=control,
+            core = make_core(self.config.scenario, 1, control=policy_control(state),
                              **self.config.overrides)
         trained = state.get("trained_on")
         if self.config.network == "mlp" and trained is not None:

@@ -46,7 +46,9 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Categorical, Composite, MultiCategorical, Unbounded
 from torchrl.envs import EnvBase
 
+from netsense.engine.control import MODES
 from netsense.engine.core import BatchedCore, CoreModel
+from netsense.env.registry import control_overrides
 from netsense.env.vector import load_model
 from netsense.kernels.update import OMEGA
 from netsense.rl import credit
@@ -54,27 +56,7 @@ from netsense.rl import credit
 __all__ = ["CONTROLS", "NetSenseBatchedEnv", "global_state", "make_core", "state_size"]
 
 #: Control modes :func:`make_core` accepts (``None``: the scenario's own ``[control]``).
-CONTROLS = (None, "full", "transmit", "substates")
-
-
-def control_overrides(scenario: str, control: str | dict | None, overrides: dict) -> dict:
-    """``overrides`` with the scenario's ``[control]`` section updated by ``control``: a
-    mode name (the section's other keys, e.g. the fusion rule, kept) or a dict of keys
-    (``{"mode": "transmit", "fusion": "tree"}``); unchanged for ``control=None``."""
-    if control is None:
-        return dict(overrides)
-    if isinstance(control, str):
-        if control not in CONTROLS:
-            raise ValueError(f"control must be one of {CONTROLS[1:]} or a dict, got "
-                             f"{control!r}")
-        control = {"mode": control}
-    if not isinstance(control, dict):
-        raise ValueError(f"control must be a mode name, a dict or None, got "
-                         f"{type(control).__name__}")
-    from netsense.env.registry import load, with_overrides
-
-    sc = with_overrides(load(scenario), **overrides)
-    return {**overrides, "control": {**sc.control, **control}}
+CONTROLS = (None, *MODES)
 
 
 def make_core(scenario: str | CoreModel, num_envs: int, *, control: str | dict | None = None,
@@ -159,12 +141,7 @@ class NetSenseBatchedEnv(EnvBase):
         self._alive = np.asarray(core.alive, bool)
         if reward == "counterfactual":
             # the factors of block_errors: T^{-1} and the substate of every coordinate
-            if core.comm is None and not credit.full_control(core):
-                raise ValueError("the counterfactual reward needs full control or a "
-                                 "communication-only mode (it reads the adoptions)")
-            if core.comm is not None and core.comm.control.fusion == "uniform":
-                raise ValueError("the counterfactual reward credits adopted messages; "
-                                 "fusion 'uniform' averages and adopts none")
+            credit.check_adoptions(core)  # before any state is set up
             self._T_inv = np.linalg.inv(core.T)
             blocks = np.zeros((core.n, core.M))
             col = np.full(N, -1)
