@@ -20,6 +20,7 @@ import torch
 from netsense.rl.config import PPOConfig
 from netsense.rl.distributions import MaskedMultiCategorical
 from netsense.rl.envs import make_core
+from netsense.rl.memory import is_recurrent
 from netsense.rl.policy import actor_net
 
 __all__ = ["BatchedPolicy", "load_policy", "policy_config", "policy_control", "read_policy",
@@ -112,11 +113,22 @@ class BatchedPolicy:
         self.net.eval()
         self.nvec = tuple(int(v) for v in core.nvec)
         self.deterministic = deterministic
+        #: a recurrent actor's state ``(B, N, memory)``; zeroed for every agent whose
+        #: observation says ``time = 0`` (an episode starts), so partial resets work
+        self.hidden: torch.Tensor | None = None
+        self._time = core.layout.time
 
     def act(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            d = MaskedMultiCategorical(self.net(torch.as_tensor(obs)),
-                                       torch.as_tensor(np.asarray(mask).astype(bool)),
+            o = torch.as_tensor(obs)
+            if is_recurrent(self.net):
+                if self.hidden is None or self.hidden.shape[:-1] != o.shape[:-1]:
+                    self.hidden = torch.zeros(*o.shape[:-1], self.net.memory)
+                start = (o[..., self._time][..., 0] == 0).unsqueeze(-1)
+                logits, self.hidden = self.net(o, self.hidden.masked_fill(start, 0.0))
+            else:
+                logits = self.net(o)
+            d = MaskedMultiCategorical(logits, torch.as_tensor(np.asarray(mask).astype(bool)),
                                        self.nvec)
             a = d.deterministic_sample if self.deterministic else d.sample()
         return a.numpy()

@@ -17,7 +17,7 @@ import torch
 
 from netsense.rl import credit
 from netsense.rl.envs import CONTROLS
-from netsense.rl.networks import CRITICS
+from netsense.rl.networks import ACTIVATIONS, CRITICS
 
 __all__ = ["ALGOS", "BC_HELDOUT_SEED", "EVAL_SEED", "NETWORKS", "PPOConfig", "device_of",
            "training_seeds"]
@@ -73,9 +73,29 @@ class PPOConfig:
         Hidden layers of the MLP actor (the set network uses ``set_hidden``).
     critic_hidden : tuple of int
     set_hidden : int
+    activation : {"tanh", "relu"}
+        Hidden-layer activation of the MLP actor and the critics.
+    memory : int
+        Size of the actor's GRU state over the agent's own observation history
+        (:mod:`netsense.rl.memory`); 0: a feed-forward actor. Works with both networks and
+        both algorithms (the critics stay feed-forward: the state critic sees the global
+        state, the local one the observation).
+    value_norm : bool
+        Critic trained on standardised value targets (:class:`netsense.rl.normalizers.
+        RunningNorm`).
+    reward_scale : bool
+        Rewards divided by the running standard deviation of the discounted return.
+    obs_norm : bool
+        Observations standardised by running statistics before the MLP actor (ignored by
+        the set network, whose tokens are bounded by construction).
+    lr_decay : bool
+        Learning rate decays linearly to 0 over the run.
+    entropy_final : float or None
+        Entropy coefficient at the end of the run (linear schedule from ``entropy_coef``);
+        ``None``: constant.
     critic : str or None
-        ``"state"``, ``"joint"`` or ``"local"``; default ``"state"`` for mappo, ``"local"``
-        for ippo.
+        ``"team"``, ``"state"``, ``"joint"`` or ``"local"``
+        (:func:`netsense.rl.networks.critic_net`); default: :attr:`critic_kind`.
     eval_interval : int
         Evaluate and checkpoint every this many iterations (0: only at the end).
     eval_envs : int
@@ -130,6 +150,13 @@ class PPOConfig:
     hidden: tuple[int, ...] = (64, 64)
     critic_hidden: tuple[int, ...] = (128, 128)
     set_hidden: int = 32
+    memory: int = 0
+    activation: str = "tanh"
+    value_norm: bool = True
+    reward_scale: bool = False
+    obs_norm: bool = False
+    lr_decay: bool = False
+    entropy_final: float | None = None
     critic: str | None = None
     eval_interval: int = 10
     eval_envs: int = 16
@@ -169,12 +196,25 @@ class PPOConfig:
                              f"+ b, which must stay below {BC_HELDOUT_SEED} (evaluation "
                              f"seeds are kept apart); got seed {self.seed} with num_envs "
                              f"{self.num_envs}")
+        if self.critic == "team" and self.reward != "team":
+            raise ValueError("PPOConfig.critic 'team' (one value per member) needs "
+                             f"reward='team' (every agent's return the same), got reward "
+                             f"{self.reward!r}")
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"PPOConfig.activation must be one of {tuple(ACTIVATIONS)}, got "
+                             f"{self.activation!r}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"PPOConfig.device must be auto, cpu or cuda, got {self.device!r}")
 
     @property
     def critic_kind(self) -> str:
-        return self.critic or ("local" if self.algo == "ippo" else "state")
+        """The critic used: ``critic``, else ``local`` for ippo, ``team`` for mappo with the
+        team reward (every agent's return is the same) and ``state`` otherwise."""
+        if self.critic:
+            return self.critic
+        if self.algo == "ippo":
+            return "local"
+        return "team" if self.reward == "team" else "state"
 
     def conservative(self) -> PPOConfig:
         """Fine-tuning after a warm start: clip 0.1, lr 1e-4, entropy 1e-3, 2 critic-only

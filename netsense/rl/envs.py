@@ -205,31 +205,37 @@ class NetSenseBatchedEnv(EnvBase):
         u = self._tensor(truncated.reshape(-1, 1))
         return {"done": t | u, "terminated": t, "truncated": u}
 
-    # ------------------------------------------------------------------ EnvBase
-    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+    # ------------------------------------------------------------------ arrays
+    def restart(self, members: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Start episodes and return the core's ``(obs, mask)`` (numpy, no TensorDict).
+
+        ``members=None`` (or every member) restarts the whole batch: the first time with the
+        seeds ``seed + b``, later with seeds drawn from the env's generator; a bool mask
+        ``(B,)`` restarts only those members (fresh seeds from the generator). This is the
+        one implementation of the env's resets: :meth:`_reset` and the training loop's
+        collection (:mod:`netsense.rl.rollout`) both call it.
+        """
         B = self.batch_size[0]
-        sel = None
-        if tensordict is not None and "_reset" in tensordict.keys():
-            sel = tensordict.get("_reset").reshape(B).cpu().numpy().astype(bool)
-            if sel.all():
-                sel = None
+        sel = None if members is None or bool(np.all(members)) else np.asarray(members, bool)
         if sel is None or not self._started:
             if self._seed is not None and not self._started:
                 seeds = [self._seed + b for b in range(B)]
             else:
                 seeds = [int(s) for s in self._seed_rng.integers(0, 2**62, size=B)]
-            obs, mask = self.core.reset(seeds)
+            out = self.core.reset(seeds)
             self._started = True
-        else:
-            seeds = [int(s) for s in self._seed_rng.integers(0, 2**62, size=B)]
-            obs, mask = self.core.reset(seeds, members=sel)
-        zeros = np.zeros(B, bool)
-        return TensorDict({**self._obs_td(obs, mask), **self._flags(zeros, zeros)},
-                          batch_size=self.batch_size, device=self.device)
+            return out
+        seeds = [int(s) for s in self._seed_rng.integers(0, 2**62, size=B)]
+        return self.core.reset(seeds, members=sel)
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+    def advance(self, actions: np.ndarray) -> tuple[np.ndarray, ...]:
+        """One step of every member under ``actions (B, N, len(nvec))``.
+
+        Returns ``(obs, mask, reward, terminated, truncated)`` as numpy arrays; ``reward``
+        is ``(B, N)`` float32 of the env's reward option (:mod:`netsense.rl.credit`). The
+        one implementation of a step: :meth:`_step` and the training loop call it.
+        """
         core = self.core
-        actions = tensordict.get(("agents", "action")).cpu().numpy()
         cr = None
         if self.reward_option == "counterfactual":
             adopted = credit.adopted_slots(core, actions)
@@ -239,8 +245,22 @@ class NetSenseBatchedEnv(EnvBase):
         out = core.step(actions)
         r = credit.shaped_reward(self.reward_option, out.reward, core.errors, self._alive,
                                  *self._w, credit=cr)
-        reward = self._tensor(r.astype(np.float32)[..., None])
-        td = {**self._obs_td(out.obs, out.action_mask),
-              **self._flags(out.terminated, out.truncated)}
-        td["agents"].set("reward", reward)
+        return out.obs, out.action_mask, r.astype(np.float32), out.terminated, out.truncated
+
+    # ------------------------------------------------------------------ EnvBase
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        B = self.batch_size[0]
+        sel = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            sel = tensordict.get("_reset").reshape(B).cpu().numpy().astype(bool)
+        obs, mask = self.restart(sel)
+        zeros = np.zeros(B, bool)
+        return TensorDict({**self._obs_td(obs, mask), **self._flags(zeros, zeros)},
+                          batch_size=self.batch_size, device=self.device)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        actions = tensordict.get(("agents", "action")).cpu().numpy()
+        obs, mask, r, terminated, truncated = self.advance(actions)
+        td = {**self._obs_td(obs, mask), **self._flags(terminated, truncated)}
+        td["agents"].set("reward", self._tensor(r[..., None]))
         return TensorDict(td, batch_size=self.batch_size, device=self.device)

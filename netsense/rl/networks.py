@@ -29,18 +29,29 @@ from torch import nn
 
 from netsense.engine.model import ObsLayout
 
-__all__ = ["CRITICS", "critic_net", "mlp_actor_net"]
+__all__ = ["ACTIVATIONS", "CRITICS", "activation_class", "critic_net", "mlp_actor_net"]
+
+#: Hidden-layer activations the networks take (``PPOConfig.activation``).
+ACTIVATIONS = {"tanh": nn.Tanh, "relu": nn.ReLU}
+
+
+def activation_class(name: str) -> type[nn.Module]:
+    if name not in ACTIVATIONS:
+        raise ValueError(f"activation must be one of {tuple(ACTIVATIONS)}, got {name!r}")
+    return ACTIVATIONS[name]
+
 
 def mlp_actor_net(layout: ObsLayout, nvec: Sequence[int], n_agents: int, *,
-                  hidden: Sequence[int] = (64, 64), device=None) -> nn.Module:
+                  hidden: Sequence[int] = (64, 64), activation: str = "tanh",
+                  device=None) -> nn.Module:
     """TorchRL ``MultiAgentMLP``: ``(..., N, obs_dim) -> (..., N, sum(nvec))`` logits,
     one set of parameters for every agent (``share_params=True``, decentralised)."""
     from torchrl.modules import MultiAgentMLP
 
     return MultiAgentMLP(n_agent_inputs=layout.size, n_agent_outputs=int(sum(nvec)),
                          n_agents=n_agents, centralised=False, share_params=True,
-                         depth=len(hidden), num_cells=list(hidden), activation_class=nn.Tanh,
-                         device=device)
+                         depth=len(hidden), num_cells=list(hidden),
+                         activation_class=activation_class(activation), device=device)
 
 
 class _StateCritic(nn.Module):
@@ -49,14 +60,14 @@ class _StateCritic(nn.Module):
     first layer)."""
 
     def __init__(self, obs_dim: int, state_dim: int, hidden: Sequence[int],
-                 device=None) -> None:
+                 act: type[nn.Module] = nn.Tanh, device=None) -> None:
         super().__init__()
         h = list(hidden)
-        self.state_enc = nn.Sequential(nn.Linear(state_dim, h[0], device=device), nn.Tanh())
+        self.state_enc = nn.Sequential(nn.Linear(state_dim, h[0], device=device), act())
         layers: list[nn.Module] = []
         width = obs_dim + h[0]
         for w in h:
-            layers += [nn.Linear(width, w, device=device), nn.Tanh()]
+            layers += [nn.Linear(width, w, device=device), act()]
             width = w
         self.agent = nn.Sequential(*layers, nn.Linear(width, 1, device=device))
 
@@ -65,12 +76,39 @@ class _StateCritic(nn.Module):
         return self.agent(torch.cat([obs, s], -1))
 
 
-CRITICS = ("local", "state", "joint")
+class _TeamCritic(nn.Module):
+    """``V(s)``: one value per member from the global state, the same for every agent
+    (a team reward gives every agent the same return); ``N`` times cheaper than a
+    per-agent critic."""
+
+    def __init__(self, state_dim: int, n_agents: int, hidden: Sequence[int],
+                 act: type[nn.Module] = nn.Tanh, device=None) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        width = state_dim
+        for w in hidden:
+            layers += [nn.Linear(width, w, device=device), act()]
+            width = w
+        self.net = nn.Sequential(*layers, nn.Linear(width, 1, device=device))
+        self.n_agents = int(n_agents)
+
+    def forward(self, state: torch.Tensor) -> torch.Tensor:
+        v = self.net(state).unsqueeze(-2)  # (..., 1, 1)
+        return v.expand(*state.shape[:-1], self.n_agents, 1)
+
+
+#: ``team`` needs a reward that every agent shares (``PPOConfig`` checks it).
+CRITICS = ("team", "state", "joint", "local")
 
 
 def critic_net(kind: str, obs_dim: int, state_dim: int, n_agents: int, *,
-               hidden: Sequence[int] = (128, 128), device=None) -> tuple[nn.Module, list]:
+               hidden: Sequence[int] = (128, 128), activation: str = "tanh",
+               device=None) -> tuple[nn.Module, list]:
     """A value network and the input keys it reads.
+
+    ``kind``: ``"team"`` (MAPPO, ``V(s)`` of the global state once per member),
+    ``"state"`` (MAPPO, ``V_i(o_i, s)``), ``"joint"`` (MAPPO, TorchRL's centralised
+    ``MultiAgentMLP`` over all observations), ``"local"`` (IPPO, ``V_i(o_i)``).
 
     Returns
     -------
@@ -79,17 +117,15 @@ def critic_net(kind: str, obs_dim: int, state_dim: int, n_agents: int, *,
     """
     from torchrl.modules import MultiAgentMLP
 
+    act = activation_class(activation)
     obs_key, state_key = ("agents", "observation"), "state"
-    if kind == "local":
+    if kind in ("local", "joint"):
         net = MultiAgentMLP(n_agent_inputs=obs_dim, n_agent_outputs=1, n_agents=n_agents,
-                            centralised=False, share_params=True, depth=len(hidden),
-                            num_cells=list(hidden), activation_class=nn.Tanh, device=device)
-        return net, [obs_key]
-    if kind == "joint":
-        net = MultiAgentMLP(n_agent_inputs=obs_dim, n_agent_outputs=1, n_agents=n_agents,
-                            centralised=True, share_params=True, depth=len(hidden),
-                            num_cells=list(hidden), activation_class=nn.Tanh, device=device)
+                            centralised=kind == "joint", share_params=True, depth=len(hidden),
+                            num_cells=list(hidden), activation_class=act, device=device)
         return net, [obs_key]
     if kind == "state":
-        return _StateCritic(obs_dim, state_dim, hidden, device), [obs_key, state_key]
+        return _StateCritic(obs_dim, state_dim, hidden, act, device), [obs_key, state_key]
+    if kind == "team":
+        return _TeamCritic(state_dim, n_agents, hidden, act, device), [state_key]
     raise ValueError(f"critic must be one of {CRITICS}, got {kind!r}")

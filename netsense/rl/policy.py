@@ -12,29 +12,84 @@ from __future__ import annotations
 
 import torch
 from tensordict.nn import TensorDictModule
+from torch import nn
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import ProbabilisticActor
 
 from netsense.rl.config import PPOConfig
 from netsense.rl.distributions import MaskedMultiCategorical
 from netsense.rl.envs import NetSenseBatchedEnv
-from netsense.rl.networks import critic_net, mlp_actor_net
+from netsense.rl.memory import RecurrentActor, is_recurrent, unroll
+from netsense.rl.networks import activation_class, critic_net, mlp_actor_net
 from netsense.rl.set_network import SetPolicyNet
 
-__all__ = ["actor_net", "build_actor", "critic_module"]
+__all__ = ["ObsNormActor", "SequenceLogits", "actor_net", "build_actor", "critic_module"]
 
 
-def actor_net(config: PPOConfig, core, device=None) -> torch.nn.Module:
-    """The actor's logits network for ``core``'s layout and action layout."""
+class ObsNormActor(nn.Module):
+    """An actor whose observations are standardised first (``obs_norm``): TorchRL's
+    ``RunningValueNorm`` over the observation vector (exact running mean and variance),
+    updated by the collector with every observation it gathers and clipped to +-10; the
+    statistics are buffers of this module, so saved policies carry them."""
+
+    def __init__(self, net: nn.Module, obs_dim: int) -> None:
+        from torchrl.modules import RunningValueNorm
+
+        super().__init__()
+        self.norm = RunningValueNorm(shape=int(obs_dim))
+        self.body = net
+        self.memory = int(getattr(net, "memory", 0) or 0)
+
+    def update(self, obs: torch.Tensor) -> None:
+        self.norm.update(obs)
+
+    def forward(self, obs: torch.Tensor, *h: torch.Tensor):
+        return self.body(self.norm.normalize(obs).clamp(-10.0, 10.0), *h)
+
+
+def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
+    """The actor's logits network for ``core``'s layout and action layout: the set network,
+    the recurrent MLP (``config.memory > 0``) or TorchRL's ``MultiAgentMLP``; the MLPs
+    behind a running observation normaliser when ``config.obs_norm``."""
     if config.network == "set":
-        return SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden).to(device)
-    return mlp_actor_net(core.layout, core.nvec, core.N, hidden=config.hidden, device=device)
+        return SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden,
+                            memory=config.memory).to(device)
+    if config.memory:
+        net = RecurrentActor(core.layout.size, int(sum(core.nvec)), config.hidden,
+                             config.memory, activation_class(config.activation), device=device)
+    else:
+        net = mlp_actor_net(core.layout, core.nvec, core.N, hidden=config.hidden,
+                            activation=config.activation, device=device)
+    return ObsNormActor(net, core.layout.size).to(device) if config.obs_norm else net
 
 
-def build_actor(net: torch.nn.Module, nvec) -> ProbabilisticActor:
-    """``ProbabilisticActor``: logits from ``net``, masked by ``("agents", "action_mask")``."""
-    module = TensorDictModule(net, in_keys=[("agents", "observation")],
-                              out_keys=[("agents", "logits")])
+class SequenceLogits(nn.Module):
+    """A recurrent actor over the sequences of a rollout, for the loss:
+    ``(obs (S, T, N, O), hidden (S, T, N, m), first (S, T)) -> logits (S, T, N, K)``,
+    unrolled from the hidden state recorded before the first step
+    (:func:`netsense.rl.memory.unroll`)."""
+
+    def __init__(self, net: nn.Module) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, obs: torch.Tensor, hidden: torch.Tensor,
+                first: torch.Tensor) -> torch.Tensor:
+        return unroll(self.net, obs, hidden[:, 0], first)
+
+
+def build_actor(net: nn.Module, nvec) -> ProbabilisticActor:
+    """``ProbabilisticActor``: logits from ``net``, masked by ``("agents", "action_mask")``.
+
+    A recurrent ``net`` reads sequences (batch ``[S, T]``: ``("agents", "hidden")`` and
+    ``"first"`` besides the observation; :class:`SequenceLogits`)."""
+    if is_recurrent(net):
+        module = TensorDictModule(SequenceLogits(net), in_keys=[
+            ("agents", "observation"), ("agents", "hidden"), "first"],
+            out_keys=[("agents", "logits")])
+    else:
+        module = TensorDictModule(net, in_keys=[("agents", "observation")],
+                                  out_keys=[("agents", "logits")])
     return ProbabilisticActor(
         module, in_keys={"logits": ("agents", "logits"), "mask": ("agents", "action_mask")},
         out_keys=[("agents", "action")], distribution_class=MaskedMultiCategorical,
@@ -46,5 +101,6 @@ def build_actor(net: torch.nn.Module, nvec) -> ProbabilisticActor:
 def critic_module(config: PPOConfig, env: NetSenseBatchedEnv, device) -> TensorDictModule:
     """The critic of ``config`` as a ``TensorDictModule`` writing ``("agents", "state_value")``."""
     net, keys = critic_net(config.critic_kind, env.layout.size, env.state_dim, env.n_agents,
-                           hidden=config.critic_hidden, device=device)
+                           hidden=config.critic_hidden, activation=config.activation,
+                           device=device)
     return TensorDictModule(net, in_keys=keys, out_keys=[("agents", "state_value")])

@@ -1,36 +1,43 @@
-"""Training pipeline, stage *training loop*: the PPO loop (MAPPO and IPPO on the batched
-core, built from TorchRL components; torch, on demand).
+"""Training pipeline, stage *training loop*: MAPPO and IPPO on the batched core (torch; on
+demand).
 
-Pipeline (no PPO arithmetic here: loss, advantages and collection are TorchRL's)::
+One iteration::
 
-    make_core(scenario, B, control)            BatchedCore (or another control mode)
-      -> NetSenseBatchedEnv(core, reward)      TorchRL EnvBase, batch [B], group "agents"
-      -> Collector(env, actor, B * T frames)   T steps of B environments per iteration
-      -> GAE (torchrl.objectives.value)        per-agent advantages (done expanded to agents)
-      -> ClipPPOLoss(actor, critic)            clipped surrogate + value + entropy terms
-      -> Adam, minibatches of env-steps, gradient clipping
+    Collector.collect()                     T steps of B environments, lean: core arrays ->
+      (netsense.rl.rollout)                 torch, one actor pass per step, masked sampling
+    critic_values + estimate                one critic pass over all T + 1 states; TorchRL's
+      (netsense.rl.advantage)               GAE; value targets standardised (value_norm)
+    MAPPOLoss / IPPOLoss (TorchRL)          clipped surrogate, value and entropy terms on
+                                            minibatches of env-steps (feed-forward actors) or
+                                            of whole member sequences (recurrent actors)
+    Adam, gradient clipping, schedules      learning rate and entropy coefficient per
+                                            iteration (lr_decay, entropy_final)
 
-Actor: :func:`netsense.rl.networks.mlp_actor_net` or
-:class:`netsense.rl.set_network.SetPolicyNet` behind TorchRL's ``ProbabilisticActor`` with
-:class:`netsense.rl.distributions.MaskedMultiCategorical` reading
-``("agents", "action_mask")``; parameters shared by all agents. Critic: ``mappo`` uses the
-global ``state`` (:func:`netsense.rl.envs.global_state`) with each agent's observation
-(``critic="state"``) or TorchRL's ``MultiAgentMLP(centralised=True)`` over all
-observations (``critic="joint"``); ``ippo`` a local critic ``V_i(o_i)``.
+No PPO arithmetic lives here: losses, advantages and value normalisers are TorchRL's.
+Actor: :func:`netsense.rl.policy.actor_net` (MLP, recurrent MLP, set network) behind
+TorchRL's ``ProbabilisticActor`` with
+:class:`netsense.rl.distributions.MaskedMultiCategorical`; parameters shared by all agents.
+Critic: ``mappo`` uses the global ``state`` (:func:`netsense.rl.envs.global_state`) with
+each agent's observation (``critic="state"``) or TorchRL's
+``MultiAgentMLP(centralised=True)`` over all observations (``critic="joint"``); ``ippo`` a
+local critic ``V_i(o_i)``.
 
-Optional behaviour-cloning warm start (:func:`behaviour_clone`): cross-entropy of the
-masked distribution on a scripted policy's actions collected through the batched core,
-then PPO fine-tuning; :meth:`PPOConfig.conservative` gives the small clip range and
-learning rate and the critic warm-up (actor frozen) used for that.
+Optional behaviour-cloning warm start (:func:`netsense.rl.cloning.behaviour_clone`);
+:meth:`PPOConfig.conservative` gives the small clip range and learning rate and the critic
+warm-up (actor frozen) used after it.
 
 Outputs per run (:func:`train_ppo`): ``log.csv`` (one row per iteration: agent-steps,
-wall time, throughput, training return, error, messages, losses, entropy, evaluation
-columns when evaluated: ``eval_*`` with the most likely actions, ``eval_sampled_*`` with
-sampled ones), TensorBoard events under ``tb/`` when ``tensorboard`` or
-``tensorboardX`` is installed, ``checkpoint_<iter>.pt`` at every evaluation and
-``policy.pt`` at the end (:func:`load_policy` reads them), ``config.json``. The learner
-runs on CUDA when ``torch.cuda.is_available()`` (``device="auto"``); the core always
-runs on the CPU.
+wall time and throughput, collection and learning seconds, the mean reward per agent-step
+of the rollout and the returns of the episodes that ended in it, error and messages, the
+three loss terms, entropy, approximate KL, clip fraction, gradient norm, the critic's
+explained variance, the spread of values, targets and raw advantages, learning rate and
+entropy coefficient; ``eval_*`` columns (most likely actions) and ``eval_sampled_*``
+(sampled) at every evaluation; no row repeats an earlier iteration's figure),
+``training_curve.png`` (returns vs agent-steps), TensorBoard events under ``tb/`` when
+``tensorboard`` or ``tensorboardX`` is installed, ``checkpoint_<iter>.pt`` at every
+evaluation and ``policy.pt`` at the end (:func:`netsense.rl.checkpoint.load_policy` reads
+them), ``config.json``, ``summary.json``. The learner runs on CUDA when
+``torch.cuda.is_available()`` (``device="auto"``); the core always runs on the CPU.
 """
 
 from __future__ import annotations
@@ -43,15 +50,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from netsense.rl.advantage import critic_values, estimate, explained_variance, loss_batch
 from netsense.rl.checkpoint import save_checkpoint
 from netsense.rl.cloning import behaviour_clone
 from netsense.rl.config import PPOConfig, device_of
 from netsense.rl.envs import NetSenseBatchedEnv, make_core
 from netsense.rl.evaluation import evaluate, mask_violations
+from netsense.rl.memory import is_recurrent
 from netsense.rl.policy import actor_net, build_actor, critic_module
-from netsense.rl.runlog import RunLog
+from netsense.rl.rollout import Collector
+from netsense.rl.runlog import RunLog, plot_curve
 
-__all__ = ["PPOResult", "train_ppo"]
+__all__ = ["PPOResult", "ReturnScaler", "train_ppo"]
 
 
 @dataclass
@@ -70,6 +80,10 @@ class PPOResult:
         return self.agent_steps / max(self.wall_s, 1e-9)
 
 
+def _schedule(start: float, end: float | None, frac: float) -> float:
+    return start if end is None else start + (end - start) * frac
+
+
 def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: bool = False,
               evaluate_every: bool = True) -> PPOResult:
     """Train one seed; see the module docstring for what is written into ``out``.
@@ -79,8 +93,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     the process (a forward and backward pass of a warm-started actor took 0.031 s instead
     of 0.040 s with it).
     """
-    from torchrl.collectors import Collector
-    from torchrl.objectives import ClipPPOLoss, ValueEstimators
+    from torchrl.modules import RunningValueNorm
+    from torchrl.objectives.multiagent import IPPOLoss, MAPPOLoss
     from tqdm.auto import tqdm
 
     device = device_of(config.device)
@@ -104,113 +118,150 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     env = NetSenseBatchedEnv(core, reward=config.reward, seed=config.seed * config.num_envs)
     N, B, T = core.N, core.B, config.rollout
     net = actor_net(config, core, device)
-    bc = None
-    if config.bc:
-        bc = behaviour_clone(net, config, config.bc, device=device)
+    bc = behaviour_clone(net, config, config.bc, device=device) if config.bc else None
     actor = build_actor(net, core.nvec).to(device)
     critic = critic_module(config, env, device).to(device)
-    loss = ClipPPOLoss(actor, critic, clip_epsilon=config.clip,
-                       entropy_coeff=config.entropy_coef, critic_coeff=config.critic_coef,
-                       normalize_advantage=True, normalize_advantage_exclude_dims=(-2,),
-                       loss_critic_type="smooth_l1")
-    loss.set_keys(reward=("agents", "reward"), action=("agents", "action"),
-                  sample_log_prob=("agents", "action_log_prob"),
-                  value=("agents", "state_value"), done=("agents", "done"),
-                  terminated=("agents", "terminated"))
-    loss.make_value_estimator(ValueEstimators.GAE, gamma=config.gamma, lmbda=config.lmbda)
+    value_norm = RunningValueNorm(shape=1, device=device) if config.value_norm else None
+    scaler = ReturnScaler(config.gamma) if config.reward_scale else None
+    Loss = IPPOLoss if config.algo == "ippo" else MAPPOLoss  # noqa: N806
+    loss = Loss(actor, critic, clip_epsilon=config.clip, entropy_coeff=config.entropy_coef,
+                critic_coeff=config.critic_coef, normalize_advantage=False,
+                loss_critic_type="l2")  # advantages standardised per rollout (loss_batch)
+    loss.set_keys(action=("agents", "action"), sample_log_prob=("agents", "action_log_prob"),
+                  value=("agents", "state_value"), advantage=("agents", "advantage"),
+                  value_target=("agents", "value_target"))
     opt = torch.optim.Adam(loss.parameters(), lr=config.lr)
-    frames = B * T
-    iters = max(1, -(-int(config.steps) // (frames * N)))
-    collector = Collector(env, actor, frames_per_batch=frames, total_frames=frames * iters,
-                          env_device="cpu", policy_device=device, storing_device=device,
-                          auto_register_policy_transforms=False)
+    collector = Collector(env, net, T, device=device, with_state="state" in critic.in_keys,
+                          update_obs_norm=config.obs_norm)
+    sequences = is_recurrent(net)
+    iters = max(1, -(-int(config.steps) // (B * T * N)))
     log = RunLog(out) if out is not None else None
-    acc = torch.zeros(B, N, device=device)
-    returns: list[float] = []
-    violations = 0
-    agent_steps = 0
-    t0 = time.perf_counter()
-    bar = tqdm(total=frames * iters * N, desc=f"{config.algo} seed {config.seed}",
-               unit="agent-step", disable=not progress)
+    violations = agent_steps = 0
     rows: list[dict] = []
-    t_learned = t0
+    t0 = time.perf_counter()
     collect_s = learn_s = 0.0
-    for it, data in enumerate(collector):
+    bar = tqdm(total=iters * B * T * N, desc=f"{config.algo} seed {config.seed}",
+               unit="agent-step", unit_scale=True, disable=not progress)
+    for it in range(iters):
+        frac = it / iters
+        lr = config.lr * (1.0 - frac) if config.lr_decay else config.lr
+        for g in opt.param_groups:
+            g["lr"] = lr
+        ent = _schedule(config.entropy_coef, config.entropy_final, frac)
+        loss.entropy_coeff.fill_(ent)
+        t_start = time.perf_counter()
+        ro = collector.collect()
         t_collected = time.perf_counter()
-        collect_s += t_collected - t_learned
-        violations += mask_violations(data, core.nvec)
-        nxt = data["next"]
-        for key in ("done", "terminated"):
-            nxt.set(("agents", key), nxt[key].unsqueeze(-2).expand(B, T, N, 1))
-        r = nxt["agents", "reward"][..., 0]
-        done = nxt["done"][..., 0]
-        for t in range(T):  # training episode returns (mean over agents)
-            acc += r[:, t]
-            d = done[:, t]
-            if d.any():
-                returns += acc[d].mean(-1).tolist()
-                acc[d] = 0.0
-        with torch.no_grad():
-            loss.value_estimator(data, params=loss.critic_network_params,
-                                 target_params=loss.target_critic_network_params)
-        # only what the loss reads (observations, masks, state, actions, log-probs,
-        # advantages, targets): gathering minibatches of the whole rollout costs more
-        flat = data.exclude("next", ("agents", "logits")).reshape(-1)
-        warm = it < config.critic_warmup
-        sums = {"loss_objective": 0.0, "loss_critic": 0.0, "loss_entropy": 0.0, "entropy": 0.0}
-        n_mb = 0
-        mb = min(config.minibatch, flat.shape[0])
-        for _ in range(config.epochs):
-            perm = torch.randperm(flat.shape[0], device=device)
-            for s in range(0, flat.shape[0] - mb + 1, mb):
-                lv = loss(flat[perm[s:s + mb]])
-                total = lv["loss_critic"] if warm else (
-                    lv["loss_objective"] + lv["loss_critic"] + lv["loss_entropy"])
-                opt.zero_grad()
-                total.backward()
-                torch.nn.utils.clip_grad_norm_(loss.parameters(), config.max_grad_norm)
-                opt.step()
-                for k in sums:
-                    sums[k] += float(lv[k].detach())
-                n_mb += 1
-        collector.update_policy_weights_()
+        violations += mask_violations(ro.mask, ro.action, core.nvec)
+        reward = scaler(ro.reward, ro.done) if scaler is not None else ro.reward
+        adv = estimate(critic_values(critic, ro, value_norm), reward, ro.done,
+                       config.gamma, config.lmbda)
+        if value_norm is not None:
+            value_norm.update(adv.target.reshape(-1, 1))
+        data = loss_batch(ro, adv, value_norm, sequences=sequences)
+        stats = _update(loss, opt, data, config, warm=it < config.critic_warmup,
+                        sequences=sequences, T=T)
         t_learned = time.perf_counter()
+        collect_s += t_collected - t_start
         learn_s += t_learned - t_collected
-        agent_steps += frames * N
-        bar.update(frames * N)
+        agent_steps += B * T * N
+        bar.update(B * T * N)
         wall = time.perf_counter() - t0
         row = {"iteration": it, "agent_steps": agent_steps, "wall_s": round(wall, 3),
                "agent_steps_per_s": round(agent_steps / wall, 1),
                "collect_s": round(collect_s, 3), "learn_s": round(learn_s, 3),
-               "train_return": float(np.mean(returns[-64:])) if returns else float("nan"),
-               "train_error": float(nxt["agents", "error"].mean()),
-               "train_messages": float(nxt["agents", "sent"].mean()),
-               **{k: v / max(n_mb, 1) for k, v in sums.items()}}
-        if not all(np.isfinite([row[k] for k in sums])):
-            raise FloatingPointError(f"non-finite PPO loss at iteration {it}: {row}")
+               "step_reward": float(ro.reward.mean()),
+               "train_error": float(ro.error.mean()), "train_messages": float(ro.sent.mean()),
+               **stats, "explained_variance": explained_variance(adv.value, adv.target),
+               "value_sd": float(adv.value.std()), "target_sd": float(adv.target.std()),
+               "advantage_mean": float(adv.advantage.mean()),
+               "advantage_sd": float(adv.advantage.std()), "lr": lr, "entropy_coef": ent}
+        if ro.returns:
+            row["train_return"] = float(np.mean(ro.returns))
+            row["train_episodes"] = len(ro.returns)
         last = it == iters - 1
         if out is not None and evaluate_every and (
                 last or (config.eval_interval and (it + 1) % config.eval_interval == 0)):
             # greedy and sampled: a learned randomised schedule (transmit with some
             # probability) collapses to all-or-nothing under the greedy action
-            ev = evaluate(actor, config)
-            row.update({f"eval_{k}": v for k, v in ev.items()})
-            ev = evaluate(actor, config, deterministic=False)
-            row.update({f"eval_sampled_{k}": v for k, v in ev.items()})
+            row.update({f"eval_{k}": v for k, v in evaluate(net, config).items()})
+            row.update({f"eval_sampled_{k}": v for k, v in evaluate(
+                net, config, deterministic=False).items()})
             save_checkpoint(out / f"checkpoint_{it + 1:05d}.pt", config, net, critic, it + 1,
-                        agent_steps, core)
+                            agent_steps, core)
         rows.append(row)
         if log is not None:
             log.add(row)
-        bar.set_postfix(ret=f"{row['train_return']:.3g}")
+        bar.set_postfix(r=f"{row['step_reward']:.3g}", ev=f"{row['explained_variance']:.2f}")
     wall = time.perf_counter() - t0
     bar.close()
-    collector.shutdown()
     if out is not None:
         save_checkpoint(out / "policy.pt", config, net, critic, iters, agent_steps, core)
         log.close()
+        plot_curve(rows, out / "training_curve.png", f"{config.algo} on {config.scenario} "
+                   f"(seed {config.seed})")
         meta = {"wall_s": round(wall, 2), "agent_steps": agent_steps,
                 "agent_steps_per_s": round(agent_steps / wall, 1),
+                "collect_s": round(collect_s, 2), "learn_s": round(learn_s, 2),
                 "mask_violations": violations, "device": str(device), "bc": bc}
         (out / "summary.json").write_text(json.dumps(meta, indent=2) + "\n")
     return PPOResult(out, rows, wall, agent_steps, violations, bc)
+
+
+_STATS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx",
+          "clip_fraction")
+
+
+def _update(loss, opt, data, config: PPOConfig, *, warm: bool, sequences: bool,
+            T: int) -> dict:
+    """``config.epochs`` passes of minibatch updates over ``data``; mean loss statistics."""
+    rows = data.shape[0]
+    # minibatch in env-steps; recurrent: whole sequences of T steps per member
+    mb = max(1, min(rows, config.minibatch // T if sequences else config.minibatch))
+    sums = dict.fromkeys((*_STATS, "grad_norm"), 0.0)
+    n = 0
+    params = list(loss.parameters())
+    for _ in range(config.epochs):
+        perm = torch.randperm(rows, device=data.device)
+        for s in range(0, rows - mb + 1, mb):
+            lv = loss(data[perm[s:s + mb]])
+            total = lv["loss_critic"] if warm else (
+                lv["loss_objective"] + lv["loss_critic"] + lv["loss_entropy"])
+            opt.zero_grad(set_to_none=True)
+            total.backward()
+            sums["grad_norm"] += float(torch.nn.utils.clip_grad_norm_(params,
+                                                                      config.max_grad_norm))
+            opt.step()
+            for k in _STATS:
+                if k in lv.keys():
+                    sums[k] += float(lv[k].detach())
+            n += 1
+    out = {k: v / max(n, 1) for k, v in sums.items()}
+    out["gradient_steps"] = n
+    if not all(np.isfinite(list(out.values()))):
+        raise FloatingPointError(f"non-finite PPO statistics: {out}")
+    return out
+
+
+class ReturnScaler:
+    """``reward_scale``: rewards divided by the running standard deviation of the
+    discounted return ``R <- gamma R + r`` (per member and agent, reset at episode ends;
+    TorchRL's ``RunningValueNorm`` keeps the statistics), as in the PPO implementation
+    studied by Engstrom et al. (ICLR 2020)."""
+
+    def __init__(self, gamma: float) -> None:
+        from torchrl.modules import RunningValueNorm
+
+        self.gamma = float(gamma)
+        self.stats = RunningValueNorm(shape=1)
+        self.ret: torch.Tensor | None = None
+
+    def __call__(self, reward: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        """``reward (T, B, N)``, ``done (T, B)`` -> scaled rewards (same shape)."""
+        if self.ret is None:
+            self.ret = torch.zeros_like(reward[0])
+        for t in range(reward.shape[0]):
+            self.ret = self.gamma * self.ret + reward[t]
+            self.stats.update(self.ret.reshape(-1, 1).cpu())
+            self.ret[done[t]] = 0.0
+        return reward / float(self.stats.scale())

@@ -4,7 +4,8 @@
 rows' columns) and, when ``tensorboard`` or ``tensorboardX`` is installed, TensorBoard
 events under ``tb/``.
 
-Imports: numpy and the standard library (torch only to find TensorBoard).
+Imports: numpy, matplotlib (on demand) and the standard library (torch only to find
+TensorBoard).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["RunLog"]
+__all__ = ["RunLog", "plot_curve"]
 
 
 class RunLog:
@@ -51,3 +52,36 @@ class RunLog:
     def close(self) -> None:
         if self.tb is not None:
             self.tb.close()
+
+
+def plot_curve(rows: list[dict], path: Path, title: str,
+               references: dict[str, float] | None = None) -> Path:
+    """``training_curve.png``: the returns of the episodes that ended in each iteration
+    (training, sampled actions, the run's reward option) and the periodic evaluations
+    (most likely and sampled actions) against agent-steps; ``references`` draws scripted
+    returns on the same evaluation as dashed lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.0, 3.8))
+    for key, label, style in (("train_return", "training episodes (sampled)", "-"),
+                              ("eval_return", "evaluation (most likely action)", "o-"),
+                              ("eval_sampled_return", "evaluation (sampled)", "s--")):
+        pts = [(r["agent_steps"], r[key]) for r in rows if key in r]
+        if pts:
+            x, y = zip(*pts, strict=True)
+            ax.plot(x, y, style, ms=3, lw=1.2, label=label)
+    for i, (name, value) in enumerate((references or {}).items()):
+        ax.axhline(value, ls=":", color=f"C{i + 3}", label=f"{name} (scripted)")
+    ax.set_xlabel("agent-steps")
+    ax.set_ylabel("episode return per agent")
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3)
+    if ax.lines:
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -83,7 +83,8 @@ class SetPolicyNet(nn.Module):
         Width of every embedding.
     """
 
-    def __init__(self, layout: ObsLayout, nvec: Sequence[int], *, hidden: int = 32) -> None:
+    def __init__(self, layout: ObsLayout, nvec: Sequence[int], *, hidden: int = 32,
+                 memory: int = 0) -> None:
         super().__init__()
         h = int(hidden)
         self.hidden = h
@@ -106,6 +107,12 @@ class SetPolicyNet(nn.Module):
         self.avg_head = nn.Linear(h, 1)
         self.tx_head = _mlp(3 * h, h, 2)  # [agent, mean and max over substates]
         self.send_head = _mlp(2 * h, h, 2)  # per substate: [substate, agent]
+        #: GRU state size over the agent's history (:mod:`netsense.rl.memory`; 0: none):
+        #: the agent embedding feeds a GRU cell whose state, projected back, replaces it
+        self.memory = int(memory)
+        if self.memory:
+            self.gru = nn.GRUCell(h, self.memory)
+            self.mem_out = nn.Linear(self.memory, h)
         self.bind(layout, nvec)
 
     def bind(self, layout: ObsLayout, nvec: Sequence[int] | None = None) -> SetPolicyNet:
@@ -155,9 +162,22 @@ class SetPolicyNet(nn.Module):
         v = torch.stack([arr, s_omega, s_age, oa - s_age, fresher], -1)
         return g, u, v, arrived
 
-    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+    def forward(self, obs: torch.Tensor, h: torch.Tensor | None = None):
+        """Flat logits ``(..., N, sum(nvec))``; with ``memory``, ``(logits, h')`` from the
+        GRU state ``h (..., N, memory)``."""
         g, u, v, arrived = self.tokens(obs)
         ge = self.agent_enc(g)  # (..., N, h)
+        if self.memory:
+            if h is None:
+                raise ValueError("SetPolicyNet with memory needs the recurrent state h")
+            lead = ge.shape[:-1]
+            h = self.gru(ge.reshape(-1, self.hidden), h.reshape(-1, self.memory))
+            h = h.reshape(*lead, self.memory)
+            ge = torch.tanh(self.mem_out(h))
+            return self._heads(ge, u, v, arrived), h
+        return self._heads(ge, u, v, arrived)
+
+    def _heads(self, ge, u, v, arrived) -> torch.Tensor:
         ue = self.sub_enc(u)  # (..., N, M, h)
         pe = torch.tanh(self.pair_in(v) + self.pair_sub(ue).unsqueeze(-3))  # (..., N, D, M, h)
         pad = arrived.unsqueeze(-1).unsqueeze(-1)  # (..., N, D, 1, 1): padding mask

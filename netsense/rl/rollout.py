@@ -1,0 +1,155 @@
+"""Training pipeline, stage *collection*: ``T`` steps of ``B`` environments with the actor.
+
+:class:`Collector` steps a :class:`netsense.rl.envs.NetSenseBatchedEnv` through its array
+interface (:meth:`~netsense.rl.envs.NetSenseBatchedEnv.advance`, the same step its TorchRL
+``_step`` runs) and the actor network directly: observations go from the core's numpy
+buffers to torch without a copy, one forward pass of the shared actor per step for all
+``B x N`` agents, masked sampling, no TensorDict per step. What a rollout holds
+(:class:`Rollout`) is what the update needs: observations, masks, actions, their
+log-probabilities, rewards, episode boundaries, the critic's inputs, the recurrent state.
+
+Episode ends. Every episode ends at the scenario's horizon (``truncated``) or when a
+member's state stops being finite (``terminated``); the time ``k / H`` is part of the
+observation and the return really stops there, so both ends are terminal for the returns
+(no bootstrap past an episode's end). Finished members restart at once (partial reset,
+seeds from the env's generator); a recurrent actor's hidden state is zeroed for them only.
+
+Imports: numpy, torch and the stages below (envs, distributions, memory).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from netsense.rl.distributions import MaskedMultiCategorical
+from netsense.rl.envs import NetSenseBatchedEnv, global_state
+from netsense.rl.memory import is_recurrent
+
+__all__ = ["Collector", "Rollout"]
+
+
+@dataclass
+class Rollout:
+    """``T`` steps of ``B`` members (time first). Tensors live on the learner's device."""
+
+    obs: torch.Tensor  #: (T + 1, B, N, O) float32; [T] is the observation after the last step
+    mask: torch.Tensor  #: (T, B, N, K) bool
+    action: torch.Tensor  #: (T, B, N, A) int64
+    log_prob: torch.Tensor  #: (T, B, N) float32
+    reward: torch.Tensor  #: (T, B, N) float32
+    done: torch.Tensor  #: (T, B) bool: the episode ended with step t
+    first: torch.Tensor  #: (T, B) bool: step t is the first of an episode
+    state: torch.Tensor | None  #: (T + 1, B, S) float32 global state (state critic)
+    hidden: torch.Tensor | None  #: (T, B, N, m) recurrent state before step t
+    error: torch.Tensor  #: (T, B, N) clipped normalised errors after step t
+    sent: torch.Tensor  #: (T, B, N) transmit flags chosen at step t
+    returns: list[float]  #: returns (mean over agents) of the episodes that ended
+
+
+class Collector:
+    """Rollouts of ``T`` steps from ``env`` under the actor ``net``.
+
+    Parameters
+    ----------
+    env : NetSenseBatchedEnv
+        Its core is stepped through :meth:`~NetSenseBatchedEnv.advance`.
+    net : torch module
+        The actor's logits network (feed-forward ``net(obs)`` or recurrent
+        ``net(obs, h)``, :mod:`netsense.rl.memory`).
+    steps : int
+        ``T``.
+    device : torch device
+        Where the actor runs and the rollout is stored.
+    with_state : bool
+        Record the global state (:func:`netsense.rl.envs.global_state`) for a state critic.
+    update_obs_norm : bool
+        Feed every observation collected to the actor's normaliser
+        (:class:`netsense.rl.policy.ObsNormActor`; training only, not evaluation).
+    """
+
+    def __init__(self, env: NetSenseBatchedEnv, net: torch.nn.Module, steps: int, *,
+                 device: torch.device | str = "cpu", with_state: bool = False,
+                 update_obs_norm: bool = False) -> None:
+        self.env, self.net, self.T = env, net, int(steps)
+        self.device = torch.device(device)
+        self.with_state = with_state
+        self.obs_norm = net if update_obs_norm and hasattr(net, "update") else None
+        self.nvec = tuple(int(v) for v in env.nvec)
+        core = env.core
+        self.B, self.N = int(core.B), int(core.N)
+        self.recurrent = is_recurrent(net)
+        obs, mask = env.restart()
+        self._obs, self._mask = obs, mask
+        self._first = np.ones(self.B, bool)
+        self._h = (torch.zeros(self.B, self.N, net.memory, device=self.device)
+                   if self.recurrent else None)
+        self._acc = np.zeros((self.B, self.N))
+
+    def _tensor(self, a: np.ndarray, dtype=None) -> torch.Tensor:
+        t = torch.from_numpy(np.ascontiguousarray(a))
+        if dtype is not None:
+            t = t.to(dtype)
+        return t.to(self.device, non_blocking=True)
+
+    @torch.no_grad()
+    def collect(self, *, deterministic: bool = False) -> Rollout:
+        """The next ``T`` steps (the collector keeps its members' episodes going)."""
+        T, B, N = self.T, self.B, self.N
+        env, dev = self.env, self.device
+        O = self._obs.shape[-1]
+        obs_t = torch.empty(T + 1, B, N, O, device=dev)
+        mask_t = torch.empty(T, B, N, int(sum(self.nvec)), dtype=torch.bool, device=dev)
+        act_t = torch.empty(T, B, N, len(self.nvec), dtype=torch.int64, device=dev)
+        logp_t = torch.empty(T, B, N, device=dev)
+        rew = np.empty((T, B, N), np.float32)
+        done = np.empty((T, B), bool)
+        first = np.empty((T, B), bool)
+        err = np.empty((T, B, N), np.float32)
+        sent = np.empty((T, B, N), np.float32)
+        state = (np.empty((T + 1, B, env.state_dim), np.float32) if self.with_state
+                 else None)
+        hid = (torch.empty(T, B, N, self.net.memory, device=dev) if self.recurrent
+               else None)
+        returns: list[float] = []
+        for t in range(T):
+            o = self._tensor(self._obs)
+            if self.obs_norm is not None:
+                self.obs_norm.update(o)
+            m = self._tensor(self._mask.view(np.bool_))
+            obs_t[t], mask_t[t] = o, m
+            first[t] = self._first
+            if state is not None:
+                state[t] = global_state(env.core)
+            if self.recurrent:
+                hid[t] = self._h
+                logits, self._h = self.net(o, self._h)
+            else:
+                logits = self.net(o)
+            d = MaskedMultiCategorical(logits, m, self.nvec)
+            a = d.deterministic_sample if deterministic else d.sample()
+            act_t[t] = a
+            logp_t[t] = d.log_prob(a)
+            obs, mask, r, term, trunc = env.advance(a.cpu().numpy())
+            rew[t] = r
+            ended = term | trunc
+            done[t] = ended
+            err[t] = env.core.errors
+            sent[t] = env.core.transmit
+            self._acc += r
+            if ended.any():
+                returns += self._acc[ended].mean(-1).tolist()
+                self._acc[ended] = 0.0
+                obs, mask = env.restart(ended)
+                if self.recurrent:
+                    self._h[torch.as_tensor(ended, device=dev)] = 0.0
+            self._obs, self._mask, self._first = obs, mask, ended
+        obs_t[T] = self._tensor(self._obs)
+        if state is not None:
+            state[T] = global_state(env.core)
+        as_t = self._tensor
+        return Rollout(obs_t, mask_t, act_t, logp_t, as_t(rew), as_t(done), as_t(first),
+                       None if state is None else as_t(state), hid, as_t(err), as_t(sent),
+                       returns)
