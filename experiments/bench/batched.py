@@ -14,11 +14,12 @@ In one run (so every contender sees the same machine load; compare ratios):
 4. live allocations and RSS over ``--growth-steps`` steps (default ``10^5``) of the
    auto-resetting array API (:func:`netsense.speed.allocation_growth`).
 
-Writes ``results/bench_batched.csv`` (speed table), ``bench_batched_scaling.csv`` /
-``.png``, ``bench_batched_growth.csv`` / ``.png`` and one ``bench_batched_<section>.txt``
-per section (speed, profile, observations, scaling, memory, growth) headed by the commits measured.
+Writes, into ``experiments/results/bench/batched/``, ``bench_batched.csv`` (speed table),
+``bench_batched_scaling.csv`` / ``.png``, ``bench_batched_growth.csv`` / ``.png`` and one
+``bench_batched_<section>.txt`` per section (speed, profile, observations, scaling, memory,
+growth) headed by the commits measured.
 
-Run: ``python experiments/bench_batched.py`` (about 10-15 minutes on 2 shared cores;
+Run: ``python experiments/bench/batched.py`` (about 10-15 minutes on 2 shared cores;
 ``--smoke`` for a seconds-long check).
 """
 
@@ -35,7 +36,7 @@ import numpy as np
 
 from netsense import speed
 
-RESULTS = Path(__file__).parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "batched"
 
 
 def _plt():

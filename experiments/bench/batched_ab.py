@@ -7,15 +7,15 @@ gather + two BLAS products) is timed in the same process as a yardstick. Prints 
 line. Run it once per checkout, alternating, e.g.::
 
     git worktree add /tmp/old <commit>
-    PYTHONPATH=/tmp/old python experiments/bench_batched_ab.py
-    PYTHONPATH=. python experiments/bench_batched_ab.py
+    PYTHONPATH=/tmp/old python experiments/bench/batched_ab.py
+    PYTHONPATH=. python experiments/bench/batched_ab.py
 
 ``--replay``: the table's setting instead (``netsense.speed.runners``: the benchmark model in
 the sources form, freshness-policy actions recorded on a twin core and replayed, best of 4
 blocks of 128 steps from a reset; needs a checkout with ``netsense.speed.runners``).
 
-Results: ``results/bench_batched_ab.txt`` (paper form) and
-``results/bench_batched_ab_replay.txt`` (``--replay``).
+Results: ``experiments/results/bench/batched_ab/bench_batched_ab.txt`` (paper form) and
+``experiments/results/bench/batched_ab/bench_batched_ab_replay.txt`` (``--replay``).
 """
 
 from __future__ import annotations

@@ -14,8 +14,8 @@ fresh process, under
 with the cores free and with one busy-looping process per core but one ("busy"). Rates are
 agent-steps/s; compare ratios within a row group (the machine's speed drifts between runs).
 
-Run ``python experiments/bench_batched_busy.py`` (about 3 min); writes
-``results/bench_batched_busy.txt`` and ``.csv``.
+Run ``python experiments/bench/batched_busy.py`` (about 3 min); writes
+``experiments/results/bench/batched_busy/bench_batched_busy.txt`` and ``.csv``.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from tqdm import tqdm
 from netsense.speed import source_revision
 
 HERE = Path(__file__).resolve().parent
-RESULTS = HERE / "results"
+RESULTS = HERE.parent / "results" / "bench" / "batched_busy"
 SHAPES = ((1024, 10, 10), (64, 100, 20))
 MODES = {"default": {}, "workqueue": {"NUMBA_THREADING_LAYER": "workqueue"},
          "1 thread": {"NUMBA_NUM_THREADS": "1"}}
@@ -109,7 +109,7 @@ def main(argv=None) -> int:
                      f"{r['busy_slowdown']:.2f}x |")
     text = "\n".join(lines)
     print(text)
-    RESULTS.mkdir(exist_ok=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "bench_batched_busy.txt").write_text(text + "\n")
     with (RESULTS / "bench_batched_busy.csv").open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))

@@ -11,11 +11,12 @@ numba's OpenMP layer and the default (active) ``OMP_WAIT_POLICY``, a threaded ke
 core another process is using waits for a time slice at every call, so the report names
 the threading layer, the thread count and ``OMP_WAIT_POLICY``. The results of every
 backend are checked against the first one's (same jobs, metrics within 1e-9). Writes
-``results/bench_benchmark_backends.txt`` (``--append`` adds to it)::
+``experiments/results/bench/benchmark_backends/bench_benchmark_backends.txt`` (``--append``
+adds to it)::
 
-    python experiments/bench_benchmark_backends.py --seeds 32
-    OMP_WAIT_POLICY=passive python experiments/bench_benchmark_backends.py --seeds 32 --append
-    python experiments/bench_benchmark_backends.py --seeds 2 --horizon 5 --out /tmp/x.txt
+    python experiments/bench/benchmark_backends.py --seeds 32
+    OMP_WAIT_POLICY=passive python experiments/bench/benchmark_backends.py --seeds 32 --append
+    python experiments/bench/benchmark_backends.py --seeds 2 --horizon 5 --out /tmp/x.txt
 """
 
 # %%
@@ -35,7 +36,7 @@ from netsense.benchmark import DEFAULT_POLICIES, execute, make_jobs
 from netsense.speed import source_revision
 
 SCENARIOS = ("fig1_scalar-v0", "message_cost-v0")
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "benchmark_backends"
 
 
 def _same(a: list[dict], b: list[dict]) -> bool:
@@ -101,7 +102,7 @@ def main(argv: list[str] | None = None) -> str:
     lines = [
         f"netsense benchmark wall time per backend, {stamp}, commit {source_revision()}, "
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared)",
-        f"command: python experiments/bench_benchmark_backends.py --seeds {args.seeds}"
+        f"command: python experiments/bench/benchmark_backends.py --seeds {args.seeds}"
         + (f" --horizon {args.horizon}" if args.horizon else "")
         + f" --backends {' '.join(args.backends)} --workers {args.workers}"
         + (" --append" if args.append else ""),

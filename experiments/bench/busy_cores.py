@@ -23,9 +23,10 @@ spinning, ``GOMP_SPINCOUNT=300000``), ``workqueue`` (``NUMBA_THREADING_LAYER``),
 ``serial`` (``NETSENSE_NUM_THREADS=1``). Conditions and configurations are interleaved
 within each of ``--repeats`` rounds, so drifts of the machine hit all of them alike.
 
-Writes ``results/bench_busy_cores.csv`` (one row per process), ``.txt`` (medians,
-spreads and busy/idle ratios) and ``.png``. Run: ``python experiments/bench_busy_cores.py``
-(about 5 minutes on 2 cores; ``--smoke`` for a seconds-long check of the plumbing, no timing).
+Writes ``experiments/results/bench/busy_cores/bench_busy_cores.csv`` (one row per process),
+``.txt`` (medians, spreads and busy/idle ratios) and ``.png``. Run:
+``python experiments/bench/busy_cores.py`` (about 5 minutes on 2 cores; ``--smoke`` for a
+seconds-long check of the plumbing, no timing).
 """
 
 # %%
@@ -42,8 +43,8 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-RESULTS = HERE / "results"
+ROOT = HERE.parents[1]
+RESULTS = HERE.parent / "results" / "bench" / "busy_cores"
 SIZES = (1, 64, 1024)
 CONFIGS: dict[str, dict[str, str]] = {
     "default": {},

@@ -1,7 +1,7 @@
 """Env speed benchmark (issue 3, item 10): netsense vs MPE2 simple_spread_v3 at the same N.
 
-Writes ``experiments/results/bench_env.csv`` and ``bench_env.png``. The same measurement
-is ``netsense bench env``. Smoke size: ``python experiments/bench_env.py --smoke``.
+Writes ``experiments/results/bench/env/bench_env.csv`` and ``bench_env.png``. The same measurement
+is ``netsense bench env``. Smoke size: ``python experiments/bench/env.py --smoke``.
 """
 
 # %%
@@ -13,7 +13,7 @@ from pathlib import Path
 
 from netsense.commands.bench import add_env_arguments, run_env
 
-RESULTS = Path(__file__).parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "env"
 
 
 def main(argv=None) -> int:

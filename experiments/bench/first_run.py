@@ -8,8 +8,9 @@ PettingZoo envs, the README's ``BatchedEnv`` snippet (64 copies of ``link_failur
 and ``netsense warmup`` itself. Each child also reports how many netsense functions numba
 compiled.
 
-Writes ``experiments/results/bench_first_run.csv`` and ``.png`` (``docs/first-run.md``
-discusses them). Smoke size: ``python experiments/bench_first_run.py --smoke``.
+Writes ``experiments/results/bench/first_run/bench_first_run.csv`` and ``.png``
+(``docs/first-run.md`` discusses them). Smoke size:
+``python experiments/bench/first_run.py --smoke``.
 """
 
 # %%
@@ -25,8 +26,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "experiments" / "results"
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "experiments" / "results" / "bench" / "first_run"
 SCENARIOS = ("fig1_scalar-v0", "random_structured_n20_N10-v0", "large_n20_N100-v1")
 
 #: Child prologue: a clock (started before anything is imported) and, except for the

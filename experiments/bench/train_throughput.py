@@ -29,8 +29,8 @@ SB3 trainer sets one torch thread too). Writes ``bench_train_throughput.csv`` (o
 round and path), ``bench_train_throughput.txt`` (median, min and max per path) and
 ``bench_train_throughput.png`` into ``--out``::
 
-    python experiments/bench_train_throughput.py                   # about 6 minutes
-    python experiments/bench_train_throughput.py --rounds 1 --iters 1 --sb3-steps 2000 \\
+    python experiments/bench/train_throughput.py                   # about 6 minutes
+    python experiments/bench/train_throughput.py --rounds 1 --iters 1 --sb3-steps 2000 \\
         --num-envs 8 --rollout 8 --out /tmp/x --tag smoke          # smoke size
 """
 
@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
 PATHS = ("torchrl-tx", "sb3-supersuit-tx", "torchrl-full", "torchrl-set", "sb3-batched",
          "sb3-supersuit")
 

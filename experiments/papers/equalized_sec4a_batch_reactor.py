@@ -7,7 +7,7 @@ Designs the prefix-based equalized-recovery observer (Proposition 1, ``L = 0``, 
 a Kalman filter that waits for delayed data (it re-filters from the start whenever a late
 measurement arrives, so it always uses every measurement received so far).
 
-Run ``python experiments/equalized_batch_reactor.py --runs 50``; writes
+Run ``python experiments/papers/equalized_sec4a_batch_reactor.py --runs 50``; writes
 ``equalized_batch_reactor_{summary,errors,search}.csv`` and ``.png`` into ``--out``.
 """
 
@@ -31,6 +31,9 @@ from netsense.estimators.equalized import (
 )
 from netsense.estimators.equalized_design import EqualizedProblem, design
 from netsense.sensing.delays import DelayLanguage
+
+RESULTS = (Path(__file__).resolve().parents[1] / "results" / "papers"
+           / "equalized_sec4a_batch_reactor")
 
 # A and C as printed in section IV-A.
 A_PRINTED = np.array([[1.0795, -0.0045, 0.2896, -0.2367],
@@ -143,7 +146,7 @@ def simulate_switching(rec_d, perf_d, lang: DelayLanguage, steps: int, runs: int
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=50)
-    ap.add_argument("--out", type=Path, default=Path("experiments/results"))
+    ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--horizon", type=int, default=5, help="T")
     ap.add_argument("--max-delay", type=int, default=2)
     ap.add_argument("--pattern", default="21210", help="true delay word, repeated")

@@ -2,7 +2,8 @@
 
 Paper's claim (Section III): with a = 2 on the switching graphs of Fig. 1, both consensus
 weightings of eq. (6) (uniform, and along the tree rooted at node 1) give unbounded errors,
-while the freshness-index observer's errors vanish. Output: ``results/fig2.csv``/``.png``.
+while the freshness-index observer's errors vanish. Output:
+``experiments/results/papers/freshness_fig2/fig2.csv``/``.png``.
 """
 
 # %%
@@ -14,12 +15,14 @@ from pathlib import Path
 
 from netsense.studies.examples import run_fig2, save_fig2, summarize_fig2
 
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "papers" / "freshness_fig2"
+
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=30)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args(argv)
     # %% simulate and write
     result = run_fig2(steps=args.steps, seed=args.seed)

@@ -13,10 +13,10 @@ relative error, the fraction of runs that converge (relative error < 1e-9 at the
 that diverge (worst error over the last two steps grows by more than 1 % per step), and the
 wall time of the batch vs a Python loop over single runs (``--loop-runs`` of them).
 
-Writes ``results/fig2_montecarlo.csv`` (quantiles per k), ``fig2_montecarlo_summary.csv``
-and ``fig2_montecarlo.png``.
+Writes, into ``experiments/results/papers/freshness_fig2_montecarlo/``, ``fig2_montecarlo.csv``
+(quantiles per k), ``fig2_montecarlo_summary.csv`` and ``fig2_montecarlo.png``.
 
-Run: ``python experiments/fig2_montecarlo.py`` (seconds).
+Run: ``python experiments/papers/freshness_fig2_montecarlo.py`` (seconds).
 """
 
 # %%
@@ -36,7 +36,7 @@ from netsense.studies.examples import FIG2_OBSERVERS, run_fig2
 from netsense.systems.design import design_observer
 from netsense.systems.plants import fig1_scalar
 
-RESULTS = Path(__file__).parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "papers" / "freshness_fig2_montecarlo"
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
 
 

@@ -17,10 +17,11 @@ nearly tight).
 
 Per member we record the step after which all indices stay finite
 (:func:`netsense.graphs.aoi.trigger_step`) and the worst index over ``k >= (N-1)T``; a
-violation is a member above a bound. Writes ``results/lemma_checks_batched.csv`` (one row
+violation is a member above a bound. Writes, into
+``experiments/results/papers/freshness_lemmas3_5/``, ``lemma_checks_batched.csv`` (one row
 per case) and ``lemma_checks_batched.png`` (measured maxima vs bounds).
 
-Run: ``python experiments/lemma_checks_batched.py`` (a few minutes on 2 shared cores;
+Run: ``python experiments/papers/freshness_lemmas3_5.py`` (a few minutes on 2 shared cores;
 ``--smoke`` for seconds).
 """
 
@@ -45,7 +46,7 @@ from netsense.graphs.families import guaranteed_period, make_graph_process
 from netsense.systems.design import design_observer
 from netsense.systems.plants import random_structured
 
-RESULTS = Path(__file__).parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "papers" / "freshness_lemmas3_5"
 
 
 @dataclass(frozen=True)

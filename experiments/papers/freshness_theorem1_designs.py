@@ -1,10 +1,11 @@
 """Does a different (legitimate) design lower the noise gain G on the plants with a floor?
 
-``experiments/theorem1_precision.py`` shows the floor of Theorem 1's gains is rounding
-times the observer's noise gain ``G`` (``theorem1_numerics.noise_gain``). This script asks
+``experiments/papers/freshness_theorem1_precision.py`` shows the floor of Theorem 1's gains is
+rounding times the observer's noise gain ``G`` (``freshness_theorem1_numerics.noise_gain``).
+This script asks
 whether a design choice that keeps Theorem 1's claim (every agent's error decays at
 ``max_j rho_j < rho``, ``rho = 0.5``) lowers ``G`` by a large factor on the plants whose
-float64 floor is above 1e-12 (39 of theorem1_numerics' 200). Choices tried, one at a time:
+float64 floor is above 1e-12 (39 of freshness_theorem1_numerics' 200). Choices tried, one at a time:
 
 * **own-block gains**: ``scipy.signal.place_poles`` YT with 100 iterations instead of 10,
   and KNV0 (both aim at a well-conditioned closed loop; a single-output block has one gain
@@ -16,8 +17,8 @@ float64 floor is above 1e-12 (39 of theorem1_numerics' 200). Choices tried, one 
   in 6 random orders (the graphs relabelled with them: the same network), the design
   redone; ``best of 6`` picks the order with the smallest ``G`` per plant (an oracle).
 
-Run: ``python experiments/theorem1_designs.py`` (about 3 minutes on 2 shared cores);
-prints ``G`` relative to the default design and how many floors stay above 1e-12.
+Run: ``python experiments/papers/freshness_theorem1_designs.py`` (about 3 minutes on 2 shared
+cores); prints ``G`` relative to the default design and how many floors stay above 1e-12.
 """
 
 # %%
@@ -31,7 +32,7 @@ import numpy as np
 import scipy.linalg as sla
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import theorem1_numerics as num  # noqa: E402  (a sibling script, not a package)
+import freshness_theorem1_numerics as num  # noqa: E402  (a sibling script, not a package)
 
 from netsense.systems.design import ObserverDesign, design_observer  # noqa: E402
 from netsense.systems.plants import Plant  # noqa: E402
@@ -94,7 +95,7 @@ def relabelled(case: num.Case, perm: np.ndarray) -> tuple[Plant, np.ndarray]:
 
 
 def measure(des: ObserverDesign, plant: Plant, graphs: np.ndarray, seed: int) -> tuple:
-    """``(floor, G)`` as theorem1_numerics.measure_floor measures them."""
+    """``(floor, G)`` as freshness_theorem1_numerics.measure_floor measures them."""
     rel = num.relative_errors(des, plant, graphs, seed)
     return float(rel[START:].max()), num.noise_gain(des, plant, graphs, seed, START)
 

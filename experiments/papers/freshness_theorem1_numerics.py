@@ -25,8 +25,8 @@ ill-conditioned) and multi-output sources (2, 3 or ``ceil(n_j / 4)`` outputs, ``
 stable and unstable plants (``netsense.systems.plants.random_structured``), random jointly
 strongly connected graphs with period ``T``.
 
-Run: ``python experiments/theorem1_numerics.py`` (``--cases 200``, about a minute on 2
-shared cores). ``tests/test_theorem1_numerics.py`` runs the same functions over 200+
+Run: ``python experiments/papers/freshness_theorem1_numerics.py`` (``--cases 200``, about a
+minute on 2 shared cores). ``tests/test_theorem1_numerics.py`` runs the same functions over 200+
 plants each and asserts the bounds.
 """
 

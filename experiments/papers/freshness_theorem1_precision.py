@@ -1,6 +1,6 @@
 """Theorem 1's noise-free floor in two precisions: is it rounding times the noise gain?
 
-``experiments/theorem1_numerics.py`` measures, with Theorem 1's gains and the plant
+``experiments/papers/freshness_theorem1_numerics.py`` measures, with Theorem 1's gains and the plant
 simulated in ``x`` coordinates, a relative error floor ``max_i ||e_i[k]|| / ||x[k]||`` over
 steps 240-360 that is above 1e-12 on some plants and never above ``24 eps G`` (``G``: the
 observer's noise gain, relative error per unit relative process noise). If the floor is
@@ -22,7 +22,7 @@ rounding amplified by ``G``, it must scale with the unit roundoff; an implementa
    2048 times smaller than float64's). Variants (``plant / observer``):
 
    * ``f64``       -- the package's plant ``A``, ``C`` and design, float64 throughout
-     (theorem1_numerics' setting).
+     (freshness_theorem1_numerics' setting).
    * ``ld``        -- longdouble throughout, on the plant *defined* by the design:
      ``A = T A_bar T^T``, ``C_i = C_bar_i T^T`` with ``T`` re-orthogonalised in
      longdouble (it differs from the package's ``A`` by ``~residual_A ||A||``, 1e-16
@@ -34,18 +34,19 @@ rounding amplified by ``G``, it must scale with the unit roundoff; an implementa
    * ``ld/f64``    -- the ``ld`` plant, the observer in float64 (measurements rounded to
      float64).
 
-   The error is always measured in longdouble. ``G`` is theorem1_numerics'
+   The error is always measured in longdouble. ``G`` is freshness_theorem1_numerics'
    ``noise_gain`` (process noise ``1e-9 ||x||``, float64); the floor is compared with
    ``eps G`` of each precision.
-3. **Deadbeat.** The same on theorem1_numerics' deadbeat plants (Corollary 1's gains),
+3. **Deadbeat.** The same on freshness_theorem1_numerics' deadbeat plants (Corollary 1's gains),
    the floor being the relative error over the 50 steps after the bound
    ``n + 2N(N-1)T``.
 
-Run: ``python experiments/theorem1_precision.py`` (about 2 minutes on 2 shared cores;
-``--worst 10 --below 3`` plants of each kind). Writes
-``experiments/results/theorem1_precision.csv`` and ``theorem1_precision.png`` (its printout
-is ``theorem1_precision.txt``). ``tests/test_theorem1_numerics.py`` checks the reference
-against the package and the longdouble floor on one plant.
+Run: ``python experiments/papers/freshness_theorem1_precision.py`` (about 2 minutes on 2 shared
+cores; ``--worst 10 --below 3`` plants of each kind). Writes, into
+``experiments/results/papers/freshness_theorem1_precision/``, ``theorem1_precision.csv`` and
+``theorem1_precision.png`` (its printout is ``theorem1_precision.txt``).
+``tests/test_theorem1_numerics.py`` checks the reference against the package and the
+longdouble floor on one plant.
 """
 
 # %%
@@ -60,7 +61,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import theorem1_numerics as num  # noqa: E402  (a sibling script, not a package)
+import freshness_theorem1_numerics as num  # noqa: E402  (a sibling script, not a package)
 
 from netsense.graphs.bounds import corollary1_bound  # noqa: E402
 from netsense.observers.freshness import FreshnessObserver  # noqa: E402
@@ -69,8 +70,9 @@ from netsense.systems.design import ObserverDesign  # noqa: E402
 LD = np.longdouble
 EPS64 = float(np.finfo(np.float64).eps)
 EPS_LD = float(np.finfo(LD).eps)
-RESULTS = Path(__file__).resolve().parent / "results"
-STEPS, START = 360, 240  # theorem1_numerics.measure_floor: steps 240-360
+RESULTS = (Path(__file__).resolve().parents[1] / "results" / "papers"
+           / "freshness_theorem1_precision")
+STEPS, START = 360, 240  # freshness_theorem1_numerics.measure_floor: steps 240-360
 
 
 # ------------------------------------------------------------------------ reference
@@ -188,7 +190,8 @@ def simulate(design: ObserverDesign, sim: Sim, graphs: np.ndarray, seed: int,
     """``max_i ||z_hat_i[k] - T^T x[k]|| / ||x[k]||``, ``k = 0..K``, in longdouble.
 
     The plant ``x[k+1] = A x[k]`` runs in ``sim``'s dtype, the reference observer in
-    ``obs_dtype``; ``z[0]`` as theorem1_numerics draws it (``x[0] = T z[0]``), estimates 0.
+    ``obs_dtype``; ``z[0]`` as freshness_theorem1_numerics draws it (``x[0] = T z[0]``),
+    estimates 0.
     """
     rng = np.random.default_rng(seed)
     z0 = rng.standard_normal(design.n)
@@ -271,7 +274,7 @@ VARIANTS = {  # name: (plant: "package" | "structured", plant dtype, observer dt
 def floors(case: num.Case, variants=VARIANTS, *, deadbeat: bool = False) -> dict[str, float]:
     """The floor of each variant: the largest relative error over steps 240-360 with
     Theorem 1's gains, or with ``deadbeat`` gains over the 50 steps after Corollary 1's
-    bound ``n + 2N(N-1)T`` (theorem1_numerics.measure_deadbeat's window); ``_late``: over
+    bound ``n + 2N(N-1)T`` (freshness_theorem1_numerics.measure_deadbeat's window); ``_late``: over
     the last 60 or 25 steps only (equal when the floor is flat)."""
     plant = case.plant()
     if deadbeat:
@@ -291,7 +294,7 @@ def floors(case: num.Case, variants=VARIANTS, *, deadbeat: bool = False) -> dict
 
 
 def scan(count: int = 200, *, deadbeat: bool = False) -> list[tuple[num.Case, dict]]:
-    """theorem1_numerics' measurement (package observer, float64) on its plants:
+    """freshness_theorem1_numerics' measurement (package observer, float64) on its plants:
     ``(case, {"floor", "gain"})``; Theorem 1's floor plants, or the deadbeat plants with
     the relative error after Corollary 1's bound as the floor."""
     if not deadbeat:
@@ -385,7 +388,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     rows = study(args, deadbeat=False) + study(args, deadbeat=True)
-    RESULTS.mkdir(exist_ok=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / "theorem1_precision.csv"
     with path.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))

@@ -6,7 +6,8 @@ range of load levels (multiples of the nominal spot loads) and random load profi
 report the linear model's voltage error against OpenDSS, and the agreement of our own
 nonlinear solver with OpenDSS (a check of the admittance matrix and of the script).
 
-Run: ``python experiments/grid_validation.py`` (needs ``pip install netsense[grid]``).
+Run: ``python experiments/papers/online_async_eq39_opendss.py`` (needs
+``pip install netsense[grid]``).
 """
 
 # %% imports
@@ -27,13 +28,15 @@ from tqdm import tqdm  # noqa: E402
 from netsense.grid import linearize, load_ieee37, solve_power_flow  # noqa: E402
 from netsense.grid.opendss import solve_opendss  # noqa: E402
 
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "papers" / "online_async_eq39_opendss"
+
 
 # %% main
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=int, default=50, help="random load profiles")
     p.add_argument("--seed", type=int, default=37)
-    p.add_argument("--out", type=Path, default=Path("experiments/results"))
+    p.add_argument("--out", type=Path, default=RESULTS)
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

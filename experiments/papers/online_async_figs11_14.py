@@ -20,7 +20,8 @@ Outputs: analogues of Fig. 11 (OASE power-injection error for several gamma), Fi
 (one injection over time). The paper's text on the comparison is truncated and its
 figures give no numbers, so only the qualitative claim (OASE beats WLS) can be compared.
 
-Run: ``python experiments/grid_oase.py`` (``--runs 5 --hours 1.5`` for a quick look).
+Run: ``python experiments/papers/online_async_figs11_14.py`` (``--runs 5 --hours 1.5`` for a
+quick look).
 """
 
 # %% imports
@@ -41,6 +42,8 @@ from tqdm import tqdm  # noqa: E402
 from netsense.estimators.online import ose_step  # noqa: E402
 from netsense.grid import linearize, load_ieee37  # noqa: E402
 from netsense.grid.meters import PMU, SMART_METER, GridMetering, truncated_normal  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "papers" / "online_async_figs11_14"
 
 PMU_BUSES = ("701", "702", "703", "709", "734", "711")
 REL_STEP = 0.0068
@@ -138,7 +141,7 @@ def main(argv=None) -> int:
     p.add_argument("--hours", type=float, default=4.0, help="simulated time (1 step = 1 s)")
     p.add_argument("--record-every", type=int, default=10, help="seconds between records")
     p.add_argument("--seed", type=int, default=37)
-    p.add_argument("--out", type=Path, default=Path("experiments/results"))
+    p.add_argument("--out", type=Path, default=RESULTS)
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

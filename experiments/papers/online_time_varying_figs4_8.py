@@ -12,7 +12,7 @@ consecutive matrices are distinct library members (rank 15 for every 5-subset of
 library, checked below): tau = 5 in eq. (19)'s convention, which is tau = 4 in the
 convention "[t, ..., t + tau]" of Assumption 4 and of the proof of Proposition 1.
 
-Run: ``python experiments/online_synthetic.py`` (``--runs 200`` for a quick look).
+Run: ``python experiments/papers/online_time_varying_figs4_8.py`` (``--runs 200`` for a quick look).
 """
 
 # %% imports
@@ -33,6 +33,8 @@ from tqdm import tqdm  # noqa: E402
 
 from netsense.estimators import online_analysis as oa  # noqa: E402
 from netsense.estimators.online import ose_step  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "papers" / "online_time_varying_figs4_8"
 
 N, M, LIB, TAU_PAPER = 15, 3, 10, 4
 PAPER = {"gamma_star_bounded": 0.25, "gamma_star_stochastic": 0.4}
@@ -140,7 +142,7 @@ def main(argv=None) -> int:
     p.add_argument("--window-sample", type=int, default=None,
                    help="evaluate the exact window contraction on this many ordered windows "
                         "(default: all 30240)")
-    p.add_argument("--out", type=Path, default=Path("experiments/results"))
+    p.add_argument("--out", type=Path, default=RESULTS)
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

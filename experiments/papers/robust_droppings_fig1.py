@@ -9,7 +9,7 @@ Writes ``robust_droppings_mse.csv`` (MSE per t), ``robust_droppings_summary.csv`
 (time-averaged MSE over t in [100, T] with standard errors, and paired differences) and
 ``robust_droppings.png`` (Fig. 1 analogue) into ``--out``.
 
-Run: ``python experiments/robust_droppings.py`` (5,000 runs, t = 0..500).
+Run: ``python experiments/papers/robust_droppings_fig1.py`` (5,000 runs, t = 0..500).
 """
 
 # %%
@@ -27,6 +27,8 @@ from tqdm import tqdm
 from netsense.estimators.kalman import KFIO, KalmanFilter, StateSpaceModel
 from netsense.estimators.robust import RSEIO
 from netsense.sensing.drops import BernoulliArrivals
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "papers" / "robust_droppings_fig1"
 
 # %% The plant of section IV
 A0 = np.array([[0.9802, 0.0196], [0.0, 0.9802]])
@@ -124,7 +126,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser.add_argument("--runs", type=int, default=5000)
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--seed", type=int, default=2014)
-    parser.add_argument("--out", type=Path, default=Path("experiments/results"))
+    parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--no-plot", action="store_true")
     parser.add_argument("--mu-sweep", type=str, default="0.9,0.95,0.99,0.999",
                         help="extra mu values run at delta = 1 as a diagnostic ('' = none)")

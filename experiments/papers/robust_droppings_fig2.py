@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -35,10 +36,10 @@ from tqdm import tqdm
 from netsense.estimators.robust import RSEIO
 from netsense.sensing.drops import BernoulliArrivals
 
-try:  # run as a script from the repository root or imported by the tests
-    from robust_droppings import ARRIVAL_P, MODEL, dA
-except ImportError:  # pragma: no cover
-    from experiments.robust_droppings import ARRIVAL_P, MODEL, dA
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "papers" / "robust_droppings_fig2"
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from robust_droppings_fig1 import ARRIVAL_P, MODEL, dA  # noqa: E402  (a sibling script)
 
 P0_SCALES = (0.1, 1.0, 10.0, 100.0)
 ENTRIES = (("P11", 0, 0), ("P12", 0, 1), ("P22", 1, 1))
@@ -113,7 +114,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser.add_argument("--runs", type=int, default=5000)
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--seed", type=int, default=2014)
-    parser.add_argument("--out", type=Path, default=Path("experiments/results"))
+    parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--no-plot", action="store_true")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)

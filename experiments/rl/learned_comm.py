@@ -1,7 +1,7 @@
 """Learned communication against the scripted frontier, on every message-cost and
 shared-channel scenario.
 
-One command trains, evaluates and summarises (``python experiments/learned_communication.py``;
+One command trains, evaluates and summarises (``python experiments/rl/learned_comm.py``;
 about an hour on 2 cores, most of it training; ``--skip-train`` re-evaluates the committed
 policies, ``--scenarios``/``--seeds``/``--steps``/``--episodes`` shrink it):
 
@@ -9,7 +9,7 @@ policies, ``--scenarios``/``--seeds``/``--steps``/``--episodes`` shrink it):
    seeds 1000000-1000099, 95 % bootstrap intervals): every baseline of
    :mod:`netsense.env.comm_policies` at each knob, ``always`` (= the freshness observer) and
    ``never``, in the scenario's communication-only mode.
-2. **Training** (``experiments/configs/learned_comm.toml``), for each scenario, each
+2. **Training** (``experiments/rl/configs/learned_comm.toml``), for each scenario, each
    variant and each seed: batched MAPPO (:func:`netsense.rl.mappo.train_ppo`) from scratch
    (``ppo``), and behaviour cloning of the scenario's best decentralised scripted point
    followed by conservative PPO fine-tuning (``bc_ppo``). Each run writes
@@ -52,9 +52,9 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-ROOT = Path(__file__).resolve().parents[1]
-CONFIG = ROOT / "experiments/configs/learned_comm.toml"
-RESULTS = ROOT / "experiments/results/learned_comm"
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = ROOT / "experiments/rl/configs/learned_comm.toml"
+RESULTS = ROOT / "experiments/results/rl/learned_comm"
 TARGET_SAVING = 0.30
 
 

@@ -1,15 +1,15 @@
 """Train netsense under Ray RLlib: multi-agent PPO, one shared action-masked policy.
 
-Reads ``experiments/configs/rllib_ppo.toml`` (or ``--config``) and prints one line per
+Reads ``experiments/rl/configs/rllib_ppo.toml`` (or ``--config``) and prints one line per
 iteration. Locally::
 
     pip install torch==2.13.0 && pip install -e ".[rllib]"
-    python experiments/rllib_example.py --iterations 2
+    python experiments/rl/rllib_example.py --iterations 2
 
 On a Ray cluster (start it with ``ray start --head`` on the head node and
 ``ray start --address=<head-ip>:6379`` on each worker, all with netsense installed)::
 
-    python experiments/rllib_example.py --address auto --num-env-runners 16
+    python experiments/rl/rllib_example.py --address auto --num-env-runners 16
 
 ``--address`` is passed to ``ray.init``; sampling then runs on ``num_env_runners``
 remote workers while the learner stays on the driver.

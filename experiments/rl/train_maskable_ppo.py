@@ -1,15 +1,17 @@
 """Train the shared MaskablePPO policies behind the committed RL benchmark.
 
-Reads ``experiments/configs/train_maskable_ppo.toml`` and writes, per scenario,
-``experiments/results/train_<scenario>/`` with ``policy.zip``, ``training_curve.csv``,
-``training_curve.png`` and ``train_config.json`` (wall time, masked actions taken).
+Reads ``experiments/rl/configs/train_maskable_ppo.toml`` and writes, per scenario,
+``experiments/results/rl/train_maskable_ppo/<scenario>/`` with ``policy.zip``,
+``training_curve.csv``, ``training_curve.png`` and ``train_config.json`` (wall time, masked
+actions taken).
 
 Usage::
 
-    python experiments/train_maskable_ppo.py                  # every scenario in the config
-    python experiments/train_maskable_ppo.py --only message_cost-v0
-    python experiments/train_maskable_ppo.py --smoke --out /tmp/x   # a few hundred steps
-    python experiments/train_maskable_ppo.py --config experiments/configs/train_comm_tasks.toml
+    python experiments/rl/train_maskable_ppo.py                  # every scenario in the config
+    python experiments/rl/train_maskable_ppo.py --only message_cost-v0
+    python experiments/rl/train_maskable_ppo.py --smoke --out /tmp/x   # a few hundred steps
+    python experiments/rl/train_maskable_ppo.py \\
+        --config experiments/rl/configs/train_comm_tasks.toml
 
 Needs the ``rl`` extra.
 """
@@ -28,6 +30,7 @@ else:  # pragma: no cover
 
 HERE = Path(__file__).resolve().parent
 CONFIG = HERE / "configs" / "train_maskable_ppo.toml"
+RESULTS = HERE.parent / "results" / "rl" / "train_maskable_ppo"
 
 
 def load_configs(path: Path = CONFIG, smoke: bool = False) -> dict:
@@ -58,7 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--config", default=str(CONFIG),
                    help="training config (default: configs/train_maskable_ppo.toml; the "
                         "communication tasks: configs/train_comm_tasks.toml)")
-    p.add_argument("--out", default=str(HERE / "results"), help="parent output directory")
+    p.add_argument("--out", default=str(RESULTS),
+                   help="parent output directory (one folder per scenario)")
     p.add_argument("--smoke", action="store_true", help="tiny runs (tests)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
@@ -67,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.only and scenario not in args.only:
             continue
         refs = baseline_returns(cfg, ("freshness", "uniform_consensus"))
-        res = train(cfg, Path(args.out) / f"train_{scenario}", progress=not args.no_progress,
+        res = train(cfg, Path(args.out) / scenario, progress=not args.no_progress,
                     baselines=refs)
         last = res.curve[-1]["mean_episode_reward"] if res.curve else float("nan")
         print(f"{scenario}: {cfg.steps} agent-steps in {res.wall_s:.1f} s, final mean "

@@ -11,7 +11,7 @@ sequences and reports, over the steps after every index is triggered:
   (substate, agent) pair, omega in grey;
 * ``aoi_matrix.png``: mean AoI as an agent x substate matrix per family.
 
-Run: ``python experiments/aoi_heatmap.py`` (a few seconds).
+Run: ``python experiments/studies/aoi_heatmap.py`` (a few seconds).
 """
 
 # %%
@@ -30,6 +30,8 @@ from netsense.observers.run import run_observer
 from netsense.studies.sweep import sample_graphs, write_csv
 from netsense.systems.design import design_observer
 from netsense.systems.plants import random_structured
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "studies" / "aoi_heatmap"
 
 # family -> (T, param) at the default N
 FAMILIES = {"ring": (4, 0.0), "ring_backward": (4, 0.0), "random_jsc": (2, 0.1),
@@ -122,7 +124,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser.add_argument("--steps", type=int, default=150)
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("experiments/results"))
+    parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--no-plot", action="store_true")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -20,7 +20,7 @@ value); for the freshness observer also the worst index and, for the liar, the f
 Writes ``faults_summary.csv``, ``faults_errors.png`` (bars) and ``faults_timeline.png``
 (median worst-agent error over time) into ``--out``.
 
-Run: ``python experiments/faults.py`` (well under a minute on 2 cores).
+Run: ``python experiments/studies/faults.py`` (well under a minute on 2 cores).
 """
 
 # %%
@@ -48,6 +48,8 @@ from netsense.sensing.noise import GaussianNoise
 from netsense.studies.sweep import sample_graphs, write_csv
 from netsense.systems.design import design_observer
 from netsense.systems.plants import random_structured
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "studies" / "faults"
 
 OBSERVERS = ("freshness", "consensus")
 
@@ -168,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser.add_argument("--at", type=int, default=50, help="step at which faults start")
     parser.add_argument("--seed", type=int, default=5)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("experiments/results"))
+    parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--no-plot", action="store_true")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)

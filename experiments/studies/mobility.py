@@ -19,7 +19,7 @@ Writes ``mobility_sweep.csv`` (per run), ``mobility_summary.csv`` (per model and
 ``mobility_summary.png`` (everything vs radius) and ``mobility_timeline.png`` (one run at
 a radius where connectivity comes and goes: connected windows, worst index, error).
 
-Run: ``python experiments/mobility.py`` (well under a minute on 2 cores).
+Run: ``python experiments/studies/mobility.py`` (well under a minute on 2 cores).
 """
 
 # %%
@@ -42,6 +42,8 @@ from netsense.sensing.noise import GaussianNoise
 from netsense.studies.sweep import write_csv
 from netsense.systems.design import design_observer
 from netsense.systems.plants import random_structured
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "studies" / "mobility"
 
 RADII = (0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.7)
 MODELS = ("random_waypoint", "random_walk")
@@ -207,7 +209,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser.add_argument("--timeline-radius", type=float, default=0.25)
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("experiments/results"))
+    parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--no-plot", action="store_true")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)

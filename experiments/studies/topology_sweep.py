@@ -22,7 +22,7 @@ Writes ``topology_sweep.csv`` (one row per run), ``topology_summary.csv`` (per c
 ``topology_bounds.png`` (measured vs bound), ``topology_ratio_vs_N.png`` and
 ``topology_markov.png`` (vs failure probability) into ``--out``.
 
-Run: ``python experiments/topology_sweep.py`` (about 1-2 minutes on 2 cores).
+Run: ``python experiments/studies/topology_sweep.py`` (about 1-2 minutes on 2 cores).
 """
 
 # %%
@@ -36,6 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from netsense.studies.sweep import SweepCase, run_sweep, summarize, write_csv
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "studies" / "topology_sweep"
 
 FAMILY_STYLE = {"ring": ("tab:blue", "o"), "ring_backward": ("tab:purple", "v"),
                 "random_jsc": ("tab:green", "s"), "gossip": ("tab:orange", "D"),
@@ -210,7 +212,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser.add_argument("--max-steps", type=int, default=600, help="horizon cap")
     parser.add_argument("--seed", type=int, default=2024)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("experiments/results"))
+    parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--no-plot", action="store_true")
     args = parser.parse_args(argv)
     Ns = [int(v) for v in args.N.split(",")]
