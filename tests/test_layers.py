@@ -111,6 +111,47 @@ def test_no_import_cycles():
             visit(m)
 
 
+#: Inside :mod:`netsense.rl`, the training pipeline's stages in the order a run goes through
+#: them (``netsense/rl/__init__.py`` documents each): a module imports only ``netsense.rl``
+#: modules of earlier stages. The adapters sit on the core-only helpers; the former homes of
+#: the pipeline's names (``mappo``, ``models``, ``torchrl_batched``) re-export from above.
+RL_STAGES = (
+    ("credit", "wrappers"),
+    ("sb3", "rllib", "torchrl"),
+    ("envs",),
+    ("distributions",),
+    ("networks", "set_network"),
+    ("config",),
+    ("policy",),
+    ("scripted",),
+    ("cloning",),
+    ("evaluation",),
+    ("runlog",),
+    ("checkpoint",),
+    ("ppo",),
+    ("mappo", "models", "torchrl_batched"),
+)
+
+
+def rl_stage(module: str) -> int:
+    name = module.split(".")[2]
+    return next(i for i, group in enumerate(RL_STAGES) if name in group)
+
+
+def test_every_rl_module_has_a_stage():
+    rl = {m.split(".")[2] for m in MODULES if m.startswith("netsense.rl.")}
+    staged = {name for group in RL_STAGES for name in group}
+    assert rl == staged, f"not in RL_STAGES: {sorted(rl - staged)}; gone: {sorted(staged - rl)}"
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if m.startswith("netsense.rl.")))
+def test_rl_stages_import_only_earlier_stages(module):
+    rank_m = rl_stage(module)
+    later = sorted(m for m in GRAPH[module] if m.startswith("netsense.rl.") and m != module
+                   and rl_stage(m) >= rank_m)
+    assert not later, f"{module} (stage {rank_m}) imports the same or a later stage: {later}"
+
+
 def test_the_checker_sees_a_violation(tmp_path):
     """The walk resolves relative, lazy and ``from pkg import module`` imports."""
     src = tmp_path / "mod.py"

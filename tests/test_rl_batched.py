@@ -62,7 +62,7 @@ def test_block_errors_by_hand():
 
 
 def test_adoptions_from_full_actions():
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.envs import make_core
 
     core = make_core(SCEN, 1, **SHORT)
     a = np.zeros((1, core.N, core.M + 1), np.int64)
@@ -87,7 +87,7 @@ def test_adoptions_in_comm_modes_are_the_fusion_rules_choice(mode):
     # rule must be the slots that policy adopts (on substates with a non-empty block of
     # Lemma 1: "adopting" an empty one moves nothing, and it is never sent per substate)
     from netsense.env.policies import FreshnessPolicy
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.envs import make_core
 
     full = make_core(SCEN, 3, control="full", **SHORT)
     comm = make_core(SCEN, 3, control=mode, **SHORT)
@@ -109,7 +109,7 @@ def test_adoptions_in_comm_modes_are_the_fusion_rules_choice(mode):
 
 
 def test_counterfactual_refuses_uniform_fusion():
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.envs import make_core
 
     core = make_core(SCEN, 1, control="transmit", **SHORT)
     core.reset(0)
@@ -130,7 +130,7 @@ pytest.importorskip("torchrl")
 def test_env_specs_and_masked_random_rollout(control):
     from torchrl.envs.utils import check_env_specs
 
-    from netsense.rl.torchrl_batched import NetSenseBatchedEnv, make_core, state_size
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core, state_size
 
     core = make_core(SCEN, 3, control=control, **SHORT)
     env = NetSenseBatchedEnv(core, reward="counterfactual", seed=0)
@@ -147,7 +147,7 @@ def test_env_specs_and_masked_random_rollout(control):
 def test_env_reset_seeds_members_like_the_core():
     from netsense.engine.core import BatchedCore
     from netsense.env.vector import load_model
-    from netsense.rl.torchrl_batched import NetSenseBatchedEnv
+    from netsense.rl.envs import NetSenseBatchedEnv
 
     model, _ = load_model(SCEN, **SHORT)
     env = NetSenseBatchedEnv(BatchedCore(model, 2), seed=7)
@@ -157,7 +157,7 @@ def test_env_reset_seeds_members_like_the_core():
 
 
 def _small(algo, network, **kw):
-    from netsense.rl.mappo import PPOConfig
+    from netsense.rl.config import PPOConfig
 
     return PPOConfig(SCEN, algo=algo, network=network, steps=2 * 4 * 8 * 10, num_envs=4,
                      rollout=8, minibatch=16, epochs=2, eval_interval=1, eval_envs=3,
@@ -172,8 +172,9 @@ def _small(algo, network, **kw):
     ("ippo", "mlp", "transmit", "scenario"),
 ])
 def test_training_smoke(tmp_path, algo, network, control, reward):
-    from netsense.rl.mappo import load_policy, train_ppo
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.checkpoint import load_policy
+    from netsense.rl.envs import make_core
+    from netsense.rl.ppo import train_ppo
 
     cfg = _small(algo, network, control=control, reward=reward)
     res = train_ppo(cfg, tmp_path)
@@ -194,8 +195,8 @@ def test_training_smoke(tmp_path, algo, network, control, reward):
 
 
 def test_set_network_runs_at_any_size_with_the_same_parameters():
-    from netsense.rl.models import SetPolicyNet
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.envs import make_core
+    from netsense.rl.set_network import SetPolicyNet
 
     small, large = make_core("fig1_scalar-v0", 2), make_core(SCEN, 2)
     assert (small.N, small.D) != (large.N, large.D)
@@ -213,8 +214,8 @@ def test_set_network_runs_at_any_size_with_the_same_parameters():
 
 
 def test_set_network_is_equivariant_to_slot_order():
-    from netsense.rl.models import SetPolicyNet
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.envs import make_core
+    from netsense.rl.set_network import SetPolicyNet
 
     core = make_core(SCEN, 2)
     obs, _ = core.reset(1)
@@ -236,8 +237,10 @@ def test_set_network_is_equivariant_to_slot_order():
 
 
 def test_behaviour_cloning_learns_the_freshness_choices():
-    from netsense.rl.mappo import PPOConfig, actor_net, behaviour_clone
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.cloning import behaviour_clone
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import actor_net
 
     torch.manual_seed(0)
     cfg = PPOConfig(SCEN, network="set", num_envs=8, bc_minibatch=32, set_hidden=16,
@@ -252,9 +255,11 @@ def test_behaviour_cloning_copies_a_communication_baseline():
     # sources:0 (sources send every step, relays never) is a deterministic function of the
     # observation: the clone must match it on held-out members and act like it
     from netsense.benchmark import protocol as pr
-    from netsense.rl.mappo import PPOConfig, actor_net, behaviour_clone
-    from netsense.rl.models import MaskedMultiCategorical
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.cloning import behaviour_clone
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.distributions import MaskedMultiCategorical
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import actor_net
 
     torch.manual_seed(0)
     sc = "comm_process_noise-v0"
@@ -300,7 +305,8 @@ def test_bench_train_throughput_smoke(tmp_path):
 @pytest.fixture(scope="module")
 def tiny_policies(tmp_path_factory):
     """A set-network and an MLP policy trained for one iteration on the transmit task."""
-    from netsense.rl.mappo import PPOConfig, train_ppo
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.ppo import train_ppo
 
     out = {}
     for network in ("set", "mlp"):
@@ -315,8 +321,8 @@ def tiny_policies(tmp_path_factory):
 
 def test_protocol_evaluates_pt_policies_in_their_control_mode(tiny_policies):
     from netsense.benchmark import protocol as pr
-    from netsense.rl.mappo import load_policy
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.checkpoint import load_policy
+    from netsense.rl.envs import make_core
 
     path = tiny_policies["set"]
     seeds = pr.eval_seeds(3)
@@ -356,8 +362,8 @@ def test_pt_policy_through_the_pettingzoo_benchmark_equals_the_batched_protocol(
 
 def test_pt_policy_files_are_checked(tiny_policies, tmp_path):
     from netsense.benchmark import protocol as pr
-    from netsense.rl.mappo import load_policy
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.checkpoint import load_policy
+    from netsense.rl.envs import make_core
 
     # an MLP is tied to the layout it was trained on (here N = 10, M = 5)
     small = make_core("fig1_scalar-v0", 1, control="transmit")
@@ -380,7 +386,7 @@ def test_pt_policy_files_are_checked(tiny_policies, tmp_path):
     ({"control": {"mode": "broadcast"}}, "control.mode"),
 ])
 def test_make_core_names_a_bad_control(kw, match):
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.envs import make_core
 
     with pytest.raises(ValueError, match=match):
         make_core(SCEN, 1, **kw)
@@ -392,7 +398,7 @@ def test_make_core_names_a_bad_control(kw, match):
     ({"control": "tx"}, "control"),
 ])
 def test_ppo_config_names_bad_fields(kw, match):
-    from netsense.rl.mappo import PPOConfig
+    from netsense.rl.config import PPOConfig
 
     with pytest.raises(ValueError, match=match):
         PPOConfig(SCEN, **kw)

@@ -9,7 +9,7 @@ path                what runs
                     ``"transmit"`` (freshness fusion adopts, the agent decides the transmit
                     bit; :mod:`netsense.engine.control`)
 ``torchrl-full``    MAPPO (state critic, MLP actor) in full control
-``torchrl-set``     the same with the set network (:class:`netsense.rl.models.SetPolicyNet`)
+``torchrl-set``     the same with the set network (:class:`netsense.rl.set_network.SetPolicyNet`)
 ``sb3-batched``     MaskablePPO on :func:`netsense.env.vector.make_sb3_vec_env` (full control)
 ``sb3-supersuit``   MaskablePPO through SuperSuit (:func:`netsense.rl.sb3.train`, full control,
                     the default ``netsense train`` path)
@@ -55,7 +55,8 @@ PATHS = ("torchrl-tx", "sb3-supersuit-tx", "torchrl-full", "torchrl-set", "sb3-b
 
 def _torchrl(scenario: str, path: str, B: int, T: int, iters: int, N: int, minibatch: int,
              epochs: int) -> dict:
-    from netsense.rl.mappo import PPOConfig, train_ppo
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.ppo import train_ppo
 
     cfg = PPOConfig(scenario, algo="mappo", network="set" if path == "torchrl-set" else "mlp",
                     steps=B * T * N * iters, num_envs=B, rollout=T, epochs=epochs,
@@ -93,7 +94,7 @@ def _sb3_supersuit(scenario: str, steps: int, out: Path) -> dict:
 
 def run_path(path: str, args, scratch: Path, *, warm: bool = False) -> dict:
     """One measurement of ``path`` (a tiny one with ``warm``)."""
-    from netsense.rl.torchrl_batched import make_core
+    from netsense.rl.envs import make_core
 
     scenario = _scenario(path, args)
     N = make_core(scenario, 1).N

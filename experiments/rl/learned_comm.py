@@ -10,7 +10,7 @@ policies, ``--scenarios``/``--seeds``/``--steps``/``--episodes`` shrink it):
    :mod:`netsense.env.comm_policies` at each knob, ``always`` (= the freshness observer) and
    ``never``, in the scenario's communication-only mode.
 2. **Training** (``experiments/rl/configs/learned_comm.toml``), for each scenario, each
-   variant and each seed: batched MAPPO (:func:`netsense.rl.mappo.train_ppo`) from scratch
+   variant and each seed: batched MAPPO (:func:`netsense.rl.ppo.train_ppo`) from scratch
    (``ppo``), and behaviour cloning of the scenario's best decentralised scripted point
    followed by conservative PPO fine-tuning (``bc_ppo``). Each run writes
    ``<out>/runs/<scenario>/<variant>/seed_<s>/`` (``policy.pt`` with the actor only,
@@ -70,7 +70,7 @@ def load_config(path: Path = CONFIG) -> tuple[dict, dict, dict, dict | None]:
 def ppo_config(scenario: str, seed: int, fields: dict, steps: int | None,
                bc: str | None = None):
     """The run's :class:`PPOConfig` from merged TOML fields (``bc = "best"`` -> ``bc``)."""
-    from netsense.rl.mappo import PPOConfig
+    from netsense.rl.config import PPOConfig
 
     skip = ("seeds", "eval_sizes", "scenario", "train_size", "conservative")
     kw = {k: v for k, v in fields.items() if k not in skip}
@@ -92,7 +92,7 @@ def best_decentralised(rows: list[dict]) -> dict:
 
 def train(cfg, run: Path, retrain: bool) -> Path:
     """Train one seed into ``run`` (kept when its policy exists and not ``retrain``)."""
-    from netsense.rl.mappo import train_ppo
+    from netsense.rl.ppo import train_ppo
 
     policy = run / "policy.pt"
     if policy.exists() and not retrain:

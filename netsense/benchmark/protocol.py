@@ -19,7 +19,7 @@ What a number from ``netsense benchmark --frontier`` means (cite this module's d
   interval (:func:`bootstrap_ci`: ``scipy.stats.bootstrap``, 9999 resamples, generator
   seeded with 0, so the interval is reproducible).
 * **Learned policies** (``learned:PATH``: a ``.pt`` policy of the batched trainer,
-  :mod:`netsense.rl.mappo`, or a MaskablePPO ``policy.zip``) are evaluated twice on the
+  :mod:`netsense.rl.ppo`, or a MaskablePPO ``policy.zip``) are evaluated twice on the
   same seeds: ``greedy`` (the most likely allowed action) and ``sampled`` (actions drawn
   from the policy, torch seeded with the first evaluation seed). They run in the control
   mode they were trained in (a ``.pt`` file stores it; a ``policy.zip`` runs in the
@@ -100,7 +100,8 @@ def _train_seeds(path: Path) -> list[int]:
     """Explicit seeds of the training run that wrote ``path`` (a ``.pt`` policy's stored
     config, a MaskablePPO policy's train_config.json)."""
     if is_batched_policy(path):
-        from netsense.rl.mappo import policy_config, read_policy, training_seeds
+        from netsense.rl.checkpoint import policy_config, read_policy
+        from netsense.rl.config import training_seeds
 
         return training_seeds(policy_config(read_policy(path)))
     cfg = path.parent / "train_config.json"
@@ -156,7 +157,7 @@ def _learned_actor(path: str, deterministic: bool, seed: int, core=None):
     import torch
 
     if is_batched_policy(path):
-        from netsense.rl.mappo import load_policy
+        from netsense.rl.checkpoint import load_policy
 
         pol = load_policy(path, core, deterministic=deterministic)
         if not deterministic:

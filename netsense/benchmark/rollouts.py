@@ -32,7 +32,7 @@ class NotApplicable(ValueError):
 
 
 def is_batched_policy(path: str | Path) -> bool:
-    """``.pt`` files are policies of the batched TorchRL trainer (:mod:`netsense.rl.mappo`);
+    """``.pt`` files are policies of the batched TorchRL trainer (:mod:`netsense.rl.ppo`);
     anything else is read as a MaskablePPO ``policy.zip``."""
     return str(path).endswith(".pt")
 
@@ -45,7 +45,7 @@ def learned_overrides(scenario: str, path: str | Path, overrides: dict | None) -
     if not is_batched_policy(path):
         return over
     from netsense.env.registry import control_overrides
-    from netsense.rl.mappo import policy_control, read_policy
+    from netsense.rl.checkpoint import policy_control, read_policy
 
     return control_overrides(scenario, policy_control(read_policy(path)), over)
 
@@ -123,7 +123,7 @@ def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
     if learned and is_batched_policy(path):
         import torch
 
-        from netsense.rl.mappo import load_policy
+        from netsense.rl.checkpoint import load_policy
 
         agent_env = env
         sampled = policy.startswith("learned_sampled")

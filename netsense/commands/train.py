@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", help="scenario id, e.g. fig1_scalar-v0 (see `netsense list`)")
     parser.add_argument("--backend", choices=BACKENDS, default="sb3",
                         help="sb3: MaskablePPO through SuperSuit (default); torchrl: batched "
-                             "MAPPO / IPPO over BatchedCore (netsense.rl.mappo)")
+                             "MAPPO / IPPO over BatchedCore (netsense.rl.ppo)")
     parser.add_argument("--algo", choices=ALGOS, default=None,
                         help="maskable_ppo (sb3) or mappo / ippo (torchrl; default mappo)")
     parser.add_argument("--steps", type=positive_int, default=50_000,
@@ -139,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
 def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
     from pathlib import Path
 
-    from netsense.rl.mappo import PPOConfig, train_ppo
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.ppo import train_ppo
 
     algo = args.algo or "mappo"
     if algo == "maskable_ppo":

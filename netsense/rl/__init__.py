@@ -1,23 +1,47 @@
-"""Adapters from netsense's PettingZoo environment to maintained RL libraries.
+"""Reinforcement learning on netsense: adapters to maintained RL libraries and the batched
+training pipeline.
 
-Each adapter is a submodule with its own optional extra; importing :mod:`netsense.rl`
-imports none of them (nor torch):
+Importing :mod:`netsense.rl` imports none of the submodules (nor torch). Two groups:
 
-===============================  ======================================================  ==========
-module                           what                                                    extra
-===============================  ======================================================  ==========
-``netsense.rl.wrappers``         flat observations with the action mask appended         (core)
-``netsense.rl.sb3``              SuperSuit + MaskablePPO, ``train`` / ``LearnedPolicy``  ``rl``
-``netsense.rl.rllib``            RLlib multi-agent PPO, one shared masked policy         ``rllib``
-``netsense.rl.torchrl``          TorchRL ``PettingZooWrapper`` (the BenchMARL path)      ``torchrl``
-``netsense.rl.credit``           team / per-agent / counterfactual sender rewards        (core)
-``netsense.rl.torchrl_batched``  TorchRL ``EnvBase`` over ``BatchedCore``                ``torchrl``
-``netsense.rl.models``           masked distribution, MLP / set policies, critics        ``torchrl``
-``netsense.rl.mappo``            batched MAPPO / IPPO, BC warm start                     ``torchrl``
-===============================  ======================================================  ==========
+**Adapters** of the PettingZoo environment, each with its own optional extra:
+
+==============================  ======================================================  ==========
+module                          what                                                    extra
+==============================  ======================================================  ==========
+``netsense.rl.wrappers``        flat observations with the action mask appended         (core)
+``netsense.rl.credit``          team / per-agent / counterfactual sender rewards        (core)
+``netsense.rl.sb3``             SuperSuit + MaskablePPO, ``train`` / ``LearnedPolicy``  ``rl``
+``netsense.rl.rllib``           RLlib multi-agent PPO, one shared masked policy         ``rllib``
+``netsense.rl.torchrl``         TorchRL ``PettingZooWrapper`` (the BenchMARL path)      ``torchrl``
+==============================  ======================================================  ==========
+
+**The batched training pipeline** (``torchrl`` extra), one module per stage, in the order
+a run goes through them; a stage imports only the stages above it in this table
+(``tests/test_layers.py`` checks it):
+
+================================  ==================================================================
+stage (module)                    what
+================================  ==================================================================
+environment (``envs``)            ``make_core``, TorchRL ``EnvBase`` over ``BatchedCore``
+distribution (``distributions``)  masked multi-categorical over the core's flat action layout
+networks (``networks``,           MLP actor and critics; the permutation-invariant set actor
+``set_network``)
+configuration (``config``)        ``PPOConfig`` (frozen, checked), training seeds
+modules (``policy``)              actor and critic modules built from a config
+scripted data (``scripted``)      scripted policies in the core's layout, data collection
+warm start (``cloning``)          behaviour cloning of a scripted policy
+evaluation (``evaluation``)       periodic evaluation during training
+logging (``runlog``)              ``log.csv`` and TensorBoard
+checkpoints (``checkpoint``)      save / read / check policy files, ``BatchedPolicy``
+training loop (``ppo``)           ``train_ppo``: collection, GAE, clipped PPO updates
+================================  ==================================================================
+
+``netsense.rl.mappo``, ``netsense.rl.models`` and ``netsense.rl.torchrl_batched`` are the
+former homes of these names and re-export them (see the CHANGELOG).
 
 Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense.grid`.
 """
 
-__all__ = ["credit", "mappo", "models", "rllib", "sb3", "torchrl", "torchrl_batched",
-           "wrappers"]
+__all__ = ["checkpoint", "cloning", "config", "credit", "distributions", "envs", "evaluation",
+           "mappo", "models", "networks", "policy", "ppo", "rllib", "runlog", "sb3", "scripted",
+           "set_network", "torchrl", "torchrl_batched", "wrappers"]

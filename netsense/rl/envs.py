@@ -1,0 +1,246 @@
+"""Training pipeline, stage *environment*: a TorchRL ``EnvBase`` over
+:class:`netsense.engine.core.BatchedCore`: ``B`` environments, one agent group (imports
+torch and TorchRL; import this module on demand).
+
+:class:`NetSenseBatchedEnv` is the environment of the batched training path
+(:mod:`netsense.rl.ppo`). Every step is one call of the core's ``step`` on the whole
+batch; nothing is re-implemented. Batch size ``[B]``; all ``N`` agents in the group
+``"agents"``. Keys (shapes without the leading ``B``):
+
+===============================  ==========================================================
+key                              content
+===============================  ==========================================================
+``("agents", "observation")``    ``(N, obs_dim)`` float32, the core's flat observation
+                                 (layout :class:`netsense.engine.model.ObsLayout`)
+``("agents", "action_mask")``    ``(N, sum(nvec))`` bool, the core's flat mask (``True`` =
+                                 allowed), read by :class:`netsense.rl.distributions.
+                                 MaskedMultiCategorical`; the action spec's mask is
+                                 updated with it at every step, so ``rand_action`` and
+                                 ``check_env_specs`` draw only allowed actions
+``("agents", "action")``         ``(N, len(nvec))`` int64, ``MultiCategorical(core.nvec)``
+``("agents", "reward")``         ``(N, 1)``, the reward option (:mod:`netsense.rl.credit`)
+``("agents", "error")``          ``(N,)`` clipped normalised errors of the last step
+``("agents", "sent")``           ``(N,)`` float, transmit flags chosen at the last step
+``"state"``                      ``(S,)`` global state for a centralised critic
+                                 (:func:`global_state`)
+``"done"``, ``"terminated"``,    ``(1,)`` bool per member; all agents of a member end
+``"truncated"``                  together (horizon or divergence)
+===============================  ==========================================================
+
+The action layout is the core's (``core.nvec``, ``core.mask_size``): full control
+``[D + 2] * M + [2]``, ``[2]`` in the communication-only mode ``"transmit"`` and
+``[2] * M`` in ``"substates"`` (:mod:`netsense.engine.control`; the observation then
+carries the communication fields ``news``, ``silence``, ``channel_load``, ``collided``,
+``agent_id``).
+
+Resets: ``reset()`` seeds member ``b`` with ``seed + b`` (``set_seed``); TorchRL's
+partial resets (``"_reset"`` of shape ``(B, 1)``, as collectors send for finished members)
+restart only those members, with seeds drawn from ``numpy.random.default_rng(seed)``, as
+:class:`netsense.env.vector.BatchedEnv` does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Categorical, Composite, MultiCategorical, Unbounded
+from torchrl.envs import EnvBase
+
+from netsense.engine.control import MODES
+from netsense.engine.core import BatchedCore, CoreModel
+from netsense.env.registry import control_overrides
+from netsense.env.vector import load_model
+from netsense.kernels.update import OMEGA
+from netsense.rl import credit
+
+__all__ = ["CONTROLS", "NetSenseBatchedEnv", "global_state", "make_core", "state_size"]
+
+#: Control modes :func:`make_core` accepts (``None``: the scenario's own ``[control]``).
+CONTROLS = (None, *MODES)
+
+
+def make_core(scenario: str | CoreModel, num_envs: int, *, control: str | dict | None = None,
+              **overrides) -> BatchedCore:
+    """The :class:`BatchedCore` of ``num_envs`` copies of a scenario in a control mode.
+
+    ``control``: ``None`` keeps the scenario's ``[control]``; ``"full"`` (keep / adopt /
+    average per substate, transmit), ``"transmit"`` or ``"substates"`` (communication
+    only: the scenario's fusion rule adopts, the agents send;
+    :mod:`netsense.engine.control`) set its mode; a dict sets any of its keys.
+    """
+    if control is not None and not isinstance(scenario, str):
+        raise ValueError("control needs a scenario id; a CoreModel carries its own mode")
+    if isinstance(scenario, str):
+        overrides = control_overrides(scenario, control, overrides)
+    model, _ = load_model(scenario, **overrides)
+    return BatchedCore(model, int(num_envs))
+
+
+def state_size(N: int, M: int) -> int:
+    """Length of :func:`global_state`: ``1 + 2 N + N^2 + 2 N M``."""
+    return 1 + 2 * N + N * N + 2 * N * M
+
+
+def global_state(core) -> np.ndarray:
+    """``(B, S)`` float32 global state of every member, each entry bounded.
+
+    ``[k / H, e (N), t (N), G[k] (N x N), max(tau, 0) / H (N x M), [tau = omega] (N x M)]``:
+    time, the agents' clipped normalised errors of the last step, the transmit flags for
+    the next step, the adjacency of the current graph and every agent's freshness indices
+    (true ones, a liar's claims aside). ``S`` = :func:`state_size`.
+    """
+    B = core.B
+    H = float(core.horizon)
+    tau = core.tau
+    parts = [core.k[:, None] / H, core.errors, core.transmit,
+             core.adjacency.reshape(B, -1), (np.maximum(tau, 0) / H).reshape(B, -1),
+             (tau == OMEGA).reshape(B, -1)]
+    out = np.empty((B, state_size(core.N, core.M)), dtype=np.float32)
+    o = 0
+    for p in parts:
+        out[:, o:o + p.shape[1]] = p
+        o += p.shape[1]
+    return out
+
+
+class NetSenseBatchedEnv(EnvBase):
+    """``B`` netsense environments as one TorchRL environment (see the module docstring).
+
+    Parameters
+    ----------
+    core : BatchedCore
+        What to step (:func:`make_core`), in any control mode; its batch size is the
+        env's.
+    reward : str
+        One of :data:`netsense.rl.credit.REWARDS`.
+    seed : int, optional
+        Seed of the first reset.
+    device : torch device
+        Where the env's tensors live (the core itself runs on the CPU).
+    """
+
+    batch_locked = True
+
+    def __init__(self, core, *, reward: str = "scenario", seed: int | None = 0,
+                 device="cpu") -> None:
+        if reward not in credit.REWARDS:
+            raise ValueError(f"reward must be one of {credit.REWARDS}, got {reward!r}")
+        B, N = int(core.B), int(core.N)
+        super().__init__(device=device, batch_size=torch.Size([B]))
+        self.core = core
+        self.reward_option = reward
+        self.nvec = np.asarray(core.nvec, dtype=np.int64)
+        self.n_agents = N
+        self.layout = core.layout
+        K, A = int(self.nvec.sum()), int(self.nvec.size)
+        if K != int(core.mask_size):
+            raise ValueError(f"core.mask_size ({core.mask_size}) != sum(core.nvec) ({K})")
+        self.state_dim = state_size(N, core.M)
+        rc = core.model.reward
+        self._w = (float(rc.error_weight), float(rc.team_weight))
+        self._alive = np.asarray(core.alive, bool)
+        if reward == "counterfactual":
+            # the factors of block_errors: T^{-1} and the substate of every coordinate
+            credit.check_adoptions(core)  # before any state is set up
+            self._T_inv = np.linalg.inv(core.T)
+            blocks = np.zeros((core.n, core.M))
+            col = np.full(N, -1)
+            col[np.asarray(core.sources)] = np.arange(core.M)
+            cols = col[core.block_of]
+            blocks[np.flatnonzero(cols >= 0), cols[cols >= 0]] = 1.0
+            self._blocks = blocks
+            self._floor, self._clip = float(rc.error_floor), float(rc.error_clip)
+        dev = self.device
+        agents = Composite(
+            observation=Unbounded((B, N, self.layout.size), dtype=torch.float32, device=dev),
+            action_mask=Binary(n=K, shape=(B, N, K), dtype=torch.bool, device=dev),
+            error=Unbounded((B, N), dtype=torch.float32, device=dev),
+            sent=Unbounded((B, N), dtype=torch.float32, device=dev),
+            shape=(B, N), device=dev)
+        self.full_observation_spec = Composite(
+            agents=agents, state=Unbounded((B, self.state_dim), dtype=torch.float32,
+                                           device=dev), shape=(B,), device=dev)
+        self.full_action_spec = Composite(agents=Composite(
+            action=MultiCategorical(nvec=self.nvec.tolist(), shape=(B, N, A), dtype=torch.int64,
+                                    device=dev, remove_singleton=False),
+            shape=(B, N), device=dev), shape=(B,), device=dev)
+        self.full_reward_spec = Composite(agents=Composite(
+            reward=Unbounded((B, N, 1), dtype=torch.float32, device=dev), shape=(B, N),
+            device=dev), shape=(B,), device=dev)
+        flag = Categorical(2, (B, 1), dtype=torch.bool, device=dev)
+        self.full_done_spec = Composite(done=flag.clone(), terminated=flag.clone(),
+                                        truncated=flag.clone(), shape=(B,), device=dev)
+        self._seed: int | None = None
+        self._seed_rng = np.random.default_rng()
+        self._started = False
+        if seed is not None:
+            self.set_seed(int(seed))
+
+    # ------------------------------------------------------------------ helpers
+    def _set_seed(self, seed: int | None) -> None:
+        self._seed = None if seed is None else int(seed)
+        self._seed_rng = np.random.default_rng(seed)
+        self._started = False
+
+    def _tensor(self, a: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(a, device=self.device)
+
+    def _obs_td(self, obs: np.ndarray, mask: np.ndarray) -> dict:
+        B, N = self.batch_size[0], self.n_agents
+        maskb = torch.as_tensor(np.asarray(mask).view(np.bool_), device=self.device)
+        self.full_action_spec["agents", "action"].update_mask(maskb)
+        return {
+            "agents": TensorDict({
+                "observation": self._tensor(obs),
+                "action_mask": maskb,
+                "error": self._tensor(self.core.errors.astype(np.float32)),
+                "sent": self._tensor(self.core.transmit.astype(np.float32)),
+            }, batch_size=(B, N), device=self.device),
+            "state": self._tensor(global_state(self.core)),
+        }
+
+    def _flags(self, terminated: np.ndarray, truncated: np.ndarray) -> dict:
+        t = self._tensor(terminated.reshape(-1, 1))
+        u = self._tensor(truncated.reshape(-1, 1))
+        return {"done": t | u, "terminated": t, "truncated": u}
+
+    # ------------------------------------------------------------------ EnvBase
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        B = self.batch_size[0]
+        sel = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            sel = tensordict.get("_reset").reshape(B).cpu().numpy().astype(bool)
+            if sel.all():
+                sel = None
+        if sel is None or not self._started:
+            if self._seed is not None and not self._started:
+                seeds = [self._seed + b for b in range(B)]
+            else:
+                seeds = [int(s) for s in self._seed_rng.integers(0, 2**62, size=B)]
+            obs, mask = self.core.reset(seeds)
+            self._started = True
+        else:
+            seeds = [int(s) for s in self._seed_rng.integers(0, 2**62, size=B)]
+            obs, mask = self.core.reset(seeds, members=sel)
+        zeros = np.zeros(B, bool)
+        return TensorDict({**self._obs_td(obs, mask), **self._flags(zeros, zeros)},
+                          batch_size=self.batch_size, device=self.device)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        core = self.core
+        actions = tensordict.get(("agents", "action")).cpu().numpy()
+        cr = None
+        if self.reward_option == "counterfactual":
+            adopted = credit.adopted_slots(core, actions)
+            eps = credit.block_errors(core.Z, core.x, self._T_inv, self._blocks,
+                                      self._floor, self._clip)
+            cr = credit.sender_credit(eps, adopted, core.nbr, self._alive)
+        out = core.step(actions)
+        r = credit.shaped_reward(self.reward_option, out.reward, core.errors, self._alive,
+                                 *self._w, credit=cr)
+        reward = self._tensor(r.astype(np.float32)[..., None])
+        td = {**self._obs_td(out.obs, out.action_mask),
+              **self._flags(out.terminated, out.truncated)}
+        td["agents"].set("reward", reward)
+        return TensorDict(td, batch_size=self.batch_size, device=self.device)
