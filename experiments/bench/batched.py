@@ -1,4 +1,4 @@
-"""Speed and memory of the batched core (issue 8, items 4 and 5).
+"""Speed and memory of the batched core.
 
 In one run (so every contender sees the same machine load; compare ratios):
 

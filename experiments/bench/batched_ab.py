@@ -1,4 +1,4 @@
-"""A/B of two checkouts of netsense: ``BatchedCore.step`` at the three shapes of issue 8.
+"""A/B of two checkouts of netsense: ``BatchedCore.step`` at the three benchmark shapes.
 
 Model: ``large_n20_N100-v1`` resized (Markov links drawn per base link, one index column
 per agent -- the form every version supports), freshness policy computed between the

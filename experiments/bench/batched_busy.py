@@ -1,10 +1,10 @@
-"""The batched core on free and on busy cores, per numba threading layer (issue 8).
+"""The batched core on free and on busy cores, per numba threading layer.
 
 numba's default threading layer (OpenMP where present) keeps its worker threads spinning
 after every threaded call. On free cores that makes the next call start at once; when
 another process holds a core, the step's threaded calls each wait for a time slice. This
 script measures the effect: ``BatchedCore.step`` (the replayed freshness actions of
-``netsense bench batched``) and the bare numpy kernel at two shapes of issue 8, each in a
+``netsense bench batched``) and the bare numpy kernel at two of the benchmark shapes, each in a
 fresh process, under
 
 * ``default`` — numba's own choice (reported: ``omp`` on this machine),

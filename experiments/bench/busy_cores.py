@@ -1,8 +1,8 @@
 """Step time with the other cores idle and busy, per batch size and thread configuration.
 
-The threads issue, item 1: does a process that holds a core make the batched step
-collapse? One step is :meth:`netsense.engine.core.BatchedCore.step` plus the freshness
-policy's ``act`` (both compiled passes; what an RL loop runs), on the benchmark model of
+Does a process that holds a core make the batched step collapse? One step is
+:meth:`netsense.engine.core.BatchedCore.step` plus the freshness policy's ``act`` (both
+compiled passes; what an RL loop runs), on the benchmark model of
 :func:`netsense.speed.bench_model` at ``N = 10, n = 10`` (Markov link failures and
 Gaussian noise drawn by the threaded refill every 64 steps, included), for
 ``B = 1, 64, 1024``. Every measurement runs in a fresh process (the thread pool and its

@@ -1,4 +1,4 @@
-"""Env speed benchmark (issue 3, item 10): netsense vs MPE2 simple_spread_v3 at the same N.
+"""Env speed benchmark: netsense vs MPE2 simple_spread_v3 at the same N.
 
 Writes ``experiments/results/bench/env/bench_env.csv`` and ``bench_env.png``. The same measurement
 is ``netsense bench env``. Smoke size: ``python experiments/bench/env.py --smoke``.
