@@ -74,7 +74,7 @@ Numerical health: a step checks that every agent's error ``||z_hat_i - z||`` is 
 reduction over ``(B, N)``). Rewards are finite by construction (errors are clipped, NaN
 included, and :class:`RewardConfig` bounds them). When an error is not finite, with
 ``nonfinite="terminate"`` (default) the member is
-terminated at that step (``terminated[b] = True``), :attr:`BatchedCore.nonfinite` ``[b]``
+terminated at that step (``terminated[b] = True``), ``BatchedCore.nonfinite[b]``
 records ``{"step", "what", "agent"}`` (``what``: ``"state"``, ``"estimate"`` or ``"error"``
 (finite state and estimate whose distance overflows); ``agent`` is ``None`` for the plant
 state) and a :class:`~netsense.kernels.

@@ -124,7 +124,7 @@ Episode End
 Truncation after ``horizon`` steps. Termination when the scenario sets
 ``divergence_limit`` and some agent's normalised error exceeds it, or when the plant
 state or an estimate stops being finite (numerical health, below). Then ``agents`` is
-empty until :meth:`reset`.
+empty until :meth:`NetSenseEnv.reset`.
 
 Numerical health: an unstable plant run long, or an estimate that blows up, reaches inf or
 NaN; that never passes silently. By default (``nonfinite="terminate"``) the episode ends
@@ -161,7 +161,7 @@ Bad arguments (``reset(seed=-1)``, ``seed=1.5``, ``seed="abc"``, an action of th
 shape or value, unknown agents) raise ``ValueError`` naming the argument before anything
 changes; the env keeps stepping exactly as before the call.
 
-With ``aoi_info=True``, ``infos[agent]["aoi"]`` (also after :meth:`reset`) holds the
+With ``aoi_info=True``, ``infos[agent]["aoi"]`` (also after :meth:`NetSenseEnv.reset`) holds the
 agent's age of information over the steps ``0..k`` of the episode so far, exactly
 :func:`netsense.graphs.aoi.aoi_stats` of its freshness-index history (the running form,
 :class:`RunningAoI`, merges one ``aoi_stats`` call per step):
