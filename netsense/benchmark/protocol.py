@@ -63,12 +63,19 @@ CONFIDENCE = 0.95
 RESAMPLES = 9999
 PROTOCOL_METRICS = ("mean_rel_error", "final_rel_error", "msgs_per_agent_step",
                     "load_per_agent_step", "reward")
-#: Knob settings of each scripted family (from most to fewest messages, roughly).
+#: Knob settings of each scripted family (from most to fewest messages, roughly); a
+#: family with two knobs takes strings ``"knob1,knob2"`` (the spec is ``family:knobs``).
 FAMILIES: dict[str, tuple] = {
     "periodic": (1, 2, 3, 4, 5, 6, 8, 12, 16),
     "bernoulli": (1.0, 0.7, 0.5, 0.35, 0.25, 0.15, 0.1, 0.05),
     "sources": (1, 2, 4, 8, 16, 0),
     "event": (1, 2, 3, 4, 6, 8, 12, 16),
+    "until": (120, 80, 60, 40, 30, 20, 10),
+    "settle": (0.001, 0.003, 0.01, 0.03, 0.1, 0.3),
+    # threshold ALOHA: the proven K = 1 optimum (2.2, 4.69), lower thresholds, then lower
+    # probabilities (the optimum collides on channels with K > 1)
+    "aloha": ("2.2,4.69", "0.5,1", "1,1", "2.2,1", "2.2,0.5", "4.4,0.5", "4.4,0.25"),
+    "tdma": (1, 2, 3, 4, 6, 8),
     "oldest": (1, 2, 3, 4, 6),
     "whittle": (1, 2, 3, 4, 6),
 }
