@@ -186,14 +186,17 @@ def _learned_actor(path: str, deterministic: bool, seed: int, core=None):
     return act
 
 
-def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None = None
-             ) -> dict[str, np.ndarray]:
+def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None = None,
+             *, actor=None) -> dict[str, np.ndarray]:
     """Per-episode :data:`PROTOCOL_METRICS` of ``policy`` on ``seeds``, as one batched run.
 
     ``policy``: a communication baseline spec (``periodic:4``, ...), a scripted policy name
     of :mod:`netsense.env.policies` (``freshness``, ...), ``learned:PATH`` (greedy) or
     ``learned_sampled:PATH``. Member ``b`` is seeded with ``seeds[b]``; members that
     terminate early (``divergence_limit``) are scored over their own steps.
+    ``actor``: a callable ``(core, seeds) -> act`` that builds the acting function on the
+    evaluated :class:`~netsense.engine.core.BatchedCore` instead (``policy`` is then only
+    its label): a rule that is no registered policy, scored exactly like one.
     """
     from netsense.engine.core import BatchedCore
     from netsense.env.vector import load_model
@@ -202,7 +205,7 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
     if not seeds:
         raise ValueError("seeds must be non-empty")
     name, _, arg = policy.partition(":")
-    learned = name in ("learned", "learned_sampled")
+    learned = actor is None and name in ("learned", "learned_sampled")
     if learned:
         if not arg:
             raise ValueError(f"{name} needs a path: {name}:PATH")
@@ -210,7 +213,9 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
     model, _ = load_model(scenario, **dict(overrides or {}))
     B = len(seeds)
     core = BatchedCore(model, B)
-    if learned:
+    if actor is not None:
+        act = actor(core, seeds)
+    elif learned:
         check_disjoint(_train_seeds(Path(arg)), seeds)
         act = _learned_actor(arg, name == "learned", seeds[0], core)
     else:
