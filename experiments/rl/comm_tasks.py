@@ -2,8 +2,7 @@
 new tasks' extra information is worth.
 
 ``python experiments/rl/comm_tasks.py`` (all tasks, 100 protocol episodes; about 25
-minutes on one core: run it under ``flock /work/cpu.lock`` on a shared machine;
-``--scenarios``/``--episodes`` shrink it) writes into
+minutes on one core; ``--scenarios``/``--episodes`` shrink it) writes into
 ``experiments/results/rl/comm_tasks/``:
 
 1. **Frontier** of each scenario (:func:`netsense.benchmark.protocol.run_frontier`: every
