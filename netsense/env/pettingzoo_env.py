@@ -103,7 +103,10 @@ field               size       content
 
 ``symlog(v) = sign(v) log(1 + |v|)``; all entries are clipped to ``[-1000, 1000]``. The
 communication-only modes append ``news`` (M), ``silence``, ``channel_load``, ``collided``
-and ``agent_id`` (:class:`netsense.engine.control.CommControl`; ``layout.comm_table()``).
+and ``agent_id`` (:class:`netsense.engine.control.CommControl`; ``layout.comm_table()``),
+then ``next_out`` (N, the agent's out-links in ``G[k+1]``) with ``[control] announce =
+true`` and ``acks`` (N, delivery of its message of step ``k`` per out-link: 1 delivered,
+-1 lost, 0 no link or not sent) with ``feedback = true``.
 :attr:`NetSenseEnv.layout` (:class:`netsense.engine.model.ObsLayout`) gives the slices.
 
 Rewards
@@ -195,6 +198,10 @@ Version History
   ``reward.substate_cost``, first used by ``comm_process_noise-v0``, ``comm_substates-v0``
   and ``comm_channel_k2-v0``; every existing scenario keeps full control, its spaces and
   its realisations.
+* ``[control] announce`` and ``feedback`` (observation fields ``next_out``, ``acks``),
+  per-sender arrival channels (``scope = "sender"``) and a plant noise input ``W``, first
+  used by ``comm_announced-v0``, ``comm_fading-v0`` and ``comm_schedule-v0``; off by
+  default, every existing scenario keeps its spaces and realisations.
 """
 
 from __future__ import annotations
