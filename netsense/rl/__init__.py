@@ -24,16 +24,18 @@ stage (module)                    what
 ================================  ==================================================================
 environment (``envs``)            ``make_core``, TorchRL ``EnvBase`` over ``BatchedCore``
 distribution (``distributions``)  masked multi-categorical over the core's flat action layout
-networks (``networks``,           MLP actor and critics; the permutation-invariant set actor
-``set_network``)
+networks (``networks``,           MLP actor and critics; the permutation-invariant set actor;
+``set_network``, ``memory``)      recurrent actors (GRU over the agent's own history)
 configuration (``config``)        ``PPOConfig`` (frozen, checked), training seeds
 modules (``policy``)              actor and critic modules built from a config
+collection (``rollout``)          ``T`` steps of ``B`` environments, lean (no TensorDict per step)
+advantage (``advantage``)         critic values, TorchRL's GAE, value normalisation, loss batch
 scripted data (``scripted``)      scripted policies in the core's layout, data collection
 warm start (``cloning``)          behaviour cloning of a scripted policy
 evaluation (``evaluation``)       periodic evaluation during training
 logging (``runlog``)              ``log.csv`` and TensorBoard
 checkpoints (``checkpoint``)      save / read / check policy files, ``BatchedPolicy``
-training loop (``ppo``)           ``train_ppo``: collection, GAE, clipped PPO updates
+training loop (``ppo``)           ``train_ppo``: TorchRL's MAPPO / IPPO losses, schedules, logs
 ================================  ==================================================================
 
 ``netsense.rl.mappo``, ``netsense.rl.models`` and ``netsense.rl.torchrl_batched`` are the
@@ -42,6 +44,7 @@ former homes of these names and re-export them (see the CHANGELOG).
 Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense.grid`.
 """
 
-__all__ = ["checkpoint", "cloning", "config", "credit", "distributions", "envs", "evaluation",
-           "mappo", "models", "networks", "policy", "ppo", "rllib", "runlog", "sb3", "scripted",
-           "set_network", "torchrl", "torchrl_batched", "wrappers"]
+__all__ = ["advantage", "checkpoint", "cloning", "config", "credit", "distributions", "envs",
+           "evaluation", "mappo", "memory", "models", "networks", "policy", "ppo", "rllib",
+           "rollout", "runlog", "sb3", "scripted", "set_network", "torchrl", "torchrl_batched",
+           "wrappers"]

@@ -24,7 +24,7 @@ from netsense.rl.memory import is_recurrent
 from netsense.rl.policy import actor_net
 
 __all__ = ["BatchedPolicy", "load_policy", "policy_config", "policy_control", "read_policy",
-           "save_checkpoint"]
+           "save_checkpoint", "strip_critic"]
 
 
 def save_checkpoint(path: Path, config: PPOConfig, actor_net, critic, it: int, steps: int,
@@ -39,6 +39,15 @@ def save_checkpoint(path: Path, config: PPOConfig, actor_net, critic, it: int, s
                 "trained_on": {"N": core.N, "D": core.D, "M": core.M,
                                "obs_dim": core.layout.size,
                                "nvec": [int(v) for v in core.nvec]}}, path)
+
+
+def strip_critic(path: str | Path) -> None:
+    """Rewrite a checkpoint without its critic (the policy needs the actor only; the
+    committed results keep files small)."""
+    path = Path(path)
+    state = read_policy(path)
+    state.pop("critic", None)
+    torch.save(state, path)
 
 
 def read_policy(path: str | Path) -> dict:

@@ -80,6 +80,13 @@ class PPOConfig:
         (:mod:`netsense.rl.memory`); 0: a feed-forward actor. Works with both networks and
         both algorithms (the critics stay feed-forward: the state critic sees the global
         state, the local one the observation).
+    stagger : bool
+        Spread the training members' episode phases before the first rollout
+        (:class:`netsense.rl.rollout.Collector`): otherwise every rollout window covers the
+        same phase of the episode in all members.
+    agent_features : bool
+        The MLP actors also read a one-hot of the substate the agent owns
+        (:class:`netsense.rl.policy.OwnSubstateActor`).
     value_norm : bool
         Critic trained on standardised value targets (:class:`netsense.rl.normalizers.
         RunningNorm`).
@@ -133,16 +140,16 @@ class PPOConfig:
     algo: str = "mappo"
     network: str = "mlp"
     control: str | None = None
-    reward: str = "scenario"
-    steps: int = 200_000
+    reward: str = "team"
+    steps: int = 2_000_000
     seed: int = 0
-    num_envs: int = 64
+    num_envs: int = 256
     rollout: int = 32
     epochs: int = 4
-    minibatch: int = 512
-    lr: float = 3e-4
+    minibatch: int = 2048
+    lr: float = 1e-3
     clip: float = 0.2
-    gamma: float = 0.95
+    gamma: float = 0.99
     lmbda: float = 0.95
     entropy_coef: float = 0.01
     critic_coef: float = 0.5
@@ -152,14 +159,16 @@ class PPOConfig:
     set_hidden: int = 32
     memory: int = 0
     activation: str = "tanh"
+    stagger: bool = True
+    agent_features: bool = True
     value_norm: bool = True
     reward_scale: bool = False
     obs_norm: bool = False
     lr_decay: bool = False
-    entropy_final: float | None = None
+    entropy_final: float | None = 0.0
     critic: str | None = None
     eval_interval: int = 10
-    eval_envs: int = 16
+    eval_envs: int = 32
     bc: str | None = None
     bc_steps: int = 32768
     bc_epochs: int = 40
@@ -196,6 +205,9 @@ class PPOConfig:
                              f"+ b, which must stay below {BC_HELDOUT_SEED} (evaluation "
                              f"seeds are kept apart); got seed {self.seed} with num_envs "
                              f"{self.num_envs}")
+        if self.bc and self.memory:
+            raise ValueError("PPOConfig.bc: behaviour cloning trains a feed-forward actor "
+                             "step by step; it is not available with memory > 0")
         if self.critic == "team" and self.reward != "team":
             raise ValueError("PPOConfig.critic 'team' (one value per member) needs "
                              f"reward='team' (every agent's return the same), got reward "

@@ -43,12 +43,14 @@ def activation_class(name: str) -> type[nn.Module]:
 
 def mlp_actor_net(layout: ObsLayout, nvec: Sequence[int], n_agents: int, *,
                   hidden: Sequence[int] = (64, 64), activation: str = "tanh",
-                  device=None) -> nn.Module:
-    """TorchRL ``MultiAgentMLP``: ``(..., N, obs_dim) -> (..., N, sum(nvec))`` logits,
-    one set of parameters for every agent (``share_params=True``, decentralised)."""
+                  extra_inputs: int = 0, device=None) -> nn.Module:
+    """TorchRL ``MultiAgentMLP``: ``(..., N, obs_dim + extra_inputs) -> (..., N,
+    sum(nvec))`` logits, one set of parameters for every agent (``share_params=True``,
+    decentralised)."""
     from torchrl.modules import MultiAgentMLP
 
-    return MultiAgentMLP(n_agent_inputs=layout.size, n_agent_outputs=int(sum(nvec)),
+    return MultiAgentMLP(n_agent_inputs=layout.size + int(extra_inputs),
+                         n_agent_outputs=int(sum(nvec)),
                          n_agents=n_agents, centralised=False, share_params=True,
                          depth=len(hidden), num_cells=list(hidden),
                          activation_class=activation_class(activation), device=device)

@@ -10,6 +10,7 @@ Imports: TorchRL, the stages below (envs, distributions, networks, set network, 
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
@@ -23,7 +24,8 @@ from netsense.rl.memory import RecurrentActor, is_recurrent, unroll
 from netsense.rl.networks import activation_class, critic_net, mlp_actor_net
 from netsense.rl.set_network import SetPolicyNet
 
-__all__ = ["ObsNormActor", "SequenceLogits", "actor_net", "build_actor", "critic_module"]
+__all__ = ["ObsNormActor", "OwnSubstateActor", "SequenceLogits", "actor_net", "build_actor",
+           "critic_module"]
 
 
 class ObsNormActor(nn.Module):
@@ -47,20 +49,48 @@ class ObsNormActor(nn.Module):
         return self.body(self.norm.normalize(obs).clamp(-10.0, 10.0), *h)
 
 
+class OwnSubstateActor(nn.Module):
+    """An actor that also reads which substate its agent owns: a fixed one-hot of ``M + 1``
+    entries per agent (the substate of Lemma 1's block the agent measures, the last entry
+    for an agent that owns none) appended to every observation (``agent_features``).
+
+    What an agent measures is known to it; the flat observation carries it only implicitly
+    (the own substate's age is always 0), and a shared MLP did not find it in 5 million
+    agent-steps (docs/rl.md, the diagnosis). The set network has the same token
+    (:class:`netsense.rl.set_network.SetPolicyNet`)."""
+
+    def __init__(self, net: nn.Module, own: np.ndarray, M: int) -> None:
+        super().__init__()
+        own = np.asarray(own)
+        onehot = torch.zeros(own.size, M + 1)
+        onehot[np.arange(own.size), np.where(own >= 0, own, M)] = 1.0
+        self.register_buffer("onehot", onehot)
+        self.body = net
+        self.memory = int(getattr(net, "memory", 0) or 0)
+
+    def forward(self, obs: torch.Tensor, *h: torch.Tensor):
+        feat = self.onehot.to(obs.dtype).expand(*obs.shape[:-1], self.onehot.shape[-1])
+        return self.body(torch.cat([obs, feat], -1), *h)
+
+
 def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     """The actor's logits network for ``core``'s layout and action layout: the set network,
-    the recurrent MLP (``config.memory > 0``) or TorchRL's ``MultiAgentMLP``; the MLPs
-    behind a running observation normaliser when ``config.obs_norm``."""
+    the recurrent MLP (``config.memory > 0``) or TorchRL's ``MultiAgentMLP``; the MLPs read
+    the own-substate one-hot when ``config.agent_features`` and sit behind a running
+    observation normaliser when ``config.obs_norm``."""
     if config.network == "set":
         return SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden,
                             memory=config.memory).to(device)
+    extra = core.M + 1 if config.agent_features else 0
     if config.memory:
-        net = RecurrentActor(core.layout.size, int(sum(core.nvec)), config.hidden,
+        net = RecurrentActor(core.layout.size + extra, int(sum(core.nvec)), config.hidden,
                              config.memory, activation_class(config.activation), device=device)
     else:
         net = mlp_actor_net(core.layout, core.nvec, core.N, hidden=config.hidden,
-                            activation=config.activation, device=device)
-    return ObsNormActor(net, core.layout.size).to(device) if config.obs_norm else net
+                            activation=config.activation, extra_inputs=extra, device=device)
+    if config.agent_features:
+        net = OwnSubstateActor(net, core.layout.own, core.M)
+    return (ObsNormActor(net, core.layout.size) if config.obs_norm else net).to(device)
 
 
 class SequenceLogits(nn.Module):

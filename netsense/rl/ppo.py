@@ -132,7 +132,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                   value_target=("agents", "value_target"))
     opt = torch.optim.Adam(loss.parameters(), lr=config.lr)
     collector = Collector(env, net, T, device=device, with_state="state" in critic.in_keys,
-                          update_obs_norm=config.obs_norm)
+                          update_obs_norm=config.obs_norm, stagger=config.stagger,
+                          seed=config.seed)
     sequences = is_recurrent(net)
     iters = max(1, -(-int(config.steps) // (B * T * N)))
     log = RunLog(out) if out is not None else None
@@ -175,7 +176,9 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                **stats, "explained_variance": explained_variance(adv.value, adv.target),
                "value_sd": float(adv.value.std()), "target_sd": float(adv.target.std()),
                "advantage_mean": float(adv.advantage.mean()),
-               "advantage_sd": float(adv.advantage.std()), "lr": lr, "entropy_coef": ent}
+               "advantage_sd": float(adv.advantage.std()),
+               "action_gap": action_gap(adv.advantage, ro.action, core.nvec),
+               "lr": lr, "entropy_coef": ent}
         if ro.returns:
             row["train_return"] = float(np.mean(ro.returns))
             row["train_episodes"] = len(ro.returns)
@@ -206,6 +209,22 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                 "mask_violations": violations, "device": str(device), "bc": bc}
         (out / "summary.json").write_text(json.dumps(meta, indent=2) + "\n")
     return PPOResult(out, rows, wall, agent_steps, violations, bc)
+
+
+def action_gap(advantage: torch.Tensor, action: torch.Tensor, nvec) -> float:
+    """Signal of the binary decisions in a rollout: the mean advantage of choice 1 minus
+    that of choice 0, over the advantages' standard deviation, averaged over the action
+    entries with two choices (the transmit and send bits). Near 0 with a large spread of
+    advantages: the gradient of those bits is mostly noise."""
+    sd = float(advantage.std())
+    gaps = []
+    for e, k in enumerate(nvec):
+        if int(k) != 2:
+            continue
+        one = action[..., e] == 1
+        if one.any() and (~one).any():
+            gaps.append(float(advantage[one].mean() - advantage[~one].mean()) / max(sd, 1e-12))
+    return float(np.mean(gaps)) if gaps else 0.0
 
 
 _STATS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx",

@@ -8,6 +8,15 @@ buffers to torch without a copy, one forward pass of the shared actor per step f
 (:class:`Rollout`) is what the update needs: observations, masks, actions, their
 log-probabilities, rewards, episode boundaries, the critic's inputs, the recurrent state.
 
+Staggered episodes. All members start together and every episode lasts the horizon
+``H``, so without care every rollout window of ``T < H`` steps would cover the same phase
+of the episode in all members (all early transients, or all late steady states), and the
+value targets' scale would swing from one iteration to the next. With ``stagger=True``
+(training) the collector first runs ``H`` steps of uniformly random allowed actions in
+which member ``b`` restarts at a random step ``s_b``; afterwards the members' episode
+phases are spread over ``[0, H)`` and stay so. Those warm-up steps are not part of any
+rollout.
+
 Episode ends. Every episode ends at the scenario's horizon (``truncated``) or when a
 member's state stops being finite (``terminated``); the time ``k / H`` is part of the
 observation and the return really stops there, so both ends are terminal for the returns
@@ -68,11 +77,16 @@ class Collector:
     update_obs_norm : bool
         Feed every observation collected to the actor's normaliser
         (:class:`netsense.rl.policy.ObsNormActor`; training only, not evaluation).
+    stagger : bool
+        Spread the members' episode phases first (see the module docstring; training).
+    seed : int
+        Seeds the stagger's restart steps and random actions.
     """
 
     def __init__(self, env: NetSenseBatchedEnv, net: torch.nn.Module, steps: int, *,
                  device: torch.device | str = "cpu", with_state: bool = False,
-                 update_obs_norm: bool = False) -> None:
+                 update_obs_norm: bool = False, stagger: bool = False,
+                 seed: int = 0) -> None:
         self.env, self.net, self.T = env, net, int(steps)
         self.device = torch.device(device)
         self.with_state = with_state
@@ -82,11 +96,30 @@ class Collector:
         self.B, self.N = int(core.B), int(core.N)
         self.recurrent = is_recurrent(net)
         obs, mask = env.restart()
+        if stagger:
+            obs, mask = self._stagger(obs, mask, seed)
         self._obs, self._mask = obs, mask
         self._first = np.ones(self.B, bool)
         self._h = (torch.zeros(self.B, self.N, net.memory, device=self.device)
                    if self.recurrent else None)
         self._acc = np.zeros((self.B, self.N))
+
+    def _stagger(self, obs: np.ndarray, mask: np.ndarray, seed: int):
+        """``H`` steps of random allowed actions; member ``b`` restarts at step ``s_b``."""
+        env, H = self.env, int(self.env.core.horizon)
+        gen = torch.Generator().manual_seed(int(seed))
+        restart_at = torch.randint(0, H, (self.B,), generator=gen).numpy()
+        for k in range(H):
+            m = torch.from_numpy(np.ascontiguousarray(mask.view(np.bool_)))
+            logits = torch.zeros(m.shape)
+            d = MaskedMultiCategorical(logits, m, self.nvec)
+            probs = d.base_dist.probs.reshape(-1, d.base_dist.probs.shape[-1])
+            a = torch.multinomial(probs, 1, generator=gen).reshape(d.base_dist.probs.shape[:-1])
+            obs, mask, _, term, trunc = env.advance(a.numpy())
+            again = (term | trunc) | (restart_at == k)
+            if again.any():
+                obs, mask = env.restart(again)
+        return obs, mask
 
     def _tensor(self, a: np.ndarray, dtype=None) -> torch.Tensor:
         t = torch.from_numpy(np.ascontiguousarray(a))

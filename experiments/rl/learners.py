@@ -1,0 +1,504 @@
+"""From-scratch multi-agent PPO on every communication task, against the scripted frontier
+and the bounds, with rliable's aggregates; and the ablation of the training recipe.
+
+Two commands (``experiments/rl/configs/learners.toml`` holds every setting)::
+
+    python experiments/rl/learners.py ablation    # the recipe, one change at a time
+    python experiments/rl/learners.py results     # every task x learner x seed, evaluated
+
+``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
+again where a run's ``policy.pt`` exists (by default an existing run is evaluated as it is,
+so the committed policies are re-evaluated without training). Runs train one at a time, in
+this process, with one torch and one numba thread (``PPOConfig`` defaults); a progress bar
+counts the runs.
+
+**results** writes into ``experiments/results/rl/learners/``:
+
+* ``runs/<task>/<learner>/seed_<s>/``: ``policy.pt`` (actor only), ``log.csv``,
+  ``config.json``, ``summary.json``, ``training_curve.png``;
+* ``episodes.csv``: every final policy on the protocol's 100 evaluation episodes (seeds
+  ``10^6 .. 10^6 + 99``, disjoint from every training seed; checked), greedy and sampled,
+  beside the task's references on the same episodes: ``never``, the best decentralised
+  scripted point of the frontier (by mean return) and the causal and clairvoyant bounds
+  (read from the bounds experiment's ``episodes.csv``, fewer episodes);
+* ``curves.png`` / ``curves.csv``: evaluation return against agent-steps, the interquartile
+  mean (IQM) over the training seeds with a 95 % stratified-bootstrap band, with the best
+  decentralised scripted return, the causal bound and ``never`` as lines;
+* ``summary.csv`` / ``summary.md``: per task and learner, the IQM of the return over seeds
+  x evaluation episodes with its 95 % bootstrap interval (``rliable``), the probability of
+  improvement over the best decentralised scripted policy, the fraction of the gap between
+  that policy and the causal bound the learner closes; and ``aggregate.png``
+  (normalised scores, ``never`` = 0 and causal bound = 1: IQM over tasks and the
+  performance profile).
+
+**ablation** writes ``ablation/runs/...``, ``ablation.csv``, ``ablation.md`` and
+``ablation.png`` (final greedy and sampled evaluation return per variant, mean and range
+over the seeds, and the diagnostics that explain it: explained variance, entropy, action
+gap).
+"""
+
+# %%
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIG = Path(__file__).resolve().parent / "configs" / "learners.toml"
+RESULTS = ROOT / "experiments" / "results" / "rl" / "learners"
+BOUNDS = ROOT / "experiments" / "results" / "rl" / "comm_bounds" / "episodes.csv"
+FRONTIER = ROOT / "experiments" / "results" / "rl" / "comm_bounds" / "frontier.csv"
+NONE = "none"  # TOML has no null: "none" in the config means None
+EPISODES = 100
+
+
+def load_config(path: Path = CONFIG) -> dict:
+    return tomllib.loads(path.read_text())
+
+
+def _fields(*tables: dict) -> dict:
+    out: dict = {}
+    for t in tables:
+        out.update({k: (None if v == NONE else v) for k, v in t.items()})
+    for k in ("seeds", "tasks"):
+        out.pop(k, None)
+    return out
+
+
+def ppo_config(task: str, seed: int, fields: dict):
+    """The run's :class:`netsense.rl.config.PPOConfig`."""
+    from netsense.rl.config import PPOConfig
+
+    kw = dict(fields)
+    if "hidden" in kw:
+        kw["hidden"] = tuple(kw["hidden"])
+    return PPOConfig(scenario=task, seed=seed, **kw)
+
+
+# %% training
+def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
+               progress: bool = True) -> list[Path]:
+    """Train every ``(task, name, seed, fields)`` into ``out/runs/<task>/<name>/seed_<s>``
+    unless its ``policy.pt`` exists; returns the run folders."""
+    from tqdm.auto import tqdm
+
+    from netsense.rl.checkpoint import strip_critic
+    from netsense.rl.ppo import train_ppo
+
+    folders = []
+    for task, name, seed, fields in tqdm(runs, desc="runs", unit="run", disable=not progress):
+        folder = out / "runs" / task / name / f"seed_{seed}"
+        folders.append(folder)
+        if (folder / "policy.pt").exists() and not retrain:
+            continue
+        if folder.exists():
+            shutil.rmtree(folder)
+        train_ppo(ppo_config(task, seed, fields), folder)
+        for ck in folder.glob("checkpoint_*.pt"):
+            ck.unlink()
+        shutil.rmtree(folder / "tb", ignore_errors=True)
+        strip_critic(folder / "policy.pt")  # the committed file holds the actor only
+    return folders
+
+
+def read_log(folder: Path) -> list[dict]:
+    with (folder / "log.csv").open() as fh:
+        return list(csv.DictReader(fh))
+
+
+# %% references and evaluation
+def best_decentralised(task: str) -> str:
+    """The spec of the task's best decentralised scripted point (mean return) in the
+    frontier the bounds experiment wrote."""
+    best, spec = -math.inf, None
+    with FRONTIER.open() as fh:
+        for r in csv.DictReader(fh):
+            if (r["scenario"] == task and r.get("kind", "decentralised") == "decentralised"
+                    and float(r["reward_mean"]) > best):
+                best, spec = float(r["reward_mean"]), r["policy"]
+    if spec is None:
+        raise ValueError(f"no decentralised frontier point for {task} in {FRONTIER}; run "
+                         "experiments/rl/comm_bounds.py first")
+    return spec
+
+
+def bound_episodes(task: str) -> dict[str, np.ndarray]:
+    """``{"bound:causal": returns, "bound:clairvoyant": returns}`` per episode (fewer
+    episodes than the protocol's 100: the first ones of the same seeds)."""
+    out: dict[str, list] = {}
+    if BOUNDS.exists():
+        with BOUNDS.open() as fh:
+            for r in csv.DictReader(fh):
+                if r["scenario"] == task:
+                    out.setdefault(r["policy"], []).append(float(r["reward"]))
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+def evaluate_all(tasks: dict[str, dict], folders: dict, episodes: int) -> list[dict]:
+    """Per-episode returns of every learned policy (greedy, sampled) and the references."""
+    from netsense.benchmark.protocol import eval_seeds, evaluate
+
+    seeds = eval_seeds(episodes)
+    rows = []
+    for task, over in tasks.items():
+        control = over.get("control")
+        refs = {"never": "never", "best_decentralised": best_decentralised(task)}
+        scr_over = {"control": {"mode": control}} if control else {}
+        for label, spec in refs.items():
+            m = evaluate(task, spec, seeds, scr_over)
+            rows += [{"task": task, "policy": label, "spec": spec, "seed": "",
+                      "evaluation": "scripted", "episode": e, "reward": float(v)}
+                     for e, v in enumerate(m["reward"])]
+        for label, values in bound_episodes(task).items():
+            rows += [{"task": task, "policy": label, "spec": label, "seed": "",
+                      "evaluation": "bound", "episode": e, "reward": float(v)}
+                     for e, v in enumerate(values)]
+        for (t, learner, seed), folder in folders.items():
+            if t != task:
+                continue
+            for kind, prefix in (("greedy", "learned"), ("sampled", "learned_sampled")):
+                m = evaluate(task, f"{prefix}:{folder / 'policy.pt'}", seeds)
+                rows += [{"task": task, "policy": learner, "spec": learner, "seed": seed,
+                          "evaluation": kind, "episode": e, "reward": float(v)}
+                         for e, v in enumerate(m["reward"])]
+    return rows
+
+
+# %% aggregates (rliable)
+def _iqm_ci(matrix: np.ndarray, reps: int = 2000) -> tuple[float, float, float]:
+    """IQM of ``matrix (runs, tasks)`` with rliable's stratified bootstrap 95 % CI."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    point, ci = rly.get_interval_estimates({"x": matrix}, lambda s: np.array(
+        [metrics.aggregate_iqm(s)]), reps=reps, random_state=np.random.RandomState(0))
+    return float(point["x"][0]), float(ci["x"][0, 0]), float(ci["x"][1, 0])
+
+
+def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
+    """Per task and learner: IQM [CI] over seeds x episodes, probability of improvement
+    over the best decentralised scripted policy, fraction of the gap to the causal bound
+    closed; plus the normalised score matrices for the aggregate plot."""
+    from rliable import metrics
+
+    tasks = list(dict.fromkeys(r["task"] for r in rows))
+    out, norm = [], {}
+    for task in tasks:
+        rs = [r for r in rows if r["task"] == task]
+        ref = {p: np.array([r["reward"] for r in rs if r["policy"] == p])
+               for p in ("never", "best_decentralised", "bound:causal", "bound:clairvoyant")}
+        best = ref["best_decentralised"]
+        causal = ref["bound:causal"]
+        for learner in learners:
+            for kind in ("greedy", "sampled"):
+                seeds = sorted({r["seed"] for r in rs if r["policy"] == learner
+                                and r["evaluation"] == kind})
+                if not seeds:
+                    continue
+                per_seed = [np.array([r["reward"] for r in rs if r["policy"] == learner
+                                      and r["evaluation"] == kind and r["seed"] == s])
+                            for s in seeds]
+                flat = np.concatenate(per_seed)[:, None]  # (seeds x episodes, 1 task)
+                iqm, lo, hi = _iqm_ci(flat)
+                p_imp = float(metrics.probability_of_improvement(flat, best[:, None]))
+                b_mean = float(best.mean())
+                c_mean = float(causal.mean()) if causal.size else math.nan
+                n_mean = float(ref["never"].mean())
+                gap = c_mean - b_mean
+                closed = (iqm - b_mean) / gap if gap > 0 else math.nan
+                out.append({"task": task, "learner": learner, "evaluation": kind,
+                            "seeds": len(seeds), "episodes": int(flat.shape[0]),
+                            "iqm": iqm, "iqm_ci_low": lo, "iqm_ci_high": hi,
+                            "seed_means": ";".join(f"{v.mean():.2f}" for v in per_seed),
+                            "best_decentralised": b_mean,
+                            "best_decentralised_spec": next(r["spec"] for r in rs
+                                                            if r["policy"] ==
+                                                            "best_decentralised"),
+                            "causal_bound": c_mean, "never": n_mean,
+                            "p_improvement": p_imp, "gap_closed": closed})
+                if math.isfinite(c_mean) and c_mean > n_mean:
+                    norm.setdefault(f"{learner} ({kind})", {})[task] = np.array(
+                        [(v.mean() - n_mean) / (c_mean - n_mean) for v in per_seed])
+    return out, norm
+
+
+# %% plots
+def plot_curves(curves: dict, refs: dict, path: Path) -> None:
+    """One panel per task: IQM over seeds with a 95 % bootstrap band per learner."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(curves)
+    cols = min(4, len(tasks))
+    rows = -(-len(tasks) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.2 * rows), squeeze=False)
+    for ax, task in zip(axes.flat, tasks, strict=False):
+        for c, (learner, (x, iqm, lo, hi)) in enumerate(curves[task].items()):
+            ax.plot(x, iqm, color=f"C{c}", lw=1.4, label=f"{learner} (IQM, greedy)")
+            ax.fill_between(x, lo, hi, color=f"C{c}", alpha=0.2)
+        for name, style in (("best_decentralised", ("k", "--")), ("bound:causal", ("C3", ":")),
+                            ("never", ("0.5", "-."))):
+            v = refs[task].get(name)
+            if v is not None and math.isfinite(v):
+                ax.axhline(v, color=style[0], ls=style[1], lw=1.1,
+                           label={"best_decentralised": "best decentralised scripted",
+                                  "bound:causal": "causal bound", "never": "never"}[name])
+        ax.set_title(task, fontsize=9)
+        ax.set_xlabel("agent-steps")
+        ax.set_ylabel("return per agent")
+        ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(tasks):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=6, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_aggregate(norm: dict, path: Path) -> None:
+    """IQM of normalised scores over tasks and seeds with CIs, and performance profiles."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from rliable import library as rly
+    from rliable import metrics, plot_utils
+
+    tasks = sorted({t for d in norm.values() for t in d})
+    if not tasks:
+        return
+    scores = {k: np.stack([d[t] for t in tasks], 1) for k, d in norm.items()
+              if all(t in d for t in tasks)}
+    point, ci = rly.get_interval_estimates(
+        scores, lambda s: np.array([metrics.aggregate_iqm(s), metrics.aggregate_mean(s)]),
+        reps=2000, random_state=np.random.RandomState(0))
+    taus = np.linspace(-0.5, 1.5, 81)
+    prof, prof_ci = rly.create_performance_profile(scores, taus)
+    fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 3.8))
+    names = list(scores)
+    for i, k in enumerate(names):
+        a0.errorbar([point[k][0]], [i], xerr=[[point[k][0] - ci[k][0, 0]],
+                                             [ci[k][1, 0] - point[k][0]]], fmt="o",
+                    color=f"C{i}", capsize=3)
+    a0.set_yticks(range(len(names)), names, fontsize=8)
+    a0.axvline(0, color="0.5", ls="-.", lw=1)
+    a0.axvline(1, color="C3", ls=":", lw=1)
+    a0.set_xlabel("IQM normalised score (never = 0, causal bound = 1)")
+    a0.set_title(f"{len(tasks)} tasks, 95 % stratified bootstrap CI", fontsize=9)
+    plot_utils.plot_performance_profiles(prof, taus, performance_profile_cis=prof_ci, ax=a1,
+                                         xlabel="normalised score $\\tau$")
+    a1.legend(names, fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def learning_curves(folders: dict, learners: list[str]) -> dict:
+    """``{task: {learner: (agent_steps, iqm, lo, hi)}}`` of the greedy evaluation return
+    over the seeds (runs with fewer evaluations are cut to the shortest)."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    out: dict = {}
+    for task in dict.fromkeys(t for t, _, _ in folders):
+        for learner in learners:
+            logs = [read_log(f) for (t, ln, _), f in folders.items()
+                    if t == task and ln == learner]
+            if not logs:
+                continue
+            ev = [[(int(r["agent_steps"]), float(r["eval_return"])) for r in log
+                   if r.get("eval_return")] for log in logs]
+            n = min(len(e) for e in ev)
+            x = np.array([p[0] for p in ev[0][:n]])
+            y = np.array([[p[1] for p in e[:n]] for e in ev])  # (seeds, points)
+            point, ci = rly.get_interval_estimates(
+                {"y": y}, lambda s: np.array([metrics.aggregate_iqm(s[:, [j]])
+                                              for j in range(s.shape[1])]),
+                reps=500, random_state=np.random.RandomState(0))
+            out.setdefault(task, {})[learner] = (x, point["y"], ci["y"][0], ci["y"][1])
+    return out
+
+
+# %% I/O
+def write_csv(path: Path, rows: list[dict]) -> None:
+    if not rows:
+        return
+    cols: list[str] = []
+    for r in rows:
+        cols += [c for c in r if c not in cols]
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=cols)
+        w.writeheader()
+        w.writerows(rows)
+
+
+def _f(v: float, d: int = 1) -> str:
+    return "–" if not math.isfinite(v) else f"{v:.{d}f}"
+
+
+def markdown_summary(rows: list[dict]) -> str:
+    lines = ["| task | learner | evaluation | IQM return [95 % CI] | best decentralised "
+             "scripted | causal bound | never | P(learned > scripted) | gap closed |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['task']} | {r['learner']} | {r['evaluation']} | {_f(r['iqm'])} "
+            f"[{_f(r['iqm_ci_low'])}, {_f(r['iqm_ci_high'])}] | "
+            f"{_f(r['best_decentralised'])} (`{r['best_decentralised_spec']}`) | "
+            f"{_f(r['causal_bound'])} | {_f(r['never'])} | {r['p_improvement']:.2f} | "
+            f"{_f(100 * r['gap_closed'], 0)} % |")
+    return "\n".join(lines) + "\n"
+
+
+# %% commands
+def cmd_results(args, cfg: dict) -> None:
+    defaults = cfg["defaults"]
+    seeds = args.seeds or defaults["seeds"]
+    tasks = {t: cfg["tasks"][t] for t in (args.tasks or cfg["tasks"])}
+    learners = args.learners or list(cfg["learners"])
+    runs = []
+    for task, over in tasks.items():
+        for learner in learners:
+            fields = _fields(defaults, cfg["learners"][learner], over)
+            if args.steps:
+                fields["steps"] = args.steps
+            runs += [(task, learner, s, fields) for s in seeds]
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    dirs = train_runs(runs, out, args.retrain, progress=not args.no_progress)
+    folders = {(t, ln, s): d for (t, ln, s, _), d in zip(runs, dirs, strict=True)}
+    rows = evaluate_all(tasks, folders, args.episodes)
+    write_csv(out / "episodes.csv", rows)
+    summary, norm = summarise(rows, learners)
+    write_csv(out / "summary.csv", summary)
+    (out / "summary.md").write_text(markdown_summary(summary))
+    curves = learning_curves(folders, learners)
+    refs = {t: {p: float(np.mean([r["reward"] for r in rows if r["task"] == t
+                                  and r["policy"] == p])) if any(
+        r["task"] == t and r["policy"] == p for r in rows) else math.nan
+        for p in ("never", "best_decentralised", "bound:causal")} for t in tasks}
+    write_csv(out / "curves.csv", [{"task": t, "learner": ln, "agent_steps": int(x),
+                                    "iqm": float(m), "ci_low": float(lo),
+                                    "ci_high": float(hi)}
+                                   for t, d in curves.items() for ln, c in d.items()
+                                   for x, m, lo, hi in zip(*c, strict=True)])
+    plot_curves(curves, refs, out / "curves.png")
+    plot_aggregate(norm, out / "aggregate.png")
+    print(markdown_summary(summary))
+
+
+def cmd_ablation(args, cfg: dict) -> None:
+    ab = cfg["ablation"]
+    seeds = args.seeds or ab["seeds"]
+    tasks = args.tasks or ab["tasks"]
+    variants = ab["variants"]
+    names = args.learners or list(variants)
+    runs = []
+    for task in tasks:
+        for name in names:
+            fields = _fields(cfg["defaults"], cfg["tasks"][task], variants[name])
+            fields["steps"] = args.steps or ab["steps"]
+            runs += [(task, name, s, fields) for s in seeds]
+    out = args.out / "ablation"
+    out.mkdir(parents=True, exist_ok=True)
+    dirs = train_runs(runs, out, args.retrain, progress=not args.no_progress)
+    rows = []
+    for (task, name, seed, _), d in zip(runs, dirs, strict=True):
+        log = read_log(d)
+        last = [r for r in log if r.get("eval_return")][-1]
+        tail = log[-max(1, len(log) // 10):]  # diagnostics: the last tenth of the run
+        rows.append({"task": task, "variant": name, "seed": seed,
+                     "eval_return": float(last["eval_return"]),
+                     "eval_sampled_return": float(last["eval_sampled_return"]),
+                     "eval_messages": float(last["eval_messages"]),
+                     **{k: float(np.mean([float(r[k]) for r in tail])) for k in (
+                         "explained_variance", "entropy", "action_gap", "advantage_sd",
+                         "agent_steps_per_s")}})
+    write_csv(out.parent / "ablation.csv", rows)
+    table = _ablation_table(rows, tasks, names)
+    (out.parent / "ablation.md").write_text(table)
+    _plot_ablation(rows, tasks, names, out.parent / "ablation.png")
+    print(table)
+
+
+def _ablation_table(rows, tasks, names) -> str:
+    lines = ["| variant | " + " | ".join(f"{t}: greedy / sampled (mean [min, max] over "
+                                         "seeds)" for t in tasks)
+             + " | explained variance | entropy | action gap |",
+             "|---|" + "---|" * len(tasks) + "---|---|---|"]
+    for name in names:
+        cells = []
+        diag = []
+        for t in tasks:
+            rs = [r for r in rows if r["task"] == t and r["variant"] == name]
+            g = np.array([r["eval_return"] for r in rs])
+            s = np.array([r["eval_sampled_return"] for r in rs])
+            cells.append(f"{g.mean():.1f} [{g.min():.1f}, {g.max():.1f}] / {s.mean():.1f}")
+            diag.append(rs)
+        flat = [r for d in diag for r in d]
+        lines.append(f"| {name} | " + " | ".join(cells)
+                     + f" | {np.mean([r['explained_variance'] for r in flat]):.2f} | "
+                     f"{np.mean([r['entropy'] for r in flat]):.2f} | "
+                     f"{np.mean([r['action_gap'] for r in flat]):+.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def _plot_ablation(rows, tasks, names, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.5 * len(tasks), 0.32 * len(names) + 1.5),
+                             squeeze=False)
+    for ax, t in zip(axes[0], tasks, strict=True):
+        for i, name in enumerate(names):
+            rs = [r for r in rows if r["task"] == t and r["variant"] == name]
+            g = [r["eval_return"] for r in rs]
+            s = [r["eval_sampled_return"] for r in rs]
+            ax.plot(g, [i] * len(g), "o", color="C0", ms=4, label="greedy" if i == 0 else None)
+            ax.plot(s, [i + 0.2] * len(s), "s", color="C1", ms=4, mfc="none",
+                    label="sampled" if i == 0 else None)
+        ax.set_yticks(range(len(names)), names, fontsize=7)
+        ax.set_title(f"{t}: final evaluation return per seed", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("command", choices=("results", "ablation"))
+    p.add_argument("--config", type=Path, default=CONFIG)
+    p.add_argument("--tasks", nargs="+")
+    p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
+    p.add_argument("--seeds", type=int, nargs="+")
+    p.add_argument("--steps", type=int, help="agent-steps per run (default: the config's)")
+    p.add_argument("--episodes", type=int, default=EPISODES,
+                   help="protocol evaluation episodes (default: 100)")
+    p.add_argument("--out", type=Path, default=RESULTS)
+    p.add_argument("--retrain", action="store_true")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+    cfg = load_config(args.config)
+    (cmd_results if args.command == "results" else cmd_ablation)(args, cfg)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
