@@ -131,6 +131,24 @@ def test_collector_restarts_members_and_zeroes_their_hidden_state(core_env):
     assert mask_violations(ro.mask, ro.action, core.nvec) == 0
 
 
+def test_stagger_spreads_the_episode_phases():
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core
+    from netsense.rl.memory import RecurrentActor
+    from netsense.rl.rollout import Collector
+
+    core = make_core(SCEN, 64, horizon=20)
+    env = NetSenseBatchedEnv(core, seed=3)
+    net = RecurrentActor(core.layout.size, int(sum(core.nvec)), (8,), memory=4)
+    col = Collector(env, net, 20, stagger=True, seed=1)
+    k = core.k.copy()
+    assert k.min() >= 0 and k.max() < 20
+    assert len(np.unique(k)) >= 12  # 64 members over 20 phases
+    ro = col.collect()  # every member ends exactly once in 20 steps, at its own step
+    assert (ro.done.sum(0) == 1).all()
+    ends = ro.done.int().argmax(0).numpy()
+    np.testing.assert_array_equal(ends, 19 - k)
+
+
 def test_policy_file_of_a_recurrent_actor_acts_like_training(tmp_path):
     from netsense.rl.checkpoint import load_policy
     from netsense.rl.config import PPOConfig
@@ -165,7 +183,7 @@ def test_log_has_no_nan_and_no_stale_rows(tmp_path):
     from netsense.rl.ppo import train_ppo
 
     cfg = PPOConfig(SCEN, reward="team", num_envs=4, rollout=5, steps=4 * 5 * 10 * 4,
-                    epochs=1, minibatch=10, eval_interval=2, eval_envs=2,
+                    epochs=1, minibatch=10, eval_interval=2, eval_envs=2, stagger=False,
                     overrides={"horizon": 8})
     res = train_ppo(cfg, tmp_path)
     with (tmp_path / "log.csv").open() as fh:

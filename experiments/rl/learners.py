@@ -87,28 +87,44 @@ def ppo_config(task: str, seed: int, fields: dict):
 
 
 # %% training
-def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
-               progress: bool = True) -> list[Path]:
-    """Train every ``(task, name, seed, fields)`` into ``out/runs/<task>/<name>/seed_<s>``
-    unless its ``policy.pt`` exists; returns the run folders."""
-    from tqdm.auto import tqdm
-
+def _train_one(task: str, seed: int, fields: dict, folder: Path) -> Path:
     from netsense.rl.checkpoint import strip_critic
     from netsense.rl.ppo import train_ppo
 
-    folders = []
-    for task, name, seed, fields in tqdm(runs, desc="runs", unit="run", disable=not progress):
-        folder = out / "runs" / task / name / f"seed_{seed}"
-        folders.append(folder)
-        if (folder / "policy.pt").exists() and not retrain:
-            continue
-        if folder.exists():
-            shutil.rmtree(folder)
-        train_ppo(ppo_config(task, seed, fields), folder)
-        for ck in folder.glob("checkpoint_*.pt"):
-            ck.unlink()
-        shutil.rmtree(folder / "tb", ignore_errors=True)
-        strip_critic(folder / "policy.pt")  # the committed file holds the actor only
+    if folder.exists():
+        shutil.rmtree(folder)
+    train_ppo(ppo_config(task, seed, fields), folder)
+    for ck in folder.glob("checkpoint_*.pt"):
+        ck.unlink()
+    shutil.rmtree(folder / "tb", ignore_errors=True)
+    strip_critic(folder / "policy.pt")  # the committed file holds the actor only
+    return folder
+
+
+def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
+               progress: bool = True, workers: int = 1) -> list[Path]:
+    """Train every ``(task, name, seed, fields)`` into ``out/runs/<task>/<name>/seed_<s>``
+    unless its ``policy.pt`` exists (``workers`` > 1: that many spawned processes, one
+    torch and one numba thread each); returns the run folders."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from multiprocessing import get_context
+
+    from tqdm.auto import tqdm
+
+    folders = [out / "runs" / t / n / f"seed_{s}" for t, n, s, _ in runs]
+    todo = [(t, s, f, d) for (t, _, s, f), d in zip(runs, folders, strict=True)
+            if retrain or not (d / "policy.pt").exists()]
+    bar = tqdm(total=len(todo), desc="runs", unit="run", disable=not progress)
+    if workers <= 1:
+        for t, s, f, d in todo:
+            _train_one(t, s, f, d)
+            bar.update()
+    else:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            for fut in as_completed([pool.submit(_train_one, *job) for job in todo]):
+                fut.result()
+                bar.update()
+    bar.close()
     return folders
 
 
@@ -378,7 +394,8 @@ def cmd_results(args, cfg: dict) -> None:
             runs += [(task, learner, s, fields) for s in seeds]
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    dirs = train_runs(runs, out, args.retrain, progress=not args.no_progress)
+    dirs = train_runs(runs, out, args.retrain, progress=not args.no_progress,
+                      workers=args.workers)
     folders = {(t, ln, s): d for (t, ln, s, _), d in zip(runs, dirs, strict=True)}
     rows = evaluate_all(tasks, folders, args.episodes)
     write_csv(out / "episodes.csv", rows)
@@ -414,7 +431,8 @@ def cmd_ablation(args, cfg: dict) -> None:
             runs += [(task, name, s, fields) for s in seeds]
     out = args.out / "ablation"
     out.mkdir(parents=True, exist_ok=True)
-    dirs = train_runs(runs, out, args.retrain, progress=not args.no_progress)
+    dirs = train_runs(runs, out, args.retrain, progress=not args.no_progress,
+                      workers=args.workers)
     rows = []
     for (task, name, seed, _), d in zip(runs, dirs, strict=True):
         log = read_log(d)
@@ -493,6 +511,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="protocol evaluation episodes (default: 100)")
     p.add_argument("--out", type=Path, default=RESULTS)
     p.add_argument("--retrain", action="store_true")
+    p.add_argument("--workers", type=int, default=1,
+                   help="training processes at once (one core each; default 1)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     cfg = load_config(args.config)
