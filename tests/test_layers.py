@@ -129,6 +129,7 @@ RL_STAGES = (
     ("runlog",),
     ("checkpoint",),
     ("ppo",),
+    ("launch",),
     ("mappo", "models", "torchrl_batched"),
 )
 

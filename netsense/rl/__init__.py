@@ -34,6 +34,8 @@ evaluation (``evaluation``)       periodic evaluation during training
 logging (``runlog``)              ``log.csv`` and TensorBoard
 checkpoints (``checkpoint``)      save / read / check policy files, ``BatchedPolicy``
 training loop (``ppo``)           ``train_ppo``: collection, GAE, clipped PPO updates
+many runs (``launch``)            ``launch``: seeds x configurations in this process, in worker
+                                  processes or as Ray tasks, the same files either way
 ================================  ==================================================================
 
 ``netsense.rl.mappo``, ``netsense.rl.models`` and ``netsense.rl.torchrl_batched`` are the
@@ -43,5 +45,5 @@ Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense
 """
 
 __all__ = ["checkpoint", "cloning", "config", "credit", "distributions", "envs", "evaluation",
-           "mappo", "models", "networks", "policy", "ppo", "rllib", "runlog", "sb3", "scripted",
-           "set_network", "torchrl", "torchrl_batched", "wrappers"]
+           "launch", "mappo", "models", "networks", "policy", "ppo", "rllib", "runlog", "sb3",
+           "scripted", "set_network", "torchrl", "torchrl_batched", "wrappers"]
