@@ -245,3 +245,34 @@ def test_cli_ray_flags_become_launch_options():
     assert _launch_options(args) == {"ray_address": "auto", "threads": 2,
                                      "resources": {"num_cpus": 2, "num_gpus": 0.5}}
     assert _launch_options(parse(["train", "x-v0", "--workers", "3"])) == {"workers": 3}
+
+
+# ------------------------------------------------------------------ the benchmark script
+def test_bench_parallel_runs_report_by_hand():
+    from experiment_loader import load_experiment
+
+    mod = load_experiment("bench_parallel_runs")
+    rows = [{"round": 0, "condition": "alone", "runs_at_once": 1, "agent_steps_per_s": 100},
+            {"round": 0, "condition": "pair", "runs_at_once": 2, "agent_steps_per_s": 50},
+            {"round": 0, "condition": "pair", "runs_at_once": 2, "agent_steps_per_s": 80},
+            {"round": 1, "condition": "alone", "runs_at_once": 1, "agent_steps_per_s": 200},
+            {"round": 1, "condition": "pair", "runs_at_once": 2, "agent_steps_per_s": 100},
+            {"round": 1, "condition": "pair", "runs_at_once": 2, "agent_steps_per_s": 160}]
+    lines = mod.report(rows)
+    pair = next(ln for ln in lines if ln.startswith("pair "))
+    # slowdowns 2.0, 1.25, 2.0, 1.25 against the same round's alone: median 1.62
+    assert "1.62 (1.25 - 2.00) vs alone" in pair
+    assert "90 (50 - 160)" in pair
+
+
+def test_bench_parallel_runs_smoke(tmp_path):
+    from experiment_loader import load_experiment
+
+    mod = load_experiment("bench_parallel_runs")
+    path = mod.main(["--smoke", "--out", str(tmp_path)])
+    with path.open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [(r["condition"], r["runs_at_once"]) for r in rows] == [("alone", "1")]
+    assert int(rows[0]["agent_steps"]) == 4 * 8 * 10 and float(rows[0]["wall_s"]) > 0
+    assert (tmp_path / "bench_parallel_runs.png").stat().st_size > 0
+    assert "alone" in (tmp_path / "bench_parallel_runs.txt").read_text()
