@@ -154,9 +154,9 @@ def main(argv: list[str] | None = None) -> Path:
     if args.smoke:
         args.iters, args.num_envs, args.rollout, args.rounds = 1, 4, 8, 1
         args.conditions = ["alone"]
-    from netsense.rl.launch import THREAD_VARS
-
     from tqdm.auto import tqdm
+
+    from netsense.rl.launch import THREAD_VARS
 
     saved = {k: os.environ.pop(k) for k in THREAD_VARS if k in os.environ}
     rows: list[dict] = []
