@@ -276,3 +276,33 @@ def test_bench_parallel_runs_smoke(tmp_path):
     assert int(rows[0]["agent_steps"]) == 4 * 8 * 10 and float(rows[0]["wall_s"]) > 0
     assert (tmp_path / "bench_parallel_runs.png").stat().st_size > 0
     assert "alone" in (tmp_path / "bench_parallel_runs.txt").read_text()
+
+
+# ------------------------------------------------------------------ docs/rl.md
+def _docs_section() -> str:
+    text = (Path(__file__).resolve().parents[1] / "docs" / "rl.md").read_text()
+    return text[text.index("## Many runs: worker processes and a Ray cluster"):]
+
+
+def test_docs_cluster_commands_parse():
+    import shlex
+
+    from netsense.cli import build_parser
+    from netsense.commands.train import _launch_options
+
+    blocks = _docs_section().split("```bash\n")[1:]
+    cmds = [c for b in blocks for c in b.split("```")[0].replace("\\\n", " ").splitlines()
+            if c.startswith("netsense train")]
+    assert cmds
+    for cmd in cmds:
+        argv = shlex.split(cmd.split("#")[0])[1:]
+        assert _launch_options(build_parser().parse_args(argv))["ray_address"] == "auto"
+
+
+def test_docs_sweep_example_builds_its_runs():
+    block = _docs_section().split("```python\n")[1].split("```")[0]
+    ns = {"__name__": "docs_example"}  # not __main__: builds the runs, launches nothing
+    exec(compile(block, "docs/rl.md", "exec"), ns)
+    runs = ns["runs"]
+    assert [r.folder for r in runs[:2]] == ["lr3e-4/seed_0", "lr3e-4/seed_1"]
+    assert len(runs) == 10 and {r.config.lr for r in runs[5:]} == {1e-3}
