@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -75,7 +76,7 @@ def _same_as_reference(reference, out: Path, summary: list[dict]) -> None:
     assert json.loads((out / "summary.json").read_text()) == summary
 
     def strip(e):
-        return {k: v for k, v in e.items() if k not in TIMING | {"traceback"}}
+        return {k: v for k, v in e.items() if k not in TIMING | {"traceback", "thread_env"}}
 
     assert [strip(e) for e in summary] == [strip(e) for e in ref]
 
@@ -107,6 +108,11 @@ def test_worker_processes_write_what_the_in_process_runs_write(reference, tmp_pa
 
     summary = launch(_runs(), tmp_path, workers=2, progress=False)
     _same_as_reference(reference, tmp_path, summary)
+    # each worker started with one thread per pool (unless this process sets a variable)
+    from netsense.rl.launch import THREAD_VARS
+
+    assert all(e["thread_env"] == {k: os.environ.get(k, "1") for k in THREAD_VARS}
+               for e in summary)
 
 
 def test_ray_tasks_write_what_the_in_process_runs_write(reference, tmp_path):
@@ -120,6 +126,10 @@ def test_ray_tasks_write_what_the_in_process_runs_write(reference, tmp_path):
     finally:
         ray.shutdown()
     _same_as_reference(reference, tmp_path, summary)
+    from netsense.rl.launch import THREAD_VARS
+
+    assert all(e["thread_env"] == {k: os.environ.get(k, "1") for k in THREAD_VARS}
+               for e in summary)
 
 
 # ------------------------------------------------------------------ inputs (no training)

@@ -104,7 +104,8 @@ def _train_one(run: Run, folder: str | None, progress: bool = False) -> dict:
     back in the entry's ``files`` (relative path -> bytes). Never raises for a failed
     run: the entry says ``status: "failed"`` with the error. Module level: worker
     processes and Ray tasks import it by name."""
-    entry: dict = {"name": run.name, "seed": run.config.seed, "folder": run.folder}
+    entry: dict = {"name": run.name, "seed": run.config.seed, "folder": run.folder,
+                   "thread_env": {k: os.environ[k] for k in THREAD_VARS if k in os.environ}}
     tmp = tempfile.mkdtemp(prefix="netsense-run-") if folder is None else None
     target = Path(tmp if folder is None else folder)
     try:
@@ -211,7 +212,8 @@ def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
     -------
     list of dict
         The entries of ``OUT/summary.json``, in the order of ``runs``: ``name``,
-        ``seed``, ``folder``, ``status`` (``"ok"`` / ``"failed"``), the last row's
+        ``seed``, ``folder``, ``thread_env`` (the :data:`THREAD_VARS` set in the process
+        that trained it), ``status`` (``"ok"`` / ``"failed"``), the last row's
         :data:`FINAL_COLUMNS`, ``agent_steps``, ``wall_s``, ``agent_steps_per_s`` and
         ``mask_violations``; failed runs ``error``, ``traceback`` and ``config`` instead.
     """
@@ -249,11 +251,17 @@ def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
     entries: list[dict | None] = [None] * len(runs)
     bar = tqdm(total=len(runs), desc="runs", unit="run", disable=not progress)
 
+    def write_summary() -> list[dict]:
+        summary = [e for e in entries if e is not None]
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        return summary
+
     def done(i: int, entry: dict) -> None:
         files = entry.pop("files", None)
         if files is not None:
             _write_files(out / runs[i].folder, files)
         entries[i] = entry
+        write_summary()  # after every run: an interrupted sweep keeps what finished
         bar.update()
         failed = sum(e is not None and e["status"] == "failed" for e in entries)
         if failed:
@@ -269,9 +277,7 @@ def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
             _in_processes(runs, out, workers, threads, done)
     finally:
         bar.close()
-        summary = [e for e in entries if e is not None]
-        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    return summary
+    return write_summary()
 
 
 def _in_processes(runs: list[Run], out: Path, workers: int, threads: int | None,
@@ -281,11 +287,12 @@ def _in_processes(runs: list[Run], out: Path, workers: int, threads: int | None,
     from concurrent.futures.process import BrokenProcessPool
 
     ctx = mp.get_context("spawn")
-    # the pool spawns its processes on submit (spawn context), inside the environment
-    with _environment(thread_env(threads)), ProcessPoolExecutor(
-            max_workers=min(workers, len(runs)), mp_context=ctx) as pool:
-        futs = {pool.submit(_train_one, r, str(out / r.folder)): i
-                for i, r in enumerate(runs)}
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(runs)), mp_context=ctx)
+    try:
+        # the pool spawns its processes on submit (spawn context), inside the environment
+        with _environment(thread_env(threads)):
+            futs = {pool.submit(_train_one, r, str(out / r.folder)): i
+                    for i, r in enumerate(runs)}
         for fut in as_completed(futs):
             i = futs[fut]
             try:
@@ -295,6 +302,10 @@ def _in_processes(runs: list[Run], out: Path, workers: int, threads: int | None,
                                        "with workers > 1 needs its entry point under `if "
                                        "__name__ == '__main__':`: each worker imports it)")
             done(i, entry)
+    except BaseException:  # interrupted: start no further run
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
 
 
 def _on_ray(runs: list[Run], address: str, resources: dict, threads: int | None,
