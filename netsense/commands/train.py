@@ -92,9 +92,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     many.add_argument("--ray", default=None, metavar="ADDRESS",
                       help="train each run as a Ray task instead: 'local' starts Ray on "
                            "this machine, 'auto' joins the cluster of `ray start` on this "
-                           "machine, ray://HOST:10001 connects a Ray client. The runs' files "
-                           "come back to OUT on this machine (docs/rl.md, 'Many runs on a "
-                           "Ray cluster')")
+                           "machine, HOST:6379 a cluster's head, ray://HOST:10001 connects a "
+                           "Ray client. The runs' files come back to OUT on this machine "
+                           "(docs/rl.md, 'Many runs: worker processes and a Ray cluster')")
     many.add_argument("--cpus-per-run", type=positive_int, default=1, metavar="CPUS",
                       help="--ray: CPU cores each run reserves, and the threads of each of "
                            "its thread pools (default: 1)")
