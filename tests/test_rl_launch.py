@@ -316,3 +316,17 @@ def test_docs_sweep_example_builds_its_runs():
     runs = ns["runs"]
     assert [r.folder for r in runs[:2]] == ["lr3e-4/seed_0", "lr3e-4/seed_1"]
     assert len(runs) == 10 and {r.config.lr for r in runs[5:]} == {1e-3}
+
+
+def test_a_ray_connection_failure_says_how_to_join(monkeypatch, tmp_path):
+    ray = pytest.importorskip("ray")
+    from netsense.rl.launch import launch, make_runs
+
+    def refuse(**kw):
+        raise ConnectionError(f"Failed to connect to Ray cluster at {kw['address']}")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", refuse)
+    with pytest.raises(ConnectionError, match="at head:6379; .*RAY_AUTH_MODE=token"):
+        launch(make_runs(_tiny(), [0]), tmp_path, ray_address="head:6379", progress=False)
+    assert json.loads((tmp_path / "summary.json").read_text()) == []

@@ -314,7 +314,13 @@ def _on_ray(runs: list[Run], address: str, resources: dict, threads: int | None,
 
     started = not ray.is_initialized()
     if started:
-        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        try:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        except ConnectionError as exc:
+            raise ConnectionError(
+                f"{exc}; if the cluster uses token authentication, set RAY_AUTH_MODE=token "
+                "here with the head's ~/.ray/auth_token (docs/rl.md, 'A Ray cluster')"
+            ) from exc
     try:
         env = thread_env(threads)
         task = ray.remote(_train_one).options(
