@@ -329,4 +329,4 @@ def test_a_ray_connection_failure_says_how_to_join(monkeypatch, tmp_path):
     monkeypatch.setattr(ray, "init", refuse)
     with pytest.raises(ConnectionError, match="at head:6379; .*RAY_AUTH_MODE=token"):
         launch(make_runs(_tiny(), [0]), tmp_path, ray_address="head:6379", progress=False)
-    assert json.loads((tmp_path / "summary.json").read_text()) == []
+    assert not (tmp_path / "summary.json").exists()  # no run finished
