@@ -17,7 +17,7 @@ load = load_experiment
 
 
 def test_fig2_montecarlo_batch_equals_single_runs_and_reproduces_the_claim(tmp_path):
-    mod = load("fig2_montecarlo")
+    mod = load("papers/freshness_fig2_montecarlo")
     res = mod.run_montecarlo(runs=6, steps=12, seed=3)
     # every batch member equals the unbatched observers started from its estimates
     from netsense.graphs.processes import fig1_graphs
@@ -49,7 +49,7 @@ def test_fig2_montecarlo_batch_equals_single_runs_and_reproduces_the_claim(tmp_p
 
 
 def test_lemma_checks_batched_smoke_finds_no_violation_and_members_differ(tmp_path):
-    mod = load("lemma_checks_batched")
+    mod = load("papers/freshness_lemmas3_5")
     row = mod.run_case(mod.Case("random_jsc", 5, 2, 0.2), batch=6, seed=1)
     assert row["violations_lemma3"] == row["violations_lemma5"] == 0
     assert row["trigger_max"] <= row["bound_lemma3"] and row["worst_max"] <= row["bound_lemma5"]
@@ -67,7 +67,7 @@ def test_lemma_checks_batched_smoke_finds_no_violation_and_members_differ(tmp_pa
 
 
 def test_bench_batched_smoke_writes_every_output(tmp_path):
-    mod = load("bench_batched")
+    mod = load("bench/batched")
     assert mod.main(["--smoke", "--no-vmas", "--out", str(tmp_path), "--no-progress"]) == 0
     for suffix in ("", "_scaling", "_growth"):
         assert (tmp_path / f"bench_batched_smoke{suffix}.csv").exists()

@@ -196,7 +196,7 @@ def test_batched_kf_equals_one_filter_per_member():
 
 
 def test_backend_timing_experiment_smoke(tmp_path):
-    mod = load_experiment("bench_benchmark_backends")
+    mod = load_experiment("bench/benchmark_backends")
     out = tmp_path / "t.txt"
     report = mod.main(["--seeds", "2", "--horizon", "4", "--backends", "batched", "serial",
                        "--out", str(out)])

@@ -20,7 +20,7 @@ def test_cli_bench_env_smoke(tmp_path, capsys):
 
 
 def test_experiment_script_smoke(tmp_path):
-    mod = load_experiment("bench_env")
+    mod = load_experiment("bench/env")
     out = tmp_path / "s.csv"
     assert mod.main(["--smoke", "--csv", str(out)]) == 0
     assert out.exists()

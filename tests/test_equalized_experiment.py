@@ -1,16 +1,13 @@
-"""Smoke-size run of experiments/equalized_batch_reactor.py (section IV-A)."""
+"""Smoke-size run of experiments/papers/equalized_sec4a_batch_reactor.py (section IV-A)."""
 
 import csv
-from pathlib import Path
 
 import numpy as np
 from experiment_loader import load_experiment
 
-SCRIPT = Path(__file__).resolve().parents[1] / "experiments" / "equalized_batch_reactor.py"
-
 
 def load():
-    return load_experiment(SCRIPT.stem)
+    return load_experiment("papers/equalized_sec4a_batch_reactor")
 
 
 def test_resolved_B_reproduces_printed_A():

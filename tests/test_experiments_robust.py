@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 from scipy import stats
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "papers"))
 
-import robust_droppings  # noqa: E402
-import robust_p0_independence  # noqa: E402
+import robust_droppings_fig1  # noqa: E402
+import robust_droppings_fig2  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def droppings(tmp_path_factory):
     out = tmp_path_factory.mktemp("robust")
-    res = robust_droppings.main(["--runs", "600", "--steps", "200", "--out", str(out),
-                                 "--mu-sweep", "", "--seed", "11"])
+    res = robust_droppings_fig1.main(["--runs", "600", "--steps", "200", "--out", str(out),
+                                      "--mu-sweep", "", "--seed", "11"])
     return out, res
 
 
@@ -41,7 +41,7 @@ def test_droppings_writes_outputs(droppings):
 
 def test_kfio_beats_kf_in_every_case(droppings):
     _, res = droppings
-    for case in robust_droppings.CASES:
+    for case in robust_droppings_fig1.CASES:
         assert z(res["summary"], case, "KFIO-KF") < -3
 
 
@@ -70,8 +70,8 @@ def test_theorem1_typo_check_separates_forms(droppings):
 
 
 def test_p0_independence_smoke(tmp_path):
-    res = robust_p0_independence.main(["--runs", "300", "--steps", "300", "--out",
-                                       str(tmp_path), "--no-plot"])
+    res = robust_droppings_fig2.main(["--runs", "300", "--steps", "300", "--out",
+                                      str(tmp_path), "--no-plot"])
     assert (tmp_path / "robust_p0_independence.csv").stat().st_size > 0
     # all KS / AD p-values above 0.001 (12 tests at a fixed seed)
     assert min(r["p_value"] for r in res["tests"]) > 1e-3
@@ -81,5 +81,5 @@ def test_p0_independence_smoke(tmp_path):
 
 def test_p0_tests_have_power_before_convergence():
     """Negative control: after 3 steps the P_0 dependence is still visible to the KS test."""
-    P, _ = robust_p0_independence.final_pcm((1.0, 100.0), 300, 3, (1, 2))
+    P, _ = robust_droppings_fig2.final_pcm((1.0, 100.0), 300, 3, (1, 2))
     assert stats.ks_2samp(P[0, :, 0, 0], P[1, :, 0, 0]).pvalue < 1e-6

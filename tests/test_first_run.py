@@ -110,7 +110,7 @@ def test_bench_first_run_smoke(tmp_path):
     sys.path.insert(0, str(ROOT / "tests"))
     from experiment_loader import load_experiment
 
-    mod = load_experiment("bench_first_run")
+    mod = load_experiment("bench/first_run")
     assert mod.main(["--smoke", "--out", str(tmp_path), "--no-progress"]) == 0
     rows = (tmp_path / "bench_first_run_smoke.csv").read_text().splitlines()
     assert rows[0].startswith("case,scenario,cache") and len(rows) == 5

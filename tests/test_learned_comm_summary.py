@@ -1,4 +1,4 @@
-"""The summary of experiments/learned_communication.py on hand-built frontier rows: the
+"""The summary of experiments/rl/learned_comm.py on hand-built frontier rows: the
 scripted step envelope, the message saving at equal error and the 30 % aim."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import pytest
 from experiment_loader import load_experiment
 
-lc = load_experiment("learned_communication")
+lc = load_experiment("rl/learned_comm")
 
 
 def _row(family, policy, error, msgs, reward, evaluation="scripted"):

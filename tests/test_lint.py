@@ -13,6 +13,6 @@ def test_ruff_clean():
     ruff = shutil.which("ruff")
     if ruff is None:
         pytest.skip("ruff not installed (it is part of the test extra)")
-    res = subprocess.run([ruff, "check", "netsense", "tests", "experiments"], cwd=ROOT,
+    res = subprocess.run([ruff, "check", "netsense", "tests", "experiments", "docs"], cwd=ROOT,
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stdout[-3000:]

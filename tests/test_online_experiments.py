@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments" / "papers"))
 
-import grid_oase  # noqa: E402
-import online_synthetic  # noqa: E402
+import online_async_figs11_14  # noqa: E402
+import online_time_varying_figs4_8  # noqa: E402
 
 
 def _rows(path):
@@ -25,14 +25,14 @@ def _rows(path):
 @pytest.fixture(scope="module")
 def synthetic(tmp_path_factory):
     out = tmp_path_factory.mktemp("online")
-    assert online_synthetic.main(["--runs", "60", "--steps", "80", "--out", str(out),
-                                   "--window-sample", "2000"]) == 0
+    assert online_time_varying_figs4_8.main(["--runs", "60", "--steps", "80", "--out", str(out),
+                                             "--window-sample", "2000"]) == 0
     return out
 
 
 def test_library_cannot_meet_tau_4():
-    lib = online_synthetic.make_library(np.random.default_rng(0))
-    checks = online_synthetic.library_checks(lib)
+    lib = online_time_varying_figs4_8.make_library(np.random.default_rng(0))
+    checks = online_time_varying_figs4_8.library_checks(lib)
     assert checks["max_rank_4_window"] == 12 and checks["min_rank_5_window"] == 15
 
 
@@ -52,8 +52,8 @@ def test_inertia_tradeoff_and_bounds(synthetic):
 
 
 def test_grid_oase_beats_held_wls_on_voltages(tmp_path):
-    assert grid_oase.main(["--runs", "2", "--hours", "1.05", "--record-every", "60",
-                           "--out", str(tmp_path)]) == 0
+    assert online_async_figs11_14.main(["--runs", "2", "--hours", "1.05", "--record-every",
+                                        "60", "--out", str(tmp_path)]) == 0
     rows = _rows(tmp_path / "grid_voltage_error.csv")[-10:]
     wls = np.mean([float(r["mean_abs_v_err_pu_wls_held"]) for r in rows])
     oase = np.mean([float(r["mean_abs_v_err_pu_oase_gamma_10000"]) for r in rows])

@@ -135,7 +135,7 @@ def test_calibration_neither_always_nor_never_is_optimal(sid, best):
 
 
 def test_comm_training_config_matches_the_committed_runs():
-    """experiments/configs/train_comm_tasks.toml is what trained the committed policies of
+    """experiments/rl/configs/train_comm_tasks.toml is what trained the committed policies of
     the communication tasks, on seeds below the evaluation range."""
     import json
     from pathlib import Path
@@ -144,12 +144,12 @@ def test_comm_training_config_matches_the_committed_runs():
 
     pytest.importorskip("sb3_contrib")
     root = Path(__file__).resolve().parents[1]
-    train = load_experiment("train_maskable_ppo")
-    configs = train.load_configs(root / "experiments/configs/train_comm_tasks.toml")
+    train = load_experiment("rl/train_maskable_ppo")
+    configs = train.load_configs(root / "experiments/rl/configs/train_comm_tasks.toml")
     assert set(configs) == {"comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0"}
     for sc, cfg in configs.items():
-        meta = json.loads((root / f"experiments/results/train_{sc}/train_config.json")
-                          .read_text())
+        run = root / "experiments/results/rl/train_maskable_ppo" / sc
+        meta = json.loads((run / "train_config.json").read_text())
         assert meta["overrides"] == cfg.overrides and meta["steps"] == cfg.steps
         assert meta["seed"] + meta["num_vec_envs"] <= pr.TRAIN_SEED_LIMIT
         assert meta["mask_violations"] == 0

@@ -291,7 +291,7 @@ def test_bench_train_throughput_smoke(tmp_path):
 
     from experiment_loader import load_experiment
 
-    mod = load_experiment("bench_train_throughput")
+    mod = load_experiment("bench/train_throughput")
     path = mod.main(["--paths", "torchrl-tx", "sb3-batched", "--rounds", "1", "--iters", "1",
                      "--num-envs", "4", "--rollout", "4", "--sb3-steps", "512",
                      "--sb3-envs", "20", "--out", str(tmp_path), "--tag", "smoke"])

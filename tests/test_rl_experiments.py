@@ -14,7 +14,7 @@ _load = load_experiment
 
 
 def test_rllib_config_keys_are_ppo_config_arguments():
-    cfg = _load("rllib_example").load_config()
+    cfg = _load("rl/rllib_example").load_config()
     from netsense.rl import rllib
 
     params = set(inspect.signature(rllib.ppo_config).parameters)
@@ -26,8 +26,8 @@ def test_rllib_config_keys_are_ppo_config_arguments():
 
 def test_train_config_covers_the_benchmark_scenarios():
     pytest.importorskip("sb3_contrib")
-    configs = _load("train_maskable_ppo").load_configs()
-    bench = _load("benchmark_rl")
+    configs = _load("rl/train_maskable_ppo").load_configs()
+    bench = _load("rl/benchmark_maskable_ppo")
     assert set(configs) == set(bench.SCENARIOS)
     for scenario, cfg in configs.items():
         assert cfg.scenario == scenario
@@ -39,11 +39,11 @@ def test_train_config_covers_the_benchmark_scenarios():
 def test_train_and_benchmark_scripts_smoke(tmp_path):
     pytest.importorskip("sb3_contrib")
     pytest.importorskip("supersuit")
-    train = _load("train_maskable_ppo")
+    train = _load("rl/train_maskable_ppo")
     assert train.main(["--smoke", "--only", "fig1_scalar-v0", "--out", str(tmp_path),
                        "--no-progress"]) == 0
-    assert (tmp_path / "train_fig1_scalar-v0" / "policy.zip").exists()
-    bench = _load("benchmark_rl")
+    assert (tmp_path / "fig1_scalar-v0" / "policy.zip").exists()
+    bench = _load("rl/benchmark_maskable_ppo")
     out = tmp_path / "bench"
     assert bench.main(["--seeds", "1", "--scenarios", "fig1_scalar-v0", "--train-dir",
                        str(tmp_path), "--out", str(out), "--backend", "serial",
@@ -64,7 +64,7 @@ def test_committed_policies_still_fit_their_scenarios(scenario):
     from netsense.rl.sb3 import LearnedPolicy
     from netsense.rl.wrappers import MaskedFlatObs
 
-    path = EXP / "results" / f"train_{scenario}" / "policy.zip"
+    path = EXP / "results" / "rl" / "train_maskable_ppo" / scenario / "policy.zip"
     space = MaskedFlatObs(make(scenario)).observation_space("sensor_0")
     assert LearnedPolicy(path).model.observation_space.shape == space.shape
     rec = rollout(scenario, f"learned:{path}", 1000, {"horizon": 10})

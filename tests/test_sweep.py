@@ -67,18 +67,13 @@ def test_sweep_rejects_bad_arguments(capsys):
 # ----------------------------------------------------------------------------- experiments
 def _experiment(name):
     """Import ``experiments/<name>.py`` under its own name (so worker processes can too)."""
-    import importlib
-    import sys
-    from pathlib import Path
+    from experiment_loader import import_experiment
 
-    folder = str(Path(__file__).resolve().parents[1] / "experiments")
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module(name)
+    return import_experiment(name)
 
 
 def test_topology_sweep_experiment_smoke(tmp_path):
-    res = _experiment("topology_sweep").main(
+    res = _experiment("studies/topology_sweep").main(
         ["--N", "4", "--n", "3", "--seeds", "2", "--max-steps", "120", "--workers", "1",
          "--out", str(tmp_path)])
     assert res["violations"] == []
@@ -90,8 +85,9 @@ def test_topology_sweep_experiment_smoke(tmp_path):
 
 
 def test_aoi_experiment_smoke(tmp_path):
-    res = _experiment("aoi_heatmap").main(["--N", "4", "--n", "3", "--seeds", "2", "--steps",
-                                           "40", "--workers", "1", "--out", str(tmp_path)])
+    res = _experiment("studies/aoi_heatmap").main(
+        ["--N", "4", "--n", "3", "--seeds", "2", "--steps", "40", "--workers", "1",
+         "--out", str(tmp_path)])
     ring = next(r for r in res["rows"] if r["family"] == "ring")
     # ring with T = 4 = N (token ring): worst index 2N - 2 = 6
     assert ring["aoi_max"] == 6
@@ -99,7 +95,7 @@ def test_aoi_experiment_smoke(tmp_path):
 
 
 def test_mobility_experiment_smoke(tmp_path):
-    res = _experiment("mobility").main(
+    res = _experiment("studies/mobility").main(
         ["--N", "4", "--n", "3", "--seeds", "2", "--steps", "60", "--radii", "0.0,2.0",
          "--timeline-radius", "2.0", "--workers", "1", "--out", str(tmp_path)])
     by_r = {(s["model"], s["radius"]): s for s in res["summary"]}
@@ -111,7 +107,7 @@ def test_mobility_experiment_smoke(tmp_path):
 
 
 def test_faults_experiment_smoke(tmp_path):
-    res = _experiment("faults").main(["--seeds", "4", "--steps", "80", "--at", "30",
+    res = _experiment("studies/faults").main(["--seeds", "4", "--steps", "80", "--at", "30",
                                       "--workers", "1", "--out", str(tmp_path)])
     rows = {(r["scenario"], r["observer"]): r for r in res["rows"]}
     fresh = {s: r for (s, o), r in rows.items() if o == "freshness"}

@@ -1,7 +1,7 @@
 """Theorem 1 and Corollary 1 in floating point: properties over 200 random plants each.
 
-The measurements are those of ``experiments/theorem1_numerics.py`` (see its docstring and
-``docs/theory.md``): ``N`` in 3..10, ``T`` in 1..4, single- and multi-output sources,
+The measurements are those of ``experiments/papers/freshness_theorem1_numerics.py`` (see its
+docstring and ``docs/theory.md``): ``N`` in 3..10, ``T`` in 1..4, single- and multi-output sources,
 stable and unstable plants with ``n`` up to 30, random jointly connected graphs.
 """
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from experiment_loader import load_experiment
 
-num = load_experiment("theorem1_numerics")
+num = load_experiment("papers/freshness_theorem1_numerics")
 
 COUNT = 200
 EPS = float(np.finfo(float).eps)
@@ -95,7 +95,7 @@ def test_floor_scales_with_the_unit_roundoff():
     by far less than the floor); run in longdouble on a plant whose Lemma 1 structure is
     exact there, its floor drops with eps (2048x smaller; at least 100x asserted) to below
     1e-12, while a longdouble observer on the float64 plant keeps the float64 floor."""
-    prec = load_experiment("theorem1_precision")
+    prec = load_experiment("papers/freshness_theorem1_precision")
     case = prec.num.sample_case(**FLOOR_PLANT)
     assert (case.n, case.N, case.T, case.sources) == (12, 9, 4, 9)
     agree = prec.agreement(case)

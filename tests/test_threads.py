@@ -311,7 +311,7 @@ def test_busy_core_benchmark_smoke(tmp_path):
 
     from tests.experiment_loader import load_experiment
 
-    mod = load_experiment("bench_busy_cores")
+    mod = load_experiment("bench/busy_cores")
     assert mod.main(["--smoke", "--out", str(tmp_path)]) == 0
     with (tmp_path / "bench_busy_cores.csv").open() as fh:
         rows = list(csv.DictReader(fh))

@@ -26,8 +26,9 @@ Policies (names accepted by :func:`run_benchmark` and ``netsense benchmark``):
 ``kf_oracle``
     a centralized Kalman filter that sees every agent's measurement every step (no
     network): a lower bound on the error, no messages and no reward;
-``always``, ``never``, ``periodic:P``, ``bernoulli:p``, ``sources:P``, ``event:d``, ...
-    ``oldest:m``, ``whittle:m``: the communication baselines of
+``always``, ``never``, ``periodic:P``, ``bernoulli:p``, ``sources:P``, ``event:d``,
+``until:T``, ``settle:e``, ``aloha:g,q``, ``tdma:F``, ``oldest:m``, ``whittle:m``
+    the communication baselines of
     :mod:`netsense.env.comm_policies` (communication-only scenarios; not applicable, hence
     skipped, on full-control ones);
 ``learned`` / ``learned:PATH`` / ``learned_sampled:PATH``

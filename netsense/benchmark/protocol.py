@@ -63,12 +63,19 @@ CONFIDENCE = 0.95
 RESAMPLES = 9999
 PROTOCOL_METRICS = ("mean_rel_error", "final_rel_error", "msgs_per_agent_step",
                     "load_per_agent_step", "reward")
-#: Knob settings of each scripted family (from most to fewest messages, roughly).
+#: Knob settings of each scripted family (from most to fewest messages, roughly); a
+#: family with two knobs takes strings ``"knob1,knob2"`` (the spec is ``family:knobs``).
 FAMILIES: dict[str, tuple] = {
     "periodic": (1, 2, 3, 4, 5, 6, 8, 12, 16),
     "bernoulli": (1.0, 0.7, 0.5, 0.35, 0.25, 0.15, 0.1, 0.05),
     "sources": (1, 2, 4, 8, 16, 0),
     "event": (1, 2, 3, 4, 6, 8, 12, 16),
+    "until": (120, 80, 60, 40, 30, 20, 10),
+    "settle": (0.001, 0.003, 0.01, 0.03, 0.1, 0.3),
+    # threshold ALOHA: the proven K = 1 optimum (2.2, 4.69), lower thresholds, then lower
+    # probabilities (the optimum collides on channels with K > 1)
+    "aloha": ("2.2,4.69", "0.5,1", "1,1", "2.2,1", "2.2,0.5", "4.4,0.5", "4.4,0.25"),
+    "tdma": (1, 2, 3, 4, 6, 8),
     "oldest": (1, 2, 3, 4, 6),
     "whittle": (1, 2, 3, 4, 6),
 }
@@ -180,14 +187,17 @@ def _learned_actor(path: str, deterministic: bool, seed: int, core=None):
     return act
 
 
-def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None = None
-             ) -> dict[str, np.ndarray]:
+def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None = None,
+             *, actor=None) -> dict[str, np.ndarray]:
     """Per-episode :data:`PROTOCOL_METRICS` of ``policy`` on ``seeds``, as one batched run.
 
     ``policy``: a communication baseline spec (``periodic:4``, ...), a scripted policy name
     of :mod:`netsense.env.policies` (``freshness``, ...), ``learned:PATH`` (greedy) or
     ``learned_sampled:PATH``. Member ``b`` is seeded with ``seeds[b]``; members that
     terminate early (``divergence_limit``) are scored over their own steps.
+    ``actor``: a callable ``(core, seeds) -> act`` that builds the acting function on the
+    evaluated :class:`~netsense.engine.core.BatchedCore` instead (``policy`` is then only
+    its label): a rule that is no registered policy, scored exactly like one.
     """
     from netsense.engine.core import BatchedCore
     from netsense.env.vector import load_model
@@ -196,7 +206,7 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
     if not seeds:
         raise ValueError("seeds must be non-empty")
     name, _, arg = policy.partition(":")
-    learned = name in ("learned", "learned_sampled")
+    learned = actor is None and name in ("learned", "learned_sampled")
     if learned:
         if not arg:
             raise ValueError(f"{name} needs a path: {name}:PATH")
@@ -204,7 +214,9 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
     model, _ = load_model(scenario, **dict(overrides or {}))
     B = len(seeds)
     core = BatchedCore(model, B)
-    if learned:
+    if actor is not None:
+        act = actor(core, seeds)
+    elif learned:
         check_disjoint(_train_seeds(Path(arg)), seeds)
         act = _learned_actor(arg, name == "learned", seeds[0], core)
     else:

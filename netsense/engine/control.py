@@ -33,7 +33,22 @@ message of step ``k`` is lost when ``S[k] > K`` (a collision; the transmitters s
 ``message_cost``). So at most ``K`` agents' messages are delivered per step.
 
 The communication-only observation appends :data:`COMM_OBS_FIELDS` to the full mode's
-vector (see :class:`CommControl`).
+vector (see :class:`CommControl`), and the optional fields of :data:`COMM_OPTION_FIELDS`
+where the scenario enables them (``[control] announce = true``, ``feedback = true``):
+
+``next_out`` (``announce``, N entries)
+    agent ``i``'s out-neighbours in the *next* graph ``G[k+1]``: entry ``l`` is 1 iff
+    ``i -> l`` is a link of ``G[k+1]`` (the graph its next message will travel on). The
+    graph sequence is drawn ahead, so announcing it changes nothing of the realisation;
+    :attr:`netsense.engine.model.CoreModel.known_ahead` is then 1 (see there: a causal
+    lookahead must keep ``G[k+1]`` and resample only from ``G[k+2]`` on).
+``acks`` (``feedback``, N entries)
+    delivery feedback on agent ``i``'s message of step ``k``: entry ``l`` is ``1`` if
+    ``i -> l`` is a link of ``G[k]`` and the message arrived (sent, link up, no
+    collision), ``-1`` if it is a link of ``G[k]``, ``i`` transmitted and the message was
+    lost (a dropped link, e.g. a Gilbert-Elliott channel in its bad state, or a
+    collision), ``0`` otherwise (no link, or ``i`` did not transmit). A sender can infer
+    the state of bursty links from this history.
 """
 
 from __future__ import annotations
@@ -44,13 +59,17 @@ import numpy as np
 
 from netsense.kernels import update as kernels
 
-__all__ = ["COMM_OBS_FIELDS", "FUSIONS", "MODES", "Channel", "CommControl", "Control",
-           "apply_collisions", "tree_choice_table"]
+__all__ = ["COMM_OBS_FIELDS", "COMM_OPTION_FIELDS", "FUSIONS", "MODES", "Channel",
+           "CommControl", "Control", "apply_collisions", "out_links", "tree_choice_table"]
 
 MODES = ("full", "transmit", "substates")
 FUSIONS = ("freshness", "uniform", "tree")
 #: Observation fields of the communication-only modes, appended after the full mode's.
 COMM_OBS_FIELDS = ("news", "silence", "channel_load", "collided", "agent_id")
+#: Optional fields (``N`` entries each), appended in this order when the
+#: :class:`Control` option of the same line is on: ``announce`` -> ``next_out``,
+#: ``feedback`` -> ``acks``.
+COMM_OPTION_FIELDS = ("next_out", "acks")
 #: ``g_sent`` of a substate never sent.
 NEVER = np.iinfo(np.int64).min
 
@@ -66,16 +85,32 @@ class Control:
         with one bit per substate (the module docstring).
     fusion : {"freshness", "uniform", "tree"}
         The scripted adoption rule of the communication-only modes (unused in ``full``).
+    announce : bool
+        The observation at ``k`` carries the agent's out-neighbours in ``G[k+1]``
+        (field ``next_out``; communication-only modes; default off).
+    feedback : bool
+        The observation at ``k`` carries the delivery of the agent's message of step
+        ``k`` per out-link (field ``acks``; communication-only modes; default off).
     """
 
     mode: str = "full"
     fusion: str = "freshness"
+    announce: bool = False
+    feedback: bool = False
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ValueError(f"control.mode must be one of {MODES}, got {self.mode!r}")
         if self.fusion not in FUSIONS:
             raise ValueError(f"control.fusion must be one of {FUSIONS}, got {self.fusion!r}")
+        for name in ("announce", "feedback"):
+            v = getattr(self, name)
+            if not isinstance(v, (bool, np.bool_)):
+                raise ValueError(f"control.{name} must be true or false, got {v!r}")
+            if v and self.mode == "full":
+                raise ValueError(f"control.{name} adds a field of the communication-only "
+                                 "observation: it needs control.mode = 'transmit' or "
+                                 "'substates'")
         if self.mode == "substates" and self.fusion == "uniform":
             raise ValueError("control.fusion = 'uniform' averages whole messages: it needs "
                              "control.mode = 'transmit' (or 'full'), not 'substates'")
@@ -305,10 +340,11 @@ class CommControl:
     # ------------------------------------------------------------------ observations
     def fill(self, obs: np.ndarray | None, mask: np.ndarray | None, layout, k: np.ndarray,
              nbr: np.ndarray, msg: np.ndarray, transmit: np.ndarray,
-             collided: np.ndarray | None) -> None:
+             collided: np.ndarray | None, nbr_next: np.ndarray | None = None) -> None:
         """Write the communication fields of ``obs`` (after the full mode's pass) and the
         masks ``(B, N, 2 width)``; in ``"substates"`` mode a slot's substate that was not
-        sent reads as no message (omega flag 1, age 0)."""
+        sent reads as no message (omega flag 1, age 0). ``nbr_next``: the slots of
+        ``G[k+1]`` (needed with ``announce``)."""
         if mask is not None:
             mask[..., 0::2] = 1
             mask[..., 1::2] = self.allowed()
@@ -332,3 +368,23 @@ class CommControl:
         obs[..., layout.collided] = (0.0 if collided is None
                                      else collided[:, None, None].astype(np.float32))
         obs[..., layout.agent_id] = ((np.arange(N, dtype=np.float32) + 1) / N)[None, :, None]
+        if layout.next_out is not None:
+            if nbr_next is None:
+                raise ValueError("announce needs the slots of the next graph (nbr_next)")
+            obs[..., layout.next_out] = out_links(nbr_next, np.ones(nbr_next.shape, bool))
+        if layout.acks is not None:
+            sent = np.take_along_axis(transmit, np.maximum(nbr, 0).reshape(B, -1),
+                                      axis=1).reshape(nbr.shape)
+            obs[..., layout.acks] = out_links(nbr, np.where(msg, 1.0, np.where(sent, -1.0,
+                                                                                0.0)))
+
+
+def out_links(nbr: np.ndarray, value: np.ndarray) -> np.ndarray:
+    """``(B, N, N)`` float32 table of the links of a graph seen from the sender: entry
+    ``[b, l, i]`` is ``value[b, i, d]`` where slot ``d`` of receiver ``i`` holds ``l``
+    (``nbr (B, N, D)``, ``-1`` an empty slot), 0 where ``l -> i`` is no link."""
+    B, N, D = nbr.shape
+    table = np.zeros((B, N + 1, N), dtype=np.float32)  # row N: the empty slots
+    rows = np.where(nbr >= 0, nbr, N)
+    table[np.arange(B)[:, None, None], rows, np.arange(N)[None, :, None]] = value
+    return table[:, :N]

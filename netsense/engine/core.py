@@ -74,7 +74,7 @@ Numerical health: a step checks that every agent's error ``||z_hat_i - z||`` is 
 reduction over ``(B, N)``). Rewards are finite by construction (errors are clipped, NaN
 included, and :class:`RewardConfig` bounds them). When an error is not finite, with
 ``nonfinite="terminate"`` (default) the member is
-terminated at that step (``terminated[b] = True``), :attr:`BatchedCore.nonfinite` ``[b]``
+terminated at that step (``terminated[b] = True``), ``BatchedCore.nonfinite[b]``
 records ``{"step", "what", "agent"}`` (``what``: ``"state"``, ``"estimate"`` or ``"error"``
 (finite state and estimate whose distance overflows); ``agent`` is ``None`` for the plant
 state) and a :class:`~netsense.kernels.
@@ -233,7 +233,12 @@ class BatchedCore:
         self.M = int(self.sources.size)
         self.control = model.control
         self.layout = ObsLayout.build(self.N, self.n, self.r, self.D, self.sources,
-                                      comm=self.control.comm_only)
+                                      comm=self.control.comm_only,
+                                      announce=self.control.announce,
+                                      feedback=self.control.feedback)
+        #: ``(B, N, D)`` slots of ``G[k+1]`` when the scenario announces it
+        #: (``model.known_ahead = 1``; None otherwise)
+        self.nbr_next: np.ndarray | None = None
         #: ``(N,)`` column of each agent's own substate (``-1``: owns none)
         self.own = self.layout.own
         self.nvec = np.array([self.D + 2] * self.M + [2], dtype=np.int64)
@@ -374,6 +379,8 @@ class BatchedCore:
         self.nbr = np.empty((B, N, self.D), dtype=np.int64)
         self._y_load = np.empty((B, N * r))
         self.msg = np.empty((B, N, self.D), dtype=bool)
+        if self.control.announce:
+            self.nbr_next = np.empty((B, N, self.D), dtype=np.int64)
 
     def _reset_member(self, b: int, seed: int) -> None:
         m = self.model
@@ -459,6 +466,8 @@ class BatchedCore:
             apply_collisions(self.transmit, self.msg, self.capacity, self.collided)
         if self.comm is not None:  # the fusion rule's choice for this step's messages
             self.comm.fuse(self.reported_indices(), self.nbr, self.msg, self.k)
+        if self.nbr_next is not None:  # G[k+1], announced in the observation
+            self._load_next_graph()
         if self._meas_always:
             self.y_arrived = self._ones_BN
         elif self.ptr.min() == self.ptr.max():  # all members at one chunk position:
@@ -470,6 +479,36 @@ class BatchedCore:
             self.y_arrived = self.buf_meas[self._bidx, self.ptr]
         self._mask = None
         self._obs = None
+
+    def _load_next_graph(self) -> None:
+        """``nbr_next``: the slots of ``G[k+1]``, from the chunk where it is drawn, else a
+        peek (:meth:`peek_next_graphs`)."""
+        inside = self.ptr + 1 < self.chunk
+        if inside.any():
+            b = np.flatnonzero(inside)
+            self.nbr_next[b] = self.buf_nbr[b, self.ptr[b] + 1]
+        if not inside.all():
+            b = np.flatnonzero(~inside)
+            self.nbr_next[b] = self.peek_next_graphs(b)[0]
+
+    def peek_next_graphs(self, members: np.ndarray) -> tuple[np.ndarray, list]:
+        """The next graph the members' graph streams will draw, without drawing it.
+
+        For members at the last step of their chunk (``ptr + 1 = chunk``) this is
+        ``G[k+1]``: the graph process is sampled one step from copies of the member's
+        ``"graph"`` generator and process state, which the next refill then draws again
+        (a realisation does not depend on the chunk length). Returns the slot tables
+        ``(len(members), N, D)`` and the graph-process states after that graph (what a
+        lookahead that keeps ``G[k+1]`` and redraws the rest continues from).
+        """
+        import copy
+
+        members = np.asarray(members, dtype=np.int64)
+        rngs = [copy.deepcopy(self.rngs[b]["graph"]) for b in members]
+        states = [copy.deepcopy(self.graph_state[b]) for b in members]
+        out = np.empty((members.size, 1, self.N, self.D), dtype=self._slot_dtype)
+        _, after = self.model.graphs.sample_slots_many(rngs, 1, states, self.D, out=out)
+        return out[:, 0].astype(np.int64), after
 
     # ------------------------------------------------------------------ slot views
     @property
@@ -705,7 +744,7 @@ class BatchedCore:
                              own=self.own, work=self._fill_bufs)
         if self.comm is not None:
             self.comm.fill(obs, mask, self.layout, self.k, self.nbr, self.msg, self.transmit,
-                           None if self.capacity is None else self.collided)
+                           None if self.capacity is None else self.collided, self.nbr_next)
 
     # ------------------------------------------------------------------ views
     @property

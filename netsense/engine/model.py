@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from netsense.engine.control import COMM_OBS_FIELDS, Channel, Control
+from netsense.engine.control import COMM_OBS_FIELDS, COMM_OPTION_FIELDS, Channel, Control
 from netsense.graphs.processes import GraphProcess
 from netsense.kernels.checks import MAX_STEPS
 from netsense.observers.source import SourceEstimator
@@ -208,6 +208,20 @@ class CoreModel:
 
         self._check_control()
 
+    @property
+    def known_ahead(self) -> int:
+        """How many graphs beyond ``G[k]`` the observation at ``k`` reveals: 1 with
+        ``control.announce`` (``G[k+1]``, field ``next_out``), else 0.
+
+        A lookahead that resamples the unobserved future from step ``k`` (a causal bound)
+        must keep these ``known_ahead`` graphs as they are (``BatchedCore.nbr_next`` and
+        the graph-process state after it, :meth:`netsense.engine.core.BatchedCore.
+        peek_next_graphs`) and redraw only ``G[k + 1 + known_ahead]`` onwards: an agent
+        acting on ``next_out`` knows ``G[k+1]``, so a bound that redraws it would score
+        futures the agent knows to be impossible. Noise and arrivals are never announced.
+        """
+        return int(bool(self.control.announce))
+
     def _check_control(self) -> None:
         from netsense.graphs.processes import PeriodicGraphs
 
@@ -294,13 +308,21 @@ class ObsLayout:
     channel_load: slice | None = None
     collided: slice | None = None
     agent_id: slice | None = None
+    next_out: slice | None = None
+    acks: slice | None = None
 
     @classmethod
     def build(cls, N: int, n: int, r: int, D: int,
-              sources: Sequence[int] | None = None, comm: bool = False) -> ObsLayout:
+              sources: Sequence[int] | None = None, comm: bool = False,
+              announce: bool = False, feedback: bool = False) -> ObsLayout:
         """The layout; ``comm=True`` appends the communication-only modes' fields
         (:data:`netsense.engine.control.COMM_OBS_FIELDS`: ``news`` (M), ``silence``,
-        ``channel_load``, ``collided``, ``agent_id``)."""
+        ``channel_load``, ``collided``, ``agent_id``), then ``next_out`` (N) with
+        ``announce`` and ``acks`` (N) with ``feedback``
+        (:data:`netsense.engine.control.COMM_OPTION_FIELDS`)."""
+        if (announce or feedback) and not comm:
+            raise ValueError("announce and feedback are fields of the communication-only "
+                             "observation (comm=True)")
         src = tuple(range(N)) if sources is None else tuple(int(v) for v in sources)
         M = len(src)
         sizes = (1, r, 1, M, M, n, 1, D, D, D * M, D * M)
@@ -312,6 +334,10 @@ class ObsLayout:
             for name, s in zip(COMM_OBS_FIELDS, (M, 1, 1, 1, 1), strict=True):
                 out[name] = slice(o, o + s)
                 o += s
+            for name, on in zip(COMM_OPTION_FIELDS, (announce, feedback), strict=True):
+                if on:
+                    out[name] = slice(o, o + N)
+                    o += N
         return cls(N=N, n=n, r=r, D=D, M=M, sources=src, size=o, **out)
 
     @property
@@ -328,8 +354,8 @@ class ObsLayout:
 
     def comm_table(self) -> list[tuple[str, int, int]]:
         """``(field, start, stop)`` of the communication-only fields (empty in full mode)."""
-        return [(nm, getattr(self, nm).start, getattr(self, nm).stop) for nm in COMM_OBS_FIELDS
-                if getattr(self, nm) is not None]
+        return [(nm, getattr(self, nm).start, getattr(self, nm).stop)
+                for nm in COMM_OBS_FIELDS + COMM_OPTION_FIELDS if getattr(self, nm) is not None]
 
 
 def symlog(v: np.ndarray) -> np.ndarray:

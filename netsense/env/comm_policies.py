@@ -22,10 +22,24 @@ spec               knob    rule (``k`` the step whose action is taken, ``H`` the
 ``event:d``        d >= 1  send substate ``j`` iff ``news_i^{(j)} H >= d``: the information
                            the next message would carry was generated at least ``d`` steps
                            after what ``i`` last sent of ``j`` (never sent: always news)
+``until:T[,d]``    T, d    ``always`` (``event:d`` if ``d >= 1``) at the steps ``< T``, then
+                           never: talk while the estimates converge, then stop
+``settle:e[,W]``   e, W    talk until the own estimate's relative correction stayed below
+                           ``e`` for ``W`` steps (default 5), then stop (send-on-delta)
+``aloha:g,q``      g, q    threshold ALOHA on the age gain (Chen et al., IEEE TIT 2022):
+                           active iff gain ``>= g N / K``, then transmit w.p. ``q K / N``;
+                           ``aloha:2.2,4.69`` is the proven ``K = 1`` optimum
+``tdma:F``         F >= 1  the sources take turns, ``K`` per slot, one slot every ``F``
+                           steps (time division from time and rank only)
 ``oldest:m``       m >= 1  centralised: the ``m`` agents with the largest total age
                            reduction ``I_l = sum_{i != l, j} h_{lij}`` send
 ``whittle:m``      m >= 1  centralised: the same with the Whittle index ``h (h + 1) / 2``
 =================  ======  ===================================================================
+
+The rules from ``until`` to ``tdma`` (memory, randomness, clock; their sources and exact
+rules) are in :mod:`netsense.env.comm_decentralised`; ``K`` is the channel capacity
+(``N`` without a channel). Every rule but the schedulers reads only agent ``i``'s own
+observation (and memory): they are decentralised policies.
 
 Age reduction ``h_{lij} = [tau_i^{(j)} - tau_l^{(j)}]_+`` of receiver ``i``'s age of
 substate ``j`` were it to adopt sender ``l``'s (``tau_i^{(j)} = omega`` counts as ``H``,
@@ -45,10 +59,19 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from netsense.env.policies import CommPolicy, TransmitAll, TransmitNone, _seed
+from netsense.env.comm_decentralised import (
+    MemberUniforms,
+    Settle,
+    Tdma,
+    ThresholdAloha,
+    Until,
+    int_knob,
+)
+from netsense.env.policies import CommPolicy, TransmitAll, TransmitNone
 
-__all__ = ["COMM_POLICIES", "AgeScheduler", "Bernoulli", "EventTriggered", "Periodic",
-           "SourcesFirst", "make_comm_policy", "parse_spec"]
+__all__ = ["CENTRALISED", "COMM_POLICIES", "AgeScheduler", "Bernoulli", "EventTriggered",
+           "Periodic", "Settle", "SourcesFirst", "Tdma", "ThresholdAloha", "Until",
+           "make_comm_policy", "parse_spec"]
 
 
 class Periodic(CommPolicy):
@@ -58,7 +81,7 @@ class Periodic(CommPolicy):
 
     def __init__(self, layout, width, horizon, period: int = 2, stagger: bool = True) -> None:
         super().__init__(layout, width, horizon)
-        self.period = _int_knob("periodic", period, 1)
+        self.period = int_knob("periodic", period, 1)
         self.phase = np.arange(self.N) if stagger else np.zeros(self.N, dtype=np.int64)
 
     def act(self, obs, mask):
@@ -84,23 +107,10 @@ class Bernoulli(CommPolicy):
         if not 0.0 <= p <= 1.0:
             raise ValueError(f"bernoulli: p must be a probability in [0, 1], got {p!r}")
         self.p = p
-        if seed is None or np.ndim(seed) == 0:
-            self.rng = np.random.default_rng(None if seed is None else _seed(seed))
-            self.member_rngs = None
-        else:
-            self.rng = None
-            self.member_rngs = [np.random.default_rng(_seed(s)) for s in seed]
+        self.uniforms = MemberUniforms(seed)
 
     def act(self, obs, mask):
-        B = obs.shape[0]
-        if self.member_rngs is None:
-            u = self.rng.random((B, self.N))
-        else:
-            if B != len(self.member_rngs):
-                raise ValueError(f"this policy has {len(self.member_rngs)} member generators, "
-                                 f"got a batch of {B} observations")
-            u = np.stack([g.random(self.N) for g in self.member_rngs])
-        return self._send(mask, u < self.p)
+        return self._send(mask, self.uniforms(obs.shape[0], (self.N,)) < self.p)
 
 
 class SourcesFirst(CommPolicy):
@@ -111,7 +121,7 @@ class SourcesFirst(CommPolicy):
     def __init__(self, layout, width, horizon, is_source: np.ndarray,
                  relay_period: int = 0) -> None:
         super().__init__(layout, width, horizon)
-        self.relay_period = _int_knob("sources", relay_period, 0)
+        self.relay_period = int_knob("sources", relay_period, 0)
         self.is_source = np.asarray(is_source, dtype=bool)
         if self.is_source.shape != (self.N,):
             raise ValueError(f"is_source must have shape ({self.N},)")
@@ -132,7 +142,7 @@ class EventTriggered(CommPolicy):
 
     def __init__(self, layout, width, horizon, threshold: int = 2) -> None:
         super().__init__(layout, width, horizon)
-        self.threshold = _int_knob("event", threshold, 1)
+        self.threshold = int_knob("event", threshold, 1)
 
     def act(self, obs, mask):
         news = np.rint(obs[..., self.layout.news] * self.horizon) >= self.threshold
@@ -153,7 +163,7 @@ class AgeScheduler(CommPolicy):
         #: (M,) bool: substates that count (non-empty blocks; default all)
         self.columns = (np.ones(self.M, bool) if columns is None
                         else np.asarray(columns, dtype=bool))
-        self.slots = _int_knob(index, slots, 1)
+        self.slots = int_knob(index, slots, 1)
         if index not in ("oldest", "whittle"):
             raise ValueError(f"index must be 'oldest' or 'whittle', got {index!r}")
         self.index = index
@@ -178,20 +188,22 @@ class AgeScheduler(CommPolicy):
         return self._send(mask, send[..., None] & (g > 0) if self.width > 1 else send)
 
 
-def _int_knob(name: str, v, low: int) -> int:
-    if isinstance(v, bool) or int(v) != v or v < low:
-        raise ValueError(f"{name}: the knob must be an integer >= {low}, got {v!r}")
-    return int(v)
-
-
-#: spec name -> (knob type, default knob); ``always`` and ``never`` take none.
+#: spec name -> (knob type, default knob); ``always`` and ``never`` take none; families
+#: with two knobs (``name:knob1,knob2``) give a tuple of types and of defaults (a
+#: default ``None`` makes the knob required).
 COMM_POLICIES = {"always": (None, None), "never": (None, None), "periodic": (int, 2),
                  "bernoulli": (float, 0.5), "sources": (int, 0), "event": (int, 2),
+                 "until": ((int, int), (None, 0)), "settle": ((float, int), (None, 5)),
+                 "aloha": ((float, float), (2.2, 4.69)), "tdma": (int, 1),
                  "oldest": (int, 1), "whittle": (int, 1)}
+#: Families that read every agent's observation (a coordinator's reference, not a
+#: decentralised policy).
+CENTRALISED = ("oldest", "whittle")
 
 
-def parse_spec(spec: str) -> tuple[str, float | int | None]:
-    """``"periodic:4"`` -> ``("periodic", 4)``; the default knob when none is given."""
+def parse_spec(spec: str) -> tuple[str, float | int | tuple | None]:
+    """``"periodic:4"`` -> ``("periodic", 4)``, ``"aloha:2.2,4.69"`` -> ``("aloha", (2.2,
+    4.69))``; the default knob(s) when none is given."""
     name, _, arg = spec.partition(":")
     if name not in COMM_POLICIES:
         raise ValueError(f"unknown communication policy {name!r}; choose from "
@@ -201,10 +213,26 @@ def parse_spec(spec: str) -> tuple[str, float | int | None]:
         if arg:
             raise ValueError(f"{name} takes no knob, got {spec!r}")
         return name, None
-    try:
-        return name, kind(arg) if arg else default
-    except ValueError as exc:
-        raise ValueError(f"{spec!r}: the knob of {name} must be a {kind.__name__}") from exc
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    defaults = default if isinstance(kind, tuple) else (default,)
+    parts = arg.split(",") if arg else []
+    if len(parts) > len(kinds):
+        raise ValueError(f"{spec!r}: {name} takes at most {len(kinds)} knob(s)")
+    values = []
+    for t, d, part in zip(kinds, defaults, parts + [""] * (len(kinds) - len(parts)),
+                          strict=True):
+        if not part.strip():
+            if d is None:
+                raise ValueError(f"{spec!r}: {name} needs its knob(s): {name}:"
+                                 + ",".join(x.__name__ for x in kinds))
+            values.append(d)
+            continue
+        try:
+            values.append(t(part))
+        except ValueError as exc:
+            raise ValueError(f"{spec!r}: the knobs of {name} must be "
+                             f"{', '.join(x.__name__ for x in kinds)}") from exc
+    return name, tuple(values) if isinstance(kind, tuple) else values[0]
 
 
 def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) -> CommPolicy:
@@ -212,7 +240,8 @@ def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) ->
     ``env`` (a :class:`netsense.env.pettingzoo_env.NetSenseEnv` or a
     :class:`netsense.engine.core.BatchedCore` in a communication-only mode).
 
-    ``seed`` seeds ``bernoulli`` (a sequence: one generator per batch member).
+    ``seed`` seeds ``bernoulli`` and ``aloha`` (a sequence: one generator per batch
+    member).
     """
     core = getattr(env, "core", env)
     comm = getattr(core, "comm", None)
@@ -222,6 +251,7 @@ def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) ->
                          "override with control={'mode': 'transmit'})")
     name, knob = parse_spec(spec)
     args = (core.layout, comm.width, core.horizon)
+    is_source = np.bincount(core.block_of, minlength=core.N) > 0
     if name == "always":
         return TransmitAll(*args)
     if name == "never":
@@ -231,8 +261,16 @@ def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) ->
     if name == "bernoulli":
         return Bernoulli(*args, p=knob, seed=seed)
     if name == "sources":
-        is_source = np.bincount(core.block_of, minlength=core.N) > 0
         return SourcesFirst(*args, is_source=is_source, relay_period=knob)
     if name == "event":
         return EventTriggered(*args, threshold=knob)
+    if name == "until":
+        return Until(*args, stop=knob[0], threshold=knob[1])
+    if name == "settle":
+        return Settle(*args, A_bar=core.model.design.decomposition.A_bar, eps=knob[0],
+                      window=knob[1])
+    if name == "aloha":
+        return ThresholdAloha(*args, g=knob[0], q=knob[1], capacity=core.capacity, seed=seed)
+    if name == "tdma":
+        return Tdma(*args, is_source=is_source, capacity=core.capacity, stretch=knob)
     return AgeScheduler(*args, slots=knob, index=name, columns=~core.comm.empty)

@@ -103,7 +103,10 @@ field               size       content
 
 ``symlog(v) = sign(v) log(1 + |v|)``; all entries are clipped to ``[-1000, 1000]``. The
 communication-only modes append ``news`` (M), ``silence``, ``channel_load``, ``collided``
-and ``agent_id`` (:class:`netsense.engine.control.CommControl`; ``layout.comm_table()``).
+and ``agent_id`` (:class:`netsense.engine.control.CommControl`; ``layout.comm_table()``),
+then ``next_out`` (N, the agent's out-links in ``G[k+1]``) with ``[control] announce =
+true`` and ``acks`` (N, delivery of its message of step ``k`` per out-link: 1 delivered,
+-1 lost, 0 no link or not sent) with ``feedback = true``.
 :attr:`NetSenseEnv.layout` (:class:`netsense.engine.model.ObsLayout`) gives the slices.
 
 Rewards
@@ -124,7 +127,7 @@ Episode End
 Truncation after ``horizon`` steps. Termination when the scenario sets
 ``divergence_limit`` and some agent's normalised error exceeds it, or when the plant
 state or an estimate stops being finite (numerical health, below). Then ``agents`` is
-empty until :meth:`reset`.
+empty until :meth:`NetSenseEnv.reset`.
 
 Numerical health: an unstable plant run long, or an estimate that blows up, reaches inf or
 NaN; that never passes silently. By default (``nonfinite="terminate"``) the episode ends
@@ -161,7 +164,7 @@ Bad arguments (``reset(seed=-1)``, ``seed=1.5``, ``seed="abc"``, an action of th
 shape or value, unknown agents) raise ``ValueError`` naming the argument before anything
 changes; the env keeps stepping exactly as before the call.
 
-With ``aoi_info=True``, ``infos[agent]["aoi"]`` (also after :meth:`reset`) holds the
+With ``aoi_info=True``, ``infos[agent]["aoi"]`` (also after :meth:`NetSenseEnv.reset`) holds the
 agent's age of information over the steps ``0..k`` of the episode so far, exactly
 :func:`netsense.graphs.aoi.aoi_stats` of its freshness-index history (the running form,
 :class:`RunningAoI`, merges one ``aoi_stats`` call per step):
@@ -195,6 +198,10 @@ Version History
   ``reward.substate_cost``, first used by ``comm_process_noise-v0``, ``comm_substates-v0``
   and ``comm_channel_k2-v0``; every existing scenario keeps full control, its spaces and
   its realisations.
+* ``[control] announce`` and ``feedback`` (observation fields ``next_out``, ``acks``),
+  per-sender arrival channels (``scope = "sender"``) and a plant noise input ``W``, first
+  used by ``comm_announced-v0``, ``comm_fading-v0`` and ``comm_schedule-v0``; off by
+  default, every existing scenario keeps its spaces and realisations.
 """
 
 from __future__ import annotations

@@ -21,7 +21,8 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     kind = "fig1_scalar"               # a = 2.0
     # kind = "random_structured"       # n, num_agents, seed, [num_sources,
     #                                    outputs_per_source, spectral_radius]
-    # kind = "matrices"                # A = [[...]], C = [[[...]], [], ...] (one per agent)
+    # kind = "matrices"                # A = [[...]], C = [[[...]], [], ...] (one per agent),
+    #                                    [W = [[...]]: x[k+1] = A x[k] + W w[k], n x p]
 
     [graph]                            # required; netsense.graphs.spec.graph_process_from_dict
     kind = "fig1"                      # or periodic / random_jsc / markov / gossip;
@@ -71,6 +72,8 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     [control]                          # netsense.engine.control.Control
     mode = "full"                      # or "transmit" / "substates": communication only
     fusion = "freshness"               # the adoption rule then: or "uniform" / "tree"
+    announce = false                   # observation field next_out: out-links in G[k+1]
+    feedback = false                   # observation field acks: delivery per out-link
 
     [channel]                          # netsense.engine.control.Channel (default: none)
     capacity = 2                       # at most K senders per step, else all messages lost
@@ -107,7 +110,7 @@ _PLANT_FIELDS = {
     "fig1_scalar": ({"kind"}, {"a"}),
     "random_structured": ({"kind", "n", "num_agents", "seed"},
                           {"num_sources", "outputs_per_source", "spectral_radius"}),
-    "matrices": ({"kind", "A", "C"}, set()),
+    "matrices": ({"kind", "A", "C"}, {"W"}),
 }
 #: ``[source_estimator]`` kinds: (required, optional) fields besides ``kind``.
 _SOURCE_FIELDS = {
@@ -306,15 +309,18 @@ def _build_control(control: dict, channel: dict, source: str):
     :class:`~netsense.engine.control.Channel` (or None); errors name the field."""
     from netsense.engine.control import Channel, Control
 
-    for sec, tab, allowed in (("control", control, {"mode", "fusion"}),
+    for sec, tab, allowed in (("control", control, {"mode", "fusion", "announce",
+                                                     "feedback"}),
                               ("channel", channel, {"capacity"})):
         for k in sorted(set(tab) - allowed):
             raise _err(source, f"{sec}.{k}", f"unknown key; allowed: {sorted(allowed)}")
     try:
         ctl = Control(**control)
     except ValueError as exc:
-        raise _err(source, "control." + ("fusion" if "fusion" in str(exc).split("must")[0]
-                                         else "mode"), str(exc)) from exc
+        head = str(exc).split("must")[0].split(" adds")[0]
+        name = next((k for k in ("fusion", "announce", "feedback") if f"control.{k}" in head),
+                    "mode")
+        raise _err(source, f"control.{name}", str(exc)) from exc
     if not channel:
         return ctl, None
     if "capacity" not in channel:
@@ -449,7 +455,16 @@ def build_plant(sc: Scenario):
             plant = random_structured(n, N, rng=seed, **p)
         else:
             A, Cs = _matrices(p["A"], p["C"], src)
-            plant = Plant(A=A, C=Cs, name=sc.id)
+            W = None
+            if "W" in p:
+                W = p["W"]
+                if (not isinstance(W, list) or not W or not all(isinstance(r, list) for r in W)
+                        or len(W) != len(A) or len({len(r) for r in W}) != 1
+                        or not all(_numbers(v) for r in W for v in r)):
+                    raise _err(src, "plant.W", f"must be a table of n = {len(A)} rows of "
+                               f"numbers, all of one length (the noise inputs), got {W!r:.80}")
+                W = np.array(W, dtype=float)
+            plant = Plant(A=A, C=Cs, W=W, name=sc.id)
     except MemoryError:
         raise _err(src, "plant", "too large: building it needs more memory than is "
                    "available") from None

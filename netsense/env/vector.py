@@ -13,9 +13,10 @@ class                   what it is
 :func:`make_sb3_vec_env`  a Stable-Baselines3 ``VecEnv`` with the same ``B x N`` slots and an
                         ``action_masks()`` method, so ``sb3_contrib.MaskablePPO`` trains on it
                         directly (SB3 is imported only when this is called)
-:func:`rollout_seeds`   benchmark episodes of many seeds as one batch (scripted policies
-                        and the KF oracle); the records equal the benchmark's per seed
 ======================  ======================================================================
+
+Benchmark episodes of many seeds run as one batch in the same way
+(:func:`netsense.benchmark.batched.rollout_seeds`; the records equal the benchmark's per seed).
 
 No rule is re-implemented here: every step is one call of :meth:`BatchedCore.step` on the
 whole batch, and resets go through :meth:`BatchedCore.reset` with a member mask.

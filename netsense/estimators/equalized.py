@@ -242,7 +242,7 @@ class EqualizedRecoveryEstimator:
     def step(self, arrivals: Mapping[int, np.ndarray] | None = None,
              u: np.ndarray | None = None) -> np.ndarray:
         """Process the measurements arriving at step ``k`` (``{i: z_i}``, ``i <= k``) and
-        return ``x^_{k+1}`` (eqs. (4)-(5)); :attr:`bound` then bounds its error."""
+        return ``x^_{k+1}`` (eqs. (4)-(5)); ``self.bound`` then bounds its error."""
         got = self._check(arrivals, u)
         Bu = 0.0 if u is None else self.B @ np.asarray(u, dtype=float)
         if self.mode == "performance":

@@ -124,6 +124,8 @@ class DistributedObserver:
     def step(self, y, adjacency, *, transmit=None, arrived=None, u=None) -> None:
         """Advance every agent's estimate and indices from ``k`` to ``k + 1``.
 
+        All inputs are validated before any state changes.
+
         Parameters
         ----------
         y : (N, r_max) array, list of N vectors, or (B, N, r_max)
@@ -136,8 +138,6 @@ class DistributedObserver:
             Whose measurement arrived (default all).
         u : (m,) or (B, m) array, optional
             Known input, if the plant has ``B``.
-
-        All inputs are validated before any state changes.
         """
         y = self._measurements(y)
         adj = self._batch("adjacency", adjacency, (self.N, self.N), bool)

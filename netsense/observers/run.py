@@ -148,7 +148,8 @@ def steps_to_tolerance(rel_err: np.ndarray, eps: float) -> np.ndarray:
     """First step from which ``rel_err`` stays below ``eps`` to the end, ``(B,)`` int.
 
     ``-1`` if it is not below ``eps`` at the last step. Compare with
-    :func:`corollary1_bound` (deadbeat gains) or :func:`theorem1_onset`.
+    :func:`netsense.graphs.bounds.corollary1_bound` (deadbeat gains) or
+    :func:`netsense.graphs.bounds.theorem1_onset`.
     """
     if eps <= 0:
         raise ValueError(f"eps must be > 0, got {eps}")

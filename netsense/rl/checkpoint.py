@@ -41,7 +41,7 @@ def save_checkpoint(path: Path, config: PPOConfig, actor_net, critic, it: int, s
 
 
 def read_policy(path: str | Path) -> dict:
-    """The contents of a ``policy.pt`` / checkpoint of :func:`train_ppo`, checked.
+    """The contents of a ``policy.pt`` / checkpoint of :func:`~netsense.rl.ppo.train_ppo`, checked.
 
     Raises ``ValueError`` naming the file when it is missing, unreadable or not a
     checkpoint of this trainer.
@@ -83,7 +83,7 @@ class BatchedPolicy:
     Parameters
     ----------
     path : path
-        ``policy.pt`` or a checkpoint of :func:`train_ppo`.
+        ``policy.pt`` or a checkpoint of :func:`~netsense.rl.ppo.train_ppo`.
     core : optional
         The core the policy will act on (default: one of the training scenario). A set
         network runs on any layout of its kind (communication fields or not) and action

@@ -82,7 +82,7 @@ class PPOConfig:
         Evaluation episodes (one batch, deterministic actions, seeds from
         :data:`EVAL_SEED`).
     bc : str or None
-        Scripted policy to clone before PPO (:func:`scripted_actions`).
+        Scripted policy to clone before PPO (:func:`~netsense.rl.scripted.scripted_actions`).
     bc_steps, bc_epochs, bc_minibatch : int
         Env-steps of scripted data (split over ``num_envs`` members; each holds ``N``
         agent-steps), passes over it, env-steps per gradient step. The defaults clone a

@@ -28,9 +28,9 @@ wall time, throughput, training return, error, messages, losses, entropy, evalua
 columns when evaluated: ``eval_*`` with the most likely actions, ``eval_sampled_*`` with
 sampled ones), TensorBoard events under ``tb/`` when ``tensorboard`` or
 ``tensorboardX`` is installed, ``checkpoint_<iter>.pt`` at every evaluation and
-``policy.pt`` at the end (:func:`load_policy` reads them), ``config.json``. The learner
-runs on CUDA when ``torch.cuda.is_available()`` (``device="auto"``); the core always
-runs on the CPU.
+``policy.pt`` at the end (:func:`~netsense.rl.checkpoint.load_policy` reads them),
+``config.json``. The learner runs on CUDA when ``torch.cuda.is_available()``
+(``device="auto"``); the core always runs on the CPU.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ Local use::
 
 On a cluster, start Ray (``ray start --head`` on the head node, ``ray start
 --address=HEAD:6379`` on the workers), then run the same script on the head node with
-``ray.init(address="auto")`` (``experiments/rllib_example.py --address auto``) and raise
+``ray.init(address="auto")`` (``experiments/rl/rllib_example.py --address auto``) and raise
 ``num_env_runners`` to the number of worker CPUs you want sampling. Needs the ``rllib``
 extra (``pip install torch==2.13.0 && pip install -e ".[rllib]"``).
 """

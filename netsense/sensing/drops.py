@@ -13,6 +13,10 @@ paper), ``False`` means "dropped".
 
 Each entry of ``shape`` is an independent channel; a sampler draws one step at a time and
 keeps its own channel state, so it is cheap to pickle and to reuse inside environments.
+With ``scope = "sender"`` (message arrivals, ``shape = (receivers, senders)``) there is one
+channel per *sender*, shared by all its out-links: entry ``[i, l]`` is the draw of sender
+``l`` (a sender's radio in a fade loses every message it sends, and its delivery history
+tells it so).
 """
 
 from __future__ import annotations
@@ -39,6 +43,33 @@ def _probability(owner: str, name: str, value: Any) -> float:
     if not (np.isfinite(value) and 0.0 <= value <= 1.0):
         raise ValueError(f"{owner}.{name} must be a number in [0, 1], got {value!r}")
     return value
+
+
+SCOPES = ("link", "sender")
+
+
+def _scope(owner: str, value: Any) -> str:
+    if value not in SCOPES:
+        raise ValueError(f"{owner}.scope must be one of {SCOPES}, got {value!r}")
+    return value
+
+
+class _PerSender(ArrivalSampler):
+    """One channel per sender (last axis), broadcast over the receivers."""
+
+    def __init__(self, inner: ArrivalSampler, shape: tuple[int, ...]) -> None:
+        self.inner = inner
+        self.shape = shape
+
+    def next(self) -> np.ndarray:
+        return np.broadcast_to(self.inner.next(), self.shape).copy()
+
+
+def _scoped(make, rng: np.random.Generator, shape: tuple[int, ...], scope: str
+            ) -> ArrivalSampler:
+    if scope == "link" or len(shape) < 2:
+        return make(rng, shape)
+    return _PerSender(make(rng, shape[-1:]), shape)
 
 
 def _shape(shape: Any) -> tuple[int, ...]:
@@ -73,12 +104,16 @@ class BernoulliArrivals(ArrivalModel):
         Arrival probability in [0, 1] (the paper's ``E{gamma_t}``; 0.8 in section IV).
         The loss rate is ``1 - p``; the mean burst length of consecutive drops is
         ``1 / p`` (geometric).
+    scope : {"link", "sender"}, default "link"
+        One channel per entry, or (messages) one per sender (module docstring).
     """
 
     p: float
+    scope: str = "link"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "p", _probability("BernoulliArrivals", "p", self.p))
+        _scope("BernoulliArrivals", self.scope)
 
     @property
     def loss_rate(self) -> float:
@@ -90,11 +125,15 @@ class BernoulliArrivals(ArrivalModel):
         """Mean length of a run of consecutive drops, ``1 / p`` (``inf`` if ``p = 0``)."""
         return float("inf") if self.p == 0 else 1.0 / self.p
 
-    def sampler(self, rng: np.random.Generator, shape: tuple[int, ...]) -> BernoulliSampler:
-        return BernoulliSampler(self.p, rng, _shape(shape))
+    def sampler(self, rng: np.random.Generator, shape: tuple[int, ...]) -> ArrivalSampler:
+        return _scoped(lambda g, sh: BernoulliSampler(self.p, g, sh), rng, _shape(shape),
+                       self.scope)
 
     def to_dict(self) -> dict:
-        return {"kind": "bernoulli", "p": self.p}
+        out = {"kind": "bernoulli", "p": self.p}
+        if self.scope != "link":
+            out["scope"] = self.scope
+        return out
 
 
 # ------------------------------------------------------------------- Gilbert-Elliott
@@ -144,6 +183,9 @@ class GilbertElliottArrivals(ArrivalModel):
     start : {"stationary", "good", "bad"}, default "stationary"
         Initial channel state of every entry; "stationary" draws it from the stationary law
         so the arrival process is stationary from the first step.
+    scope : {"link", "sender"}, default "link"
+        One channel per entry, or (messages) one per sender, shared by its out-links
+        (module docstring).
 
     Notes
     -----
@@ -157,6 +199,7 @@ class GilbertElliottArrivals(ArrivalModel):
     loss_good: float = 0.0
     loss_bad: float = 1.0
     start: str = "stationary"
+    scope: str = "link"
 
     def __post_init__(self) -> None:
         for name in ("p_good_to_bad", "p_bad_to_good", "loss_good", "loss_bad"):
@@ -168,6 +211,7 @@ class GilbertElliottArrivals(ArrivalModel):
         if self.start not in ("stationary", "good", "bad"):
             raise ValueError("GilbertElliottArrivals.start must be 'stationary', 'good' or "
                              f"'bad', got {self.start!r}")
+        _scope("GilbertElliottArrivals", self.scope)
 
     @property
     def stationary_bad(self) -> float:
@@ -192,11 +236,12 @@ class GilbertElliottArrivals(ArrivalModel):
                              "loss_bad = 1 (the Gilbert channel)")
         return float("inf") if self.p_bad_to_good == 0 else 1.0 / self.p_bad_to_good
 
-    def sampler(self, rng: np.random.Generator, shape: tuple[int, ...]) -> GilbertElliottSampler:
-        return GilbertElliottSampler(self, rng, _shape(shape))
+    def sampler(self, rng: np.random.Generator, shape: tuple[int, ...]) -> ArrivalSampler:
+        return _scoped(lambda g, sh: GilbertElliottSampler(self, g, sh), rng, _shape(shape),
+                       self.scope)
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "kind": "gilbert_elliott",
             "p_good_to_bad": self.p_good_to_bad,
             "p_bad_to_good": self.p_bad_to_good,
@@ -204,13 +249,17 @@ class GilbertElliottArrivals(ArrivalModel):
             "loss_bad": self.loss_bad,
             "start": self.start,
         }
+        if self.scope != "link":
+            out["scope"] = self.scope
+        return out
 
 
 # --------------------------------------------------------------------------- factory
 _FIELDS = {
     "always": ((), ()),
-    "bernoulli": (("p",), ()),
-    "gilbert_elliott": (("p_good_to_bad", "p_bad_to_good"), ("loss_good", "loss_bad", "start")),
+    "bernoulli": (("p",), ("scope",)),
+    "gilbert_elliott": (("p_good_to_bad", "p_bad_to_good"),
+                        ("loss_good", "loss_bad", "start", "scope")),
 }
 
 
@@ -222,7 +271,8 @@ def arrival_from_dict(spec: dict) -> ArrivalModel:
     spec : dict
         ``{"kind": "bernoulli", "p": 0.8}``, ``{"kind": "gilbert_elliott",
         "p_good_to_bad": ..., "p_bad_to_good": ..., ["loss_good", "loss_bad", "start"]}`` or
-        ``{"kind": "always"}``; ``{"kind": "multirate", ...}`` is dispatched (lazily) to
+        ``{"kind": "always"}``; Bernoulli and Gilbert-Elliott take ``"scope": "sender"``
+        (one channel per sender); ``{"kind": "multirate", ...}`` is dispatched (lazily) to
         :func:`netsense.sensing.multirate.multirate_from_dict`.
 
     Raises

@@ -38,7 +38,7 @@ re-exported here.
 
 Run ``python -m netsense.speed`` or :func:`main`; ``netsense bench batched`` is this
 package's :data:`HELP`, :func:`add_arguments` and :func:`run` (the :mod:`netsense.cli`
-contract), and ``experiments/bench_batched.py`` adds the profile, the scaling figure, the
+contract), and ``experiments/bench/batched.py`` adds the profile, the scaling figure, the
 memory figures and the CSV files.
 
 Tool layer. May import every layer up to :mod:`netsense.env`, and the tools ``grid``,

@@ -1,6 +1,6 @@
 """The paper's illustrative example (Section III, Figs. 1-2) as a reusable simulation.
 
-Used by ``netsense demo`` and ``experiments/fig2_consensus_vs_freshness.py``.
+Used by ``netsense demo`` and ``experiments/papers/freshness_fig2.py``.
 """
 
 from __future__ import annotations

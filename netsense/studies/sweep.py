@@ -7,7 +7,7 @@ and returns one row per seed with the measured trigger step, worst index, steps 
 tolerance, messages, adoptions and ages beside the paper's bounds
 (:mod:`netsense.graphs.bounds`). :func:`run_sweep` runs many cases in worker processes with
 a progress bar; :func:`summarize` and :func:`write_csv` reduce and store the rows. Behind
-``netsense sweep`` and ``experiments/topology_sweep.py``.
+``netsense sweep`` and ``experiments/studies/topology_sweep.py``.
 """
 
 from __future__ import annotations
