@@ -261,7 +261,7 @@ def test_cli_ray_flags_become_launch_options():
 def test_bench_parallel_runs_report_by_hand():
     from experiment_loader import load_experiment
 
-    mod = load_experiment("bench_parallel_runs")
+    mod = load_experiment("bench/parallel_runs")
     rows = [{"round": 0, "condition": "alone", "runs_at_once": 1, "agent_steps_per_s": 100},
             {"round": 0, "condition": "pair", "runs_at_once": 2, "agent_steps_per_s": 50},
             {"round": 0, "condition": "pair", "runs_at_once": 2, "agent_steps_per_s": 80},
@@ -278,7 +278,7 @@ def test_bench_parallel_runs_report_by_hand():
 def test_bench_parallel_runs_smoke(tmp_path):
     from experiment_loader import load_experiment
 
-    mod = load_experiment("bench_parallel_runs")
+    mod = load_experiment("bench/parallel_runs")
     path = mod.main(["--smoke", "--out", str(tmp_path)])
     with path.open() as fh:
         rows = list(csv.DictReader(fh))

@@ -34,8 +34,8 @@ cores that is the aim.
 Writes ``bench_parallel_runs.csv`` (one row per run), ``.txt`` (per condition: median,
 min and max throughput and slowdown) and ``.png`` into ``--out``::
 
-    python experiments/bench_parallel_runs.py             # about 5 minutes on 2 cores
-    python experiments/bench_parallel_runs.py --smoke --out /tmp/x   # plumbing, no timing
+    python experiments/bench/parallel_runs.py             # about 6.5 minutes on 2 cores
+    python experiments/bench/parallel_runs.py --smoke --out /tmp/x   # plumbing, no timing
 """
 
 # %%
@@ -48,7 +48,7 @@ import statistics
 import tempfile
 from pathlib import Path
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "parallel_runs"
 #: condition -> (runs at once, launcher threads, PPOConfig torch / numba threads)
 CONDITIONS = {
     "alone": (1, 1, 1),
