@@ -131,6 +131,7 @@ RL_STAGES = (
     ("runlog",),
     ("checkpoint",),
     ("ppo",),
+    ("launch",),
     ("mappo", "models", "torchrl_batched"),
 )
 

@@ -6,20 +6,24 @@ ray = pytest.importorskip("ray")
 pytest.importorskip("ray.rllib")
 
 
-def test_rllib_one_iteration_with_shared_masked_policy():
-    from netsense.rl.rllib import POLICY_ID, ppo_config, train
-
+@pytest.fixture(scope="module")
+def local_ray():
+    """One local Ray instance (one CPU) for the module: starting Ray takes seconds."""
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False,
              ignore_reinit_error=True)
-    try:
-        cfg = ppo_config("fig1_scalar-v0", overrides={"horizon": 10}, train_batch_size=120,
-                         minibatch_size=60, num_epochs=1)
-        assert set(cfg.policies) == {POLICY_ID}
-        assert cfg.policy_mapping_fn("sensor_2", None) == POLICY_ID
-        # the env raises on a masked action, so a finished iteration never sampled one
-        out = train(cfg, iterations=1)
-    finally:
-        ray.shutdown()
+    yield
+    ray.shutdown()
+
+
+def test_rllib_one_iteration_with_shared_masked_policy(local_ray):
+    from netsense.rl.rllib import POLICY_ID, ppo_config, train
+
+    cfg = ppo_config("fig1_scalar-v0", overrides={"horizon": 10}, train_batch_size=120,
+                     minibatch_size=60, num_epochs=1)
+    assert set(cfg.policies) == {POLICY_ID}
+    assert cfg.policy_mapping_fn("sensor_2", None) == POLICY_ID
+    # the env raises on a masked action, so a finished iteration never sampled one
+    out = train(cfg, iterations=1)
     assert out[0]["env_steps"] >= 120
     assert out[0]["episode_return_mean"] is not None
 
@@ -35,7 +39,7 @@ def test_rllib_observation_keys_match_the_masking_module():
     assert all(space.contains(o) for o in obs.values())
 
 
-def test_benchmark_ray_backend_matches_serial():
+def test_benchmark_ray_backend_matches_serial(local_ray):
     import numpy as np
 
     from netsense import benchmark as bm
@@ -43,12 +47,7 @@ def test_benchmark_ray_backend_matches_serial():
     jobs = bm.make_jobs(["fig1_scalar-v0"], ["freshness", "random"], [0, 1],
                         overrides={"horizon": 10})
     serial = bm.execute(jobs, backend="serial", progress=False)
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False,
-             ignore_reinit_error=True)
-    try:
-        remote = bm.execute(jobs, backend="ray", progress=False)
-    finally:
-        ray.shutdown()
+    remote = bm.execute(jobs, backend="ray", progress=False)
     for a, b in zip(serial, remote, strict=True):
         assert a["job"] == b["job"]
         np.testing.assert_equal(a["metrics"], b["metrics"])

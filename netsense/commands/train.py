@@ -7,6 +7,7 @@ import json
 
 from netsense.commands._args import (
     finite_float,
+    nonnegative_float,
     nonnegative_int,
     positive_float,
     positive_int,
@@ -40,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None,
                         metavar="SEED",
                         help="torchrl: train one run per seed into OUT/seed_<s> (default: "
-                             "--seed)")
+                             "--seed); --workers or --ray trains them at once")
     parser.add_argument("--num-envs", type=positive_int, default=4,
                         help="environment copies stepped together (default: 4)")
     parser.add_argument("--n-steps", type=positive_int, default=128,
@@ -81,6 +82,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          "fine-tuning")
     tr.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
                     help="learner device (auto: CUDA when available)")
+    many = parser.add_argument_group(
+        "many runs (torchrl backend; the learning library is --backend's choice, these "
+        "choose where the runs of --seeds train)")
+    many.add_argument("--workers", type=positive_int, default=1, metavar="K",
+                      help="runs trained at once on this machine, each in its own process "
+                           "with one thread per thread pool, so K runs use K cores "
+                           "(default: 1, one run after another in this process)")
+    many.add_argument("--ray", default=None, metavar="ADDRESS",
+                      help="train each run as a Ray task instead: 'local' starts Ray on "
+                           "this machine, 'auto' joins the cluster of `ray start` on this "
+                           "machine, HOST:6379 a cluster's head, ray://HOST:10001 connects a "
+                           "Ray client. The runs' files come back to OUT on this machine "
+                           "(docs/rl.md, 'Many runs: worker processes and a Ray cluster')")
+    many.add_argument("--cpus-per-run", type=positive_int, default=1, metavar="CPUS",
+                      help="--ray: CPU cores each run reserves, and the threads of each of "
+                           "its thread pools (default: 1)")
+    many.add_argument("--gpus-per-run", type=nonnegative_float, default=0.0, metavar="GPUS",
+                      help="--ray: GPUs each run reserves, a fraction shares one (default: "
+                           "0, the learner on the CPU)")
 
 
 def parse_overrides(items: list[str]) -> dict:
@@ -114,6 +134,9 @@ def run(args: argparse.Namespace) -> int:
     overrides = _check_inputs(args)
     if args.backend == "torchrl":
         return _run_torchrl(args, overrides)
+    if args.seeds or args.workers != 1 or args.ray is not None:
+        raise ValueError("--seeds, --workers and --ray train several runs with --backend "
+                         "torchrl; --backend sb3 trains one (--seed)")
     if args.algo not in (None, "maskable_ppo"):
         raise ValueError(f"--algo {args.algo} needs --backend torchrl")
     args.algo = "maskable_ppo"
@@ -136,40 +159,57 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _launch_options(args: argparse.Namespace) -> dict:
+    """The launcher flags as :func:`netsense.rl.launch.launch` keywords (checked)."""
+    if args.ray is not None and args.workers != 1:
+        raise ValueError("--workers K runs K processes on this machine; with --ray, Ray "
+                         "places the runs (use --cpus-per-run)")
+    if args.ray is None and (args.cpus_per_run != 1 or args.gpus_per_run):
+        raise ValueError("--cpus-per-run and --gpus-per-run reserve Ray resources; they "
+                         "need --ray ADDRESS")
+    if args.ray is None:
+        return {"workers": args.workers}
+    resources = {"num_cpus": args.cpus_per_run}
+    if args.gpus_per_run:
+        resources["num_gpus"] = args.gpus_per_run
+    return {"ray_address": args.ray, "resources": resources, "threads": args.cpus_per_run}
+
+
 def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
     from pathlib import Path
 
     from netsense.rl.config import PPOConfig
-    from netsense.rl.ppo import train_ppo
+    from netsense.rl.launch import launch, make_runs
 
     algo = args.algo or "mappo"
     if algo == "maskable_ppo":
         raise ValueError("--algo maskable_ppo needs --backend sb3")
+    where = _launch_options(args)
     seeds = args.seeds if args.seeds else [args.seed]
     out = Path(args.out if args.out is not None else f"runs/{args.scenario}")
-    summary = []
-    for seed in seeds:
-        cfg = PPOConfig(scenario=args.scenario, algo=algo, network=args.network,
-                        control=args.control, reward=args.reward, critic=args.critic,
-                        steps=args.steps, seed=seed, num_envs=args.num_envs,
-                        rollout=args.rollout, epochs=args.epochs, minibatch=args.batch_size,
-                        lr=args.lr, gamma=args.gamma, entropy_coef=args.ent_coef,
-                        eval_interval=args.eval_interval, eval_envs=args.eval_envs,
-                        bc=args.bc, device=args.device,
-                        overrides=overrides)
-        if args.bc:
-            cfg = cfg.conservative()
-        res = train_ppo(cfg, out / f"seed_{seed}", progress=not args.no_progress)
-        last = res.rows[-1]
-        summary.append({"seed": seed, **{k: last.get(k) for k in (
-            "eval_return", "eval_error", "eval_messages", "eval_sampled_return",
-            "eval_sampled_error", "eval_sampled_messages")},
-            "agent_steps_per_s": round(res.agent_steps_per_s, 1),
-            "mask_violations": res.mask_violations})
-        print(f"seed {seed}: {algo}/{args.network} on {args.scenario}, {res.agent_steps} "
-              f"agent-steps in {res.wall_s:.1f} s; eval return {last.get('eval_return'):.4g}, "
-              f"error {last.get('eval_error'):.3g}, messages/agent-step "
-              f"{last.get('eval_messages'):.3g}; masked actions taken: {res.mask_violations}")
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    cfg = PPOConfig(scenario=args.scenario, algo=algo, network=args.network,
+                    control=args.control, reward=args.reward, critic=args.critic,
+                    steps=args.steps, seed=seeds[0], num_envs=args.num_envs,
+                    rollout=args.rollout, epochs=args.epochs, minibatch=args.batch_size,
+                    lr=args.lr, gamma=args.gamma, entropy_coef=args.ent_coef,
+                    eval_interval=args.eval_interval, eval_envs=args.eval_envs,
+                    bc=args.bc, device=args.device,
+                    overrides=overrides)
+    if args.bc:
+        cfg = cfg.conservative()
+    summary = launch(make_runs(cfg, seeds), out, progress=not args.no_progress, **where)
+    for e in summary:
+        if e["status"] != "ok":
+            print(f"seed {e['seed']}: FAILED: {e['error']}")
+            continue
+        print(f"seed {e['seed']}: {algo}/{args.network} on {args.scenario}, "
+              f"{e['agent_steps']} agent-steps in {e['wall_s']:.1f} s; eval return "
+              f"{e['eval_return']:.4g}, error {e['eval_error']:.3g}, messages/agent-step "
+              f"{e['eval_messages']:.3g}; masked actions taken: {e['mask_violations']}")
     print(f"wrote {out}/seed_*/(log.csv, policy.pt, checkpoints) and {out / 'summary.json'}")
+    failed = [e["seed"] for e in summary if e["status"] != "ok"]
+    if failed:
+        print(f"{len(failed)} of {len(summary)} runs failed (seeds {failed}); their errors "
+              f"and configs are in {out / 'summary.json'}")
+        return 1
     return 0

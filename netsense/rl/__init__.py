@@ -36,6 +36,8 @@ evaluation (``evaluation``)       periodic evaluation during training
 logging (``runlog``)              ``log.csv`` and TensorBoard
 checkpoints (``checkpoint``)      save / read / check policy files, ``BatchedPolicy``
 training loop (``ppo``)           ``train_ppo``: TorchRL's MAPPO / IPPO losses, schedules, logs
+many runs (``launch``)            ``launch``: seeds x configurations in this process, in worker
+                                  processes or as Ray tasks, the same files either way
 ================================  ==================================================================
 
 ``netsense.rl.mappo``, ``netsense.rl.models`` and ``netsense.rl.torchrl_batched`` are the
@@ -45,6 +47,6 @@ Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense
 """
 
 __all__ = ["advantage", "checkpoint", "cloning", "config", "credit", "distributions", "envs",
-           "evaluation", "mappo", "memory", "models", "networks", "policy", "ppo", "rllib",
-           "rollout", "runlog", "sb3", "scripted", "set_network", "torchrl", "torchrl_batched",
-           "wrappers"]
+           "evaluation", "launch", "mappo", "memory", "models", "networks", "policy", "ppo",
+           "rllib", "rollout", "runlog", "sb3", "scripted", "set_network", "torchrl",
+           "torchrl_batched", "wrappers"]

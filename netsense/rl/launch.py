@@ -1,0 +1,342 @@
+"""Training pipeline, stage *launch*: many runs (seeds x configurations) at once.
+
+:func:`launch` trains a list of :class:`Run` (a :class:`PPOConfig` and an optional name;
+:func:`make_runs` builds seeds x configurations) with :func:`netsense.rl.ppo.train_ppo`
+
+* in this process, one run after another (``workers=1``, the default);
+* in ``workers`` processes on this machine (spawned, not forked), each started with its
+  thread pools sized to ``threads`` (:data:`THREAD_VARS`, read by OpenBLAS, MKL,
+  OpenMP, numba and netsense's compiled passes when they load, so they are set in the
+  environment the process starts with, before it imports numpy, numba or torch);
+* or as Ray tasks (``ray_address``; each asks for ``resources``, one CPU by default, and
+  starts with the same thread variables). A task trains into a temporary folder on the
+  node that runs it and sends the run's files back with its result; this process writes
+  them. So ``out`` need only exist where :func:`launch` runs: no shared filesystem.
+
+Every way writes the same files: each run's folder ``OUT/seed_<s>`` (unnamed runs) or
+``OUT/<name>/seed_<s>`` with what :func:`train_ppo` writes (``config.json``,
+``log.csv``, checkpoints, ``policy.pt``, the run's ``summary.json``), and
+``OUT/summary.json``: one entry per run, in the order given, with its status. Seeded
+training on the CPU is deterministic, so the weights and the log's non-timing columns
+are the same too (``tests/test_rl_launch.py``). A run that raises is recorded
+(``status: "failed"``, its error, traceback and config) and the others go on; one tqdm bar
+counts finished runs (the runs' own bars only in this process).
+
+Imports: :mod:`netsense.rl.config` and :mod:`netsense.rl.ppo`; Ray on demand.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+import traceback
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+from netsense.rl.config import PPOConfig
+from netsense.rl.ppo import train_ppo
+
+__all__ = ["FINAL_COLUMNS", "THREAD_VARS", "Run", "launch", "make_runs", "thread_env"]
+
+#: Environment variables that size a process's thread pools when their library loads
+#: (BLAS, OpenMP (torch's intra-op pool too), numba, netsense's compiled passes). Worker
+#: processes and Ray tasks start with each set to ``threads`` unless the user set it.
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+               "NUMBA_NUM_THREADS", "NETSENSE_NUM_THREADS")
+#: Last-row columns of a run's log copied into ``OUT/summary.json``.
+FINAL_COLUMNS = ("eval_return", "eval_error", "eval_messages", "eval_sampled_return",
+                 "eval_sampled_error", "eval_sampled_messages")
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One training run: ``config`` (its ``seed`` included) and an optional ``name``
+    (the configuration's folder: letters, digits, ``_`` and ``-``, not ``seed_...``)."""
+
+    config: PPOConfig
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.config, PPOConfig):
+            raise TypeError(f"Run.config must be a PPOConfig, got {type(self.config).__name__}")
+        if self.name is not None and (not isinstance(self.name, str)
+                                      or not _NAME.fullmatch(self.name)
+                                      or self.name.startswith("seed_")):
+            raise ValueError(f"Run.name must be letters, digits, '_' and '-' (a folder "
+                             f"name, not starting with 'seed_'), got {self.name!r}")
+
+    @property
+    def folder(self) -> str:
+        """The run's folder relative to the launch's ``out``."""
+        leaf = f"seed_{self.config.seed}"
+        return leaf if self.name is None else f"{self.name}/{leaf}"
+
+
+def make_runs(configs: PPOConfig | Mapping[str, PPOConfig], seeds: Sequence[int]) -> list[Run]:
+    """Seeds x configurations: one :class:`Run` per (configuration, seed), configurations
+    outer. A single :class:`PPOConfig` gives unnamed runs (``OUT/seed_<s>``); a mapping
+    ``{name: config}`` named ones (``OUT/<name>/seed_<s>``). The configs' own seeds are
+    replaced."""
+    seeds = list(seeds)
+    if not seeds:
+        raise ValueError("make_runs: seeds must name at least one seed")
+    if isinstance(configs, PPOConfig):
+        return [Run(replace(configs, seed=s)) for s in seeds]
+    if not isinstance(configs, Mapping) or not configs:
+        raise TypeError("make_runs: configs must be a PPOConfig or a non-empty mapping "
+                        f"name -> PPOConfig, got {configs!r}")
+    return [Run(replace(cfg, seed=s), name) for name, cfg in configs.items() for s in seeds]
+
+
+def _final(entry: dict, rows: list[dict]) -> None:
+    last = rows[-1] if rows else {}
+    entry.update({k: last.get(k) for k in FINAL_COLUMNS})
+
+
+def _train_one(run: Run, folder: str | None, progress: bool = False) -> dict:
+    """Train ``run`` into ``folder``; ``None``: into a temporary folder whose files come
+    back in the entry's ``files`` (relative path -> bytes). Never raises for a failed
+    run: the entry says ``status: "failed"`` with the error. Module level: worker
+    processes and Ray tasks import it by name."""
+    entry: dict = {"name": run.name, "seed": run.config.seed, "folder": run.folder,
+                   "thread_env": {k: os.environ[k] for k in THREAD_VARS if k in os.environ}}
+    tmp = tempfile.mkdtemp(prefix="netsense-run-") if folder is None else None
+    target = Path(tmp if folder is None else folder)
+    try:
+        res = train_ppo(run.config, target, progress=progress)
+        entry["status"] = "ok"
+        _final(entry, res.rows)
+        entry.update({"agent_steps": res.agent_steps, "wall_s": round(res.wall_s, 2),
+                      "agent_steps_per_s": round(res.agent_steps_per_s, 1),
+                      "mask_violations": res.mask_violations})
+    except Exception as exc:  # noqa: BLE001 - a failed run is reported, the others go on
+        entry.update({"status": "failed", "error": f"{type(exc).__name__}: {exc}",
+                      "traceback": traceback.format_exc(),
+                      "config": _as_json(run.config)})
+    if tmp is not None:
+        try:
+            entry["files"] = {p.relative_to(target).as_posix(): p.read_bytes()
+                              for p in sorted(target.rglob("*")) if p.is_file()}
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return entry
+
+
+def _as_json(config: PPOConfig) -> dict:
+    """``config`` as ``config.json`` holds it (tuples as lists)."""
+    return json.loads(json.dumps(asdict(config), default=list))
+
+
+def _died(run: Run, error: str) -> dict:
+    """The entry of a run whose worker process died (no traceback of the run's own)."""
+    return {"name": run.name, "seed": run.config.seed, "folder": run.folder,
+            "status": "failed", "error": error, "config": _as_json(run.config)}
+
+
+def _write_files(root: Path, files: dict[str, bytes]) -> None:
+    for rel, data in files.items():
+        path = root / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+
+
+def thread_env(threads: int | None) -> dict[str, str]:
+    """The :data:`THREAD_VARS` a worker starts with: each ``str(threads)`` unless this
+    process's environment sets it (then that value); ``{}`` for ``threads=None``."""
+    if threads is None:
+        return {}
+    return {k: os.environ.get(k, str(threads)) for k in THREAD_VARS}
+
+
+@contextmanager
+def _environment(env: dict[str, str]) -> Iterator[None]:
+    """``env`` in ``os.environ`` while worker processes are spawned (they copy it when
+    they start, before they import anything), then restored."""
+    old = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _positive_int(value, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{what} must be an integer >= 1, got {value!r}")
+    return value
+
+
+def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
+           threads: int | None = 1, ray_address: str | None = None,
+           resources: Mapping | None = None, progress: bool = True) -> list[dict]:
+    """Train ``runs`` into ``out`` (see the module docstring for the files).
+
+    Parameters
+    ----------
+    runs : sequence of Run
+        Their folders must differ (a name and a seed each).
+    out : path
+        Output folder (created).
+    workers : int
+        Runs at once on this machine: 1 trains them in this process, one after another;
+        more starts that many spawned processes. Not with ``ray_address``.
+    threads : int or None
+        Threads of each worker process or Ray task (:data:`THREAD_VARS`, default 1: K
+        runs on K cores do not oversubscribe them); ``None`` leaves the environment as it
+        is. The configs' ``torch_threads`` / ``numba_threads`` choose within it. Not
+        used in this process (``workers=1``).
+    ray_address : str, optional
+        Run each as a Ray task, ``ray.init(address=ray_address)``: ``"local"`` starts a
+        Ray instance on this machine, ``"auto"`` joins the cluster this machine belongs
+        to (``ray start``), ``"HOST:6379"`` a cluster's head, ``"ray://HOST:10001"``
+        connects a Ray client. Where this process has initialised Ray already, its
+        instance is used whatever the address; otherwise :func:`launch` shuts Ray down at
+        the end.
+    resources : mapping, optional
+        Ray resources of each task, ``.options(**resources)`` (default
+        ``{"num_cpus": 1}``; e.g. ``{"num_cpus": 2, "num_gpus": 0.5}``).
+    progress : bool
+        One tqdm bar over runs (and, in this process, each run's own bar).
+
+    Returns
+    -------
+    list of dict
+        The entries of ``OUT/summary.json``, in the order of ``runs``: ``name``,
+        ``seed``, ``folder``, ``thread_env`` (the :data:`THREAD_VARS` set in the process
+        that trained it), ``status`` (``"ok"`` / ``"failed"``), the last row's
+        :data:`FINAL_COLUMNS`, ``agent_steps``, ``wall_s``, ``agent_steps_per_s`` and
+        ``mask_violations``; failed runs ``error``, ``traceback`` and ``config`` instead.
+    """
+    runs = list(runs)
+    if not runs:
+        raise ValueError("launch: runs is empty")
+    for r in runs:
+        if not isinstance(r, Run):
+            raise TypeError(f"launch: runs must be Run objects (make_runs builds them), "
+                            f"got {type(r).__name__}")
+    folders = [r.folder for r in runs]
+    dup = sorted({f for f in folders if folders.count(f) > 1})
+    if dup:
+        raise ValueError(f"launch: runs share output folders {dup} (give each "
+                         "configuration a name and each of its runs its own seed)")
+    workers = _positive_int(workers, "launch: workers")
+    if threads is not None:
+        _positive_int(threads, "launch: threads")
+    if ray_address is not None:
+        if not isinstance(ray_address, str) or not ray_address:
+            raise ValueError(f"launch: ray_address must be 'local', 'auto' or a Ray "
+                             f"address, got {ray_address!r}")
+        if workers != 1:
+            raise ValueError("launch: workers sets the processes on this machine; with "
+                             "ray_address Ray places the runs (set resources instead)")
+    if resources is not None:
+        if ray_address is None:
+            raise ValueError("launch: resources are Ray's; give ray_address too")
+        resources = dict(resources)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    from tqdm.auto import tqdm
+
+    entries: list[dict | None] = [None] * len(runs)
+    bar = tqdm(total=len(runs), desc="runs", unit="run", disable=not progress)
+
+    def write_summary() -> list[dict]:
+        summary = [e for e in entries if e is not None]
+        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        return summary
+
+    def done(i: int, entry: dict) -> None:
+        files = entry.pop("files", None)
+        if files is not None:
+            _write_files(out / runs[i].folder, files)
+        entries[i] = entry
+        write_summary()  # after every run: an interrupted sweep keeps what finished
+        bar.update()
+        failed = sum(e is not None and e["status"] == "failed" for e in entries)
+        if failed:
+            bar.set_postfix(failed=failed)
+
+    try:
+        if ray_address is not None:
+            _on_ray(runs, ray_address, resources or {"num_cpus": 1}, threads, done)
+        elif workers == 1:
+            for i, r in enumerate(runs):
+                done(i, _train_one(r, str(out / r.folder), progress))
+        else:
+            _in_processes(runs, out, workers, threads, done)
+    finally:
+        bar.close()
+    return write_summary()
+
+
+def _in_processes(runs: list[Run], out: Path, workers: int, threads: int | None,
+                  done: Callable[[int, dict], None]) -> None:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    ctx = mp.get_context("spawn")
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(runs)), mp_context=ctx)
+    try:
+        # the pool spawns its processes on submit (spawn context), inside the environment
+        with _environment(thread_env(threads)):
+            futs = {pool.submit(_train_one, r, str(out / r.folder)): i
+                    for i, r in enumerate(runs)}
+        for fut in as_completed(futs):
+            i = futs[fut]
+            try:
+                entry = fut.result()
+            except BrokenProcessPool as exc:  # a worker died: every run not finished fails
+                entry = _died(runs[i], f"{exc} (out of memory? A script that calls launch "
+                                       "with workers > 1 needs its entry point under `if "
+                                       "__name__ == '__main__':`: each worker imports it)")
+            done(i, entry)
+    except BaseException:  # interrupted: start no further run
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
+
+
+def _on_ray(runs: list[Run], address: str, resources: dict, threads: int | None,
+            done: Callable[[int, dict], None]) -> None:
+    import ray
+
+    started = not ray.is_initialized()
+    if started:
+        try:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+        except ConnectionError as exc:
+            raise ConnectionError(
+                f"{exc}; if the cluster uses token authentication, set RAY_AUTH_MODE=token "
+                "here with the head's ~/.ray/auth_token (docs/rl.md, 'A Ray cluster')"
+            ) from exc
+    try:
+        env = thread_env(threads)
+        task = ray.remote(_train_one).options(
+            **resources, max_retries=0,
+            **({"runtime_env": {"env_vars": env}} if env else {}))
+        refs = {task.remote(r, None): i for i, r in enumerate(runs)}
+        pending = list(refs)
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            for ref in ready:
+                i = refs[ref]
+                try:
+                    entry = ray.get(ref)
+                except Exception as exc:  # noqa: BLE001 - the task's worker died
+                    entry = _died(runs[i], f"{type(exc).__name__}: {exc}")
+                done(i, entry)
+    finally:
+        if started:
+            ray.shutdown()
