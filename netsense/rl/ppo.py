@@ -106,7 +106,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     net = actor_net(config, core, device)
     bc = None
     if config.bc:
-        bc = behaviour_clone(net, config, config.bc, device=device)
+        bc = behaviour_clone(net, config, config.bc, device=device, progress=progress)
     actor = build_actor(net, core.nvec).to(device)
     critic = critic_module(config, env, device).to(device)
     loss = ClipPPOLoss(actor, critic, clip_epsilon=config.clip,
