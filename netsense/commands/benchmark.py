@@ -173,9 +173,10 @@ def _say_skipped(scenarios, policies, seeds, overrides: dict, results) -> None:
     from netsense.benchmark.rollouts import NotApplicable, scripted_policy
     from netsense.env.registry import make
 
-    jobs = make_jobs(scenarios, policies, seeds, overrides=overrides)
-    skipped = dict.fromkeys((j.scenario, j.policy) for j, r in zip(jobs, results, strict=True)
-                            if r is None)
+    ran = {(r["job"]["scenario"], r["job"]["policy"]) for r in results}
+    skipped = [(j.scenario, j.policy) for j in make_jobs(scenarios, policies, seeds[:1],
+                                                          overrides=overrides)
+               if (j.scenario, j.policy) not in ran]
     for sc, pol in skipped:
         try:
             scripted_policy(pol, make(sc, **overrides), 0)

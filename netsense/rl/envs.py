@@ -83,11 +83,59 @@ def make_core(scenario: str | CoreModel, num_envs: int, *, control: str | dict |
     if isinstance(scenario, str):
         overrides = control_overrides(scenario, control, overrides)
     model, _ = load_model(scenario, **overrides)
+    if B >= _PROBE_FROM:
+        _check_memory(model, B)
     try:
         return BatchedCore(model, B)
     except MemoryError:
         raise ValueError(f"num_envs = {B}: the arrays of {B} copies of the scenario do not "
                          "fit in this machine's memory; use fewer environments") from None
+
+
+#: Batch sizes from which :func:`make_core` measures a member's memory first.
+_PROBE_FROM = 4096
+
+
+def _array_bytes(obj) -> int:
+    arrays = [v for v in vars(obj).values() if isinstance(v, np.ndarray)]
+    comm = getattr(obj, "comm", None)
+    if comm is not None:
+        arrays += [v for v in vars(comm).values() if isinstance(v, np.ndarray)]
+    return sum(a.nbytes for a in arrays)
+
+
+def _available_bytes() -> float:
+    """Memory this process may still use: ``MemAvailable`` and the address-space limit."""
+    import resource
+
+    avail = float("inf")
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft not in (resource.RLIM_INFINITY, -1):
+        avail = min(avail, soft)
+    return avail
+
+
+def _check_memory(model: CoreModel, B: int) -> None:
+    """Refuse a batch whose arrays cannot fit: a member's bytes measured on cores of one
+    and two members after a reset (a lower bound on what ``B`` members take)."""
+    sizes = []
+    for b in (1, 2):
+        probe = BatchedCore(model, b)
+        probe.reset(0)
+        sizes.append(_array_bytes(probe))
+    per = max(sizes[1] - sizes[0], 1)
+    need, avail = per * B, _available_bytes()
+    if need > avail:
+        raise ValueError(f"num_envs = {B}: the core's arrays alone take about "
+                         f"{need / 2**30:.1f} GiB ({per} bytes per member) and "
+                         f"{avail / 2**30:.1f} GiB are available; use fewer environments")
 
 
 def resolve_device(device, name: str = "device") -> torch.device:
