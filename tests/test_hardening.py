@@ -2,11 +2,15 @@
 
 Every public entry point kind is covered: library functions and classes, the compiled
 kernels of ``netsense.kernels``, scenario files, the PettingZoo env, the batched core, the
-vector envs, the command line and learned-policy files. For each bad input: the exception
-type, a message naming the argument or field, and — for stateful objects — that the object
-is unchanged (it keeps stepping bit for bit like a deep copy taken before the bad call).
-Inputs that used to crash the interpreter run in a subprocess. The numerical-health
-decision (non-finite states end the episode, flagged) is checked at the end.
+vector envs, the command line, learned-policy files, and the training surfaces (the
+batched trainer's ``PPOConfig``, ``make_core`` and TorchRL env, the communication-only
+control modes, the channel, devices). Policy files that run code when unpickled go
+through every loader, in Python and on the command line, and must never run. For each
+bad input: the exception type, a message naming the argument or field, and — for stateful
+objects — that the object is unchanged (it keeps stepping bit for bit like a deep copy
+taken before the bad call). Inputs that used to crash the interpreter run in a
+subprocess. The numerical-health decision (non-finite states end the episode, flagged) is
+checked at the end.
 """
 
 from __future__ import annotations

@@ -100,8 +100,10 @@ def load_tensors(source: str | Path | bytes, where: str):
     try:
         return torch.load(f, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
-        found = re.search(r"Unsupported global: GLOBAL (\S+)", str(exc))
-        if found is None and "weights only" not in str(exc).lower():
+        text = str(exc)
+        found = re.search(r"Unsupported global: GLOBAL (\S+)", text)
+        if found is None and ("WeightsUnpickler error" not in text
+                              or "Unsupported operand" in text):  # bytes that are no pickle
             raise ValueError(f"{where}: not a readable policy file (truncated or "
                              f"corrupted?): {_short(exc)}") from None
         hint = f" (it references {found.group(1)})" if found else ""
@@ -116,4 +118,9 @@ def load_tensors(source: str | Path | bytes, where: str):
 
 
 def _short(exc: BaseException) -> str:
-    return f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+    """The gist of a load error (torch's restricted unpickler wraps its reason in advice
+    about ``weights_only=False``, which netsense never takes)."""
+    text = " ".join(str(exc).split())
+    if "WeightsUnpickler error:" in text:
+        text = text.split("WeightsUnpickler error:", 1)[1].split(" Check the documentation")[0]
+    return f"{type(exc).__name__}: {text.strip()[:200]}"
