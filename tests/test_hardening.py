@@ -290,6 +290,10 @@ SCENARIOS = [
      + '[source_estimator]\nkind = "equalized"\neta_v = 0.05\n'
      'language = {kind = "each_delayed_at_most", m = 1000, T = 1000}\n',
      "source_estimator.language"),
+    ("channel-empty",  # silently meant "no channel" although capacity is required
+     BASE + "[channel]\n", "channel.capacity"),
+    ("substate_cost-per-substate",  # 3 substates x 1e308 overflows: rewards of -inf
+     BASE + '[control]\nmode = "transmit"\n[reward]\nsubstate_cost = 1e308\n', "reward"),
 ]
 
 

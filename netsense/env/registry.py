@@ -267,7 +267,7 @@ class Scenario:
             raise _err(source, "substates", f"must be 'all' or 'sources', got {substates!r}")
         control = dict(raw.get("control", {}))
         channel = dict(raw.get("channel", {}))
-        if "channel" in raw and "capacity" not in channel:  # an empty table is a mistake
+        if "channel" in raw and not channel:  # an empty table is a mistake, not "none"
             raise _err(source, "channel.capacity", "is required in a [channel] section "
                        "(leave the section out for no shared channel)")
         _build_control(control, channel, source)  # checks the fields
