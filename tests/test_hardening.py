@@ -658,6 +658,9 @@ CLI = [
     ("benchmark-frontier-with-eps", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
                                      "--frontier", "--eps", "0.1"],
      "--eps does not apply to --frontier"),
+    ("benchmark-frontier-with-backend", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                         "--frontier", "--backend", "process"],
+     "--backend process does not apply to --frontier"),
     ("benchmark-frontier-missing-learned", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
                                             "--frontier", "--learned", "{tmp}/none.pt"],
      "no policy file"),  # was reported after the whole scripted frontier

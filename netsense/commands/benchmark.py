@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="relative-error threshold of 'steps to eps' (default: 0.01; "
                              "not a --frontier metric)")
     parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--backend", choices=BACKENDS, default=None,
+    parser.add_argument("--backend", choices=BACKENDS, default="batched",
                         help="batched: the seeds of each scenario and policy as one batched "
                              "run in this process (learned policies episode by episode); "
                              "process / serial / ray: one episode per job in worker "
@@ -111,8 +111,7 @@ def _check_policy_file(path) -> None:
 
 #: Options of each mode and their defaults (``None`` in the parser, so that an option of
 #: the other mode is refused instead of ignored).
-TABLE_DEFAULTS = {"policies": None, "eps": 1e-2, "backend": "batched", "workers": None,
-                  "address": None}
+TABLE_DEFAULTS = {"policies": None, "eps": 1e-2, "workers": None, "address": None}
 FRONTIER_DEFAULTS = {"learned": [], "families": None}
 
 
@@ -128,11 +127,12 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("--seeds must be >= 1")
     overrides = parse_overrides(args.override)
     if args.frontier:
-        wrong = _given(args, TABLE_DEFAULTS)
+        wrong = _given(args, TABLE_DEFAULTS) + (
+            [f"--backend {args.backend}"] if args.backend != "batched" else [])
         if wrong:
             raise ValueError(f"{', '.join(wrong)} do{'es' if len(wrong) == 1 else ''} not "
                              "apply to --frontier (learned policies go in --learned PATH; "
-                             "the frontier runs in this process)")
+                             "the frontier runs batched, in this process)")
         for k, v in FRONTIER_DEFAULTS.items():
             setattr(args, k, v if getattr(args, k) is None else getattr(args, k))
         _check_inputs(args.scenarios, [f"learned:{p}" for p in args.learned], overrides)
