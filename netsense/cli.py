@@ -58,10 +58,33 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _unknown_options(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                     extra: list[str]) -> None:
+    """Report arguments no parser took under the sub-command they were given to (``netsense
+    train: error: unrecognized arguments: --stpes 5 (did you mean --steps?)``)."""
+    import difflib
+
+    target = parser
+    for action in parser._actions:  # the sub-command's own parser, when there is one
+        if isinstance(action, argparse._SubParsersAction) and args.command:
+            target = action.choices[args.command]
+    known = [o for a in target._actions for o in a.option_strings if o.startswith("--")]
+    hints = []
+    for arg in extra:
+        if arg.startswith("-"):
+            close = difflib.get_close_matches(arg.split("=", 1)[0], known, n=1, cutoff=0.6)
+            if close:
+                hints.append(f"{arg.split('=', 1)[0]} -> {close[0]}?")
+    hint = f" (did you mean: {', '.join(hints)})" if hints else ""
+    target.error(f"unrecognized arguments: {' '.join(extra)}{hint}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``netsense`` command; returns the process exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        _unknown_options(parser, args, extra)
     if getattr(args, "_run", None) is None:
         parser.print_help()
         return 2

@@ -32,3 +32,31 @@ def test_readme_env_example_runs():
     scope: dict = {}
     exec(compile(code, "README-env", "exec"), scope)
     assert scope["env"].agents == []  # ran to the horizon
+
+
+DOCS = Path(__file__).parents[1] / "docs"
+
+
+def test_files_named_in_the_docs_exist():
+    """Every repository path written in backticks in docs/ and the README exists."""
+    root = Path(__file__).parents[1]
+    texts = [p.read_text() for p in sorted(DOCS.glob("*.md"))] + [
+        (root / "README.md").read_text()]
+    named = {m for t in texts for m in re.findall(
+        r"`((?:netsense|experiments|tests|docs)/[\w/.*-]+)`", t)}
+    assert named  # the pattern finds paths at all
+    missing = sorted(p for p in named if not list(root.glob(p)))
+    assert not missing, missing
+
+
+def test_env_page_example_offers_only_policies_that_run_on_its_scenario():
+    from netsense.env.policies import make_policy
+
+    text = (DOCS / "env.md").read_text()
+    block = next(b for b in re.findall(r"```python\n(.*?)```", text, flags=re.S)
+                 if "make_policy" in b)
+    scenario = re.search(r'make\("([\w-]+)"', block).group(1)
+    offered = re.search(r"# also: ([\w, ]+)", block).group(1).split(", ")
+    env = make(scenario)
+    for name in ["freshness", *offered]:
+        make_policy(name, env)  # raises for a policy the scenario refuses

@@ -2,11 +2,15 @@
 
 Every public entry point kind is covered: library functions and classes, the compiled
 kernels of ``netsense.kernels``, scenario files, the PettingZoo env, the batched core, the
-vector envs, the command line and learned-policy files. For each bad input: the exception
-type, a message naming the argument or field, and — for stateful objects — that the object
-is unchanged (it keeps stepping bit for bit like a deep copy taken before the bad call).
-Inputs that used to crash the interpreter run in a subprocess. The numerical-health
-decision (non-finite states end the episode, flagged) is checked at the end.
+vector envs, the command line, learned-policy files, and the training surfaces (the
+batched trainer's ``PPOConfig``, ``make_core`` and TorchRL env, the communication-only
+control modes, the channel, devices). Policy files that run code when unpickled go
+through every loader, in Python and on the command line, and must never run. For each
+bad input: the exception type, a message naming the argument or field, and — for stateful
+objects — that the object is unchanged (it keeps stepping bit for bit like a deep copy
+taken before the bad call). Inputs that used to crash the interpreter run in a
+subprocess. The numerical-health decision (non-finite states end the episode, flagged) is
+checked at the end.
 """
 
 from __future__ import annotations
@@ -286,6 +290,10 @@ SCENARIOS = [
      + '[source_estimator]\nkind = "equalized"\neta_v = 0.05\n'
      'language = {kind = "each_delayed_at_most", m = 1000, T = 1000}\n',
      "source_estimator.language"),
+    ("channel-empty",  # silently meant "no channel" although capacity is required
+     BASE + "[channel]\n", "channel.capacity"),
+    ("substate_cost-per-substate",  # 3 substates x 1e308 overflows: rewards of -inf
+     BASE + '[control]\nmode = "transmit"\n[reward]\nsubstate_cost = 1e308\n', "reward"),
 ]
 
 
@@ -606,6 +614,69 @@ CLI = [
     ("demo-out-unwritable", ["demo", "--steps", "3", "--out", "/proc/netsense-nope"],
      "netsense-nope"),
     ("unknown-command", ["nosuchcmd"], "invalid choice: 'nosuchcmd'"),
+    # the training and communication surfaces
+    ("train-typo-flag-names-the-subcommand", ["train", "fig1_scalar-v0", "--stpes", "5"],
+     "netsense train: error: unrecognized arguments: --stpes 5 (did you mean: --stpes -> "
+     "--steps?)"),
+    ("train-scenario-suggestion", ["train", "fig1_scalr-v0"],
+     "unknown scenario 'fig1_scalr-v0' (did you mean 'fig1_scalar-v0'"),
+    ("train-override-invalid-json", ["train", "fig1_scalar-v0", "--override",
+                                     'reward={"message_cost: 0.1}'],
+     "--override reward=: not valid JSON"),  # was "must be a table"
+    ("train-override-twice", ["train", "fig1_scalar-v0", "--override", "horizon=5",
+                              "--override", "horizon=6"], "--override horizon= is given twice"),
+    ("train-sb3-with-torchrl-option", ["train", "fig1_scalar-v0", "--network", "set",
+                                       "--reward", "team"],
+     "--network, --reward belong to --backend torchrl; the sb3 backend would ignore them"),
+    ("train-torchrl-with-sb3-option", ["train", "fig1_scalar-v0", "--backend", "torchrl",
+                                       "--n-steps", "64"], "--n-steps belongs to --backend sb3"),
+    ("train-torchrl-device-bogus", ["train", "fig1_scalar-v0", "--backend", "torchrl",
+                                    "--device", "bogus", "--out", "{tmp}/t"],
+     "PPOConfig.device must be 'auto', 'cpu', 'cuda' or 'cuda:<index>'"),
+    ("train-torchrl-gamma", ["train", "fig1_scalar-v0", "--backend", "torchrl", "--gamma",
+                             "1.5", "--out", "{tmp}/t"], "PPOConfig.gamma must be"),
+    ("train-torchrl-bc-unknown", ["train", "fig1_scalar-v0", "--backend", "torchrl", "--bc",
+                                  "nope", "--out", "{tmp}/t"], "PPOConfig.bc must be"),
+    ("train-torchrl-num-envs-huge", ["train", "fig1_scalar-v0", "--backend", "torchrl",
+                                     "--num-envs", "10000000", "--out", "{tmp}/t"],
+     "PPOConfig.num_envs must be an integer in [1, 900000]"),
+    ("train-torchrl-seeds-twice", ["train", "fig1_scalar-v0", "--backend", "torchrl",
+                                   "--seeds", "1", "1", "--out", "{tmp}/t"],
+     "--seeds lists a seed twice"),
+    ("train-torchrl-second-seed-bad", ["train", "fig1_scalar-v0", "--backend", "torchrl",
+                                       "--seeds", "0", "4000", "--num-envs", "256", "--out",
+                                       "{tmp}/t"], "below 900000"),  # before seed 0 runs
+    ("benchmark-learned-without-frontier", ["benchmark", "fig1_scalar-v0", "--out",
+                                            "{tmp}/b", "--learned", "{tmp}/p.pt"],
+     "--learned needs --frontier"),  # was exit 0 with no learned row
+    ("benchmark-families-without-frontier", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                             "--families", "periodic"],
+     "--families needs --frontier"),
+    ("benchmark-frontier-with-policies", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                          "--frontier", "--policies", "freshness"],
+     "--policies does not apply to --frontier"),
+    ("benchmark-frontier-with-eps", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                     "--frontier", "--eps", "0.1"],
+     "--eps does not apply to --frontier"),
+    ("benchmark-frontier-with-backend", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                         "--frontier", "--backend", "process"],
+     "--backend process does not apply to --frontier"),
+    ("benchmark-frontier-missing-learned", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                            "--frontier", "--learned", "{tmp}/none.pt"],
+     "no policy file"),  # was reported after the whole scripted frontier
+    ("benchmark-learned-sampled-missing", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                           "--policies", "learned_sampled:{tmp}/none.zip"],
+     "no policy file"),
+    ("benchmark-learned-no-path", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                   "--policies", "learned"], "a learned policy needs its file"),
+    ("benchmark-address-without-ray", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                       "--address", "auto"], "--address needs --backend ray"),
+    ("benchmark-bad-override", ["benchmark", "fig1_scalar-v0", "--out", "{tmp}/b",
+                                "--override", "channel={}"], "field 'channel.capacity'"),
+    ("policy-check-missing", ["policy", "check", "{tmp}/none.pt"], "no policy file at"),
+    ("policy-check-suffix", ["policy", "check", "{tmp}/p.txt"], "ends in .pt"),
+    ("policy-convert-without-trust", ["policy", "convert", "{tmp}/p.pt"],
+     "convert needs --trust"),
 ]
 
 
@@ -644,6 +715,11 @@ def policy_files(tmp_path_factory):
     model = sb3.MaskablePPO("MlpPolicy", venv, n_steps=8, batch_size=8, device="cpu")
     good = d / "policy.zip"
     model.save(good)
+    (d / "foreign.zip").write_bytes(good.read_bytes())  # SB3's own zip: no netsense.json
+    from netsense.rl.sb3_policy import sb3_metadata, write_sb3_metadata
+
+    write_sb3_metadata(good, sb3_metadata(model, scenario="fig1_scalar-v0",
+                                          overrides={"horizon": 8}, seed=0, num_vec_envs=1))
     data = good.read_bytes()
     (d / "truncated.zip").write_bytes(data[:3000])
     flipped = bytearray(data)
@@ -663,12 +739,12 @@ def policy_files(tmp_path_factory):
     ("truncated.zip", "not a readable MaskablePPO policy file"),
     ("corrupted.zip", "not a readable MaskablePPO policy file"),
     ("text.zip", "not a readable MaskablePPO policy file"),
-    ("inner.zip", "not a readable MaskablePPO policy file"),
+    ("inner.zip", "not a readable policy file"),  # policy.pth cut short
     ("dir.zip", "not a policy file"),
     ("missing.zip", "no learned policy at"),
 ])
 def test_bad_policy_files_raise_value_error_naming_the_file(policy_files, name, match):
-    from netsense.rl.sb3 import LearnedPolicy
+    from netsense.rl.sb3_policy import LearnedPolicy
 
     with pytest.raises(ValueError, match=match) as err:
         LearnedPolicy(policy_files / name)
@@ -676,7 +752,7 @@ def test_bad_policy_files_raise_value_error_naming_the_file(policy_files, name, 
 
 
 def test_policy_of_another_scenario_is_refused(policy_files):
-    from netsense.rl.sb3 import LearnedPolicy
+    from netsense.rl.sb3_policy import LearnedPolicy
     from netsense.rl.wrappers import MaskedFlatObs
 
     pol = LearnedPolicy(policy_files / "policy.zip")
@@ -750,3 +826,662 @@ def test_vector_envs_flag_nonfinite_members_and_auto_reset_them():
     flagged = [r for r in info["nonfinite"] if r is not None]
     assert flagged and all(r["what"] == "state" for r in flagged)
     assert np.isfinite(obs).all() and np.isfinite(rew).all()  # restarted members
+
+
+# ============================================================== training surfaces
+# The batched trainer's configuration, its environment and the control modes: every bad
+# field is refused when the object is built (before any training iteration), naming it.
+COMM = "comm_process_noise-v0"
+COMM_SHORT = {"horizon": 12}
+
+
+def _torch():
+    return pytest.importorskip("torchrl", reason="the batched trainer needs the 'torchrl' extra")
+
+
+PPO_CONFIG = [
+    # (id, PPOConfig keywords, text the message must contain)
+    ("steps-str", {"steps": "100"}, "PPOConfig.steps must be an integer"),  # the issue's
+    ("num_envs-float", {"num_envs": 1.5}, "PPOConfig.num_envs must be an integer"),
+    ("lr-bool", {"lr": True}, "PPOConfig.lr must be a finite number"),
+    ("clip-negative", {"clip": -0.2}, "PPOConfig.clip must be a finite number in (0, 1]"),
+    ("hidden-zero", {"hidden": (0,)}, "PPOConfig.hidden[0] must be an integer in [1,"),
+    ("gamma-nan", {"gamma": float("nan")}, "PPOConfig.gamma must be a finite number"),
+    ("entropy_coef-inf", {"entropy_coef": float("inf")}, "PPOConfig.entropy_coef"),
+    ("max_grad_norm-nan", {"max_grad_norm": float("nan")}, "PPOConfig.max_grad_norm"),
+    ("device-bogus", {"device": "bogus"}, "PPOConfig.device must be 'auto', 'cpu'"),
+    ("clip-above-1", {"clip": 1.5}, "PPOConfig.clip must be a finite number in (0, 1]"),
+    ("gamma-above-1", {"gamma": 1.5}, "PPOConfig.gamma must be a finite number in [0, 1]"),
+    ("lmbda-negative", {"lmbda": -0.1}, "PPOConfig.lmbda"),
+    ("critic_coef-zero", {"critic_coef": 0.0}, "PPOConfig.critic_coef"),
+    ("hidden-empty", {"hidden": ()}, "PPOConfig.hidden must be a non-empty tuple"),
+    ("hidden-str", {"hidden": "64"}, "PPOConfig.hidden must be a non-empty tuple"),
+    ("critic_hidden-float", {"critic_hidden": (64.0,)}, "PPOConfig.critic_hidden[0] must be"),
+    ("hidden-huge", {"hidden": (10**7,)}, "PPOConfig.hidden[0] must be an integer in [1, 65536]"),
+    ("set_hidden-zero", {"set_hidden": 0}, "PPOConfig.set_hidden"),
+    ("epochs-zero", {"epochs": 0}, "PPOConfig.epochs must be an integer"),
+    ("minibatch-str", {"minibatch": "512"}, "PPOConfig.minibatch must be an integer"),
+    ("eval_interval-negative", {"eval_interval": -1}, "PPOConfig.eval_interval"),
+    ("eval_envs-zero", {"eval_envs": 0}, "PPOConfig.eval_envs"),
+    ("critic_warmup-float", {"critic_warmup": 2.0}, "PPOConfig.critic_warmup must be"),
+    ("bc_steps-bool", {"bc_steps": True}, "PPOConfig.bc_steps must be an integer"),
+    ("bc_lr-inf", {"bc_lr": float("inf")}, "PPOConfig.bc_lr"),
+    ("bc-unknown", {"bc": "nope"}, "PPOConfig.bc must be a scripted policy"),
+    ("bc-bad-knob", {"bc": "event:x"}, "PPOConfig.bc: 'event:x'"),
+    ("numba_threads-zero", {"numba_threads": 0}, "PPOConfig.numba_threads"),
+    ("torch_threads-str", {"torch_threads": "1"}, "PPOConfig.torch_threads"),
+    ("seed-bool", {"seed": True}, "PPOConfig.seed must be an integer"),
+    ("algo-case", {"algo": "MAPPO"}, "PPOConfig.algo must be one of"),
+    ("reward-unknown", {"reward": "shaped"}, "PPOConfig.reward must be one of"),
+    ("critic-ippo-state", {"algo": "ippo", "critic": "state"}, "ippo uses a local critic"),
+    ("device-mps", {"device": "mps"}, "PPOConfig.device must be"),
+    ("scenario-unknown", {"scenario": "comm_proces_noise-v0"},
+     "did you mean 'comm_process_noise-v0'"),
+    ("scenario-int", {"scenario": 3}, "PPOConfig.scenario must be a string"),
+    ("overrides-list", {"overrides": [("horizon", 5)]}, "PPOConfig.overrides must be a dict"),
+    ("overrides-bad-value", {"overrides": {"horizon": "abc"}}, "field 'horizon'"),
+    ("overrides-env-option", {"overrides": {"render_mode": "ansi"}}, "field 'render_mode'"),
+    ("overrides-control-not-a-table", {"overrides": {"control": "transmit"}},
+     "PPOConfig.overrides['control'] must be a table"),
+    ("control-unknown", {"control": "tx"}, "PPOConfig.control must be one of"),
+    ("control-dict-bad-mode", {"control": {"mode": "broadcast"}}, "control.mode"),
+]
+
+
+@pytest.mark.parametrize("kwargs, match", [c[1:] for c in PPO_CONFIG],
+                         ids=[c[0] for c in PPO_CONFIG])
+def test_ppo_config_refuses_and_names_the_field(kwargs, match):
+    _torch()
+    from netsense.rl.config import PPOConfig
+
+    kw = {"scenario": COMM, **kwargs}
+    with pytest.raises(ValueError) as err:
+        PPOConfig(**kw)
+    assert match in str(err.value), str(err.value)
+
+
+def test_ppo_config_takes_what_it_refused_as_a_type_in_its_own_type():
+    """The refusals above are about the value, not the field: the same fields take
+    correct values (and a list of widths is stored as a tuple)."""
+    _torch()
+    from netsense.rl.config import PPOConfig
+
+    cfg = PPOConfig(COMM, steps=100, num_envs=2, lr=1e-3, clip=1.0, hidden=[16, 8],
+                    gamma=1.0, lmbda=0.0, entropy_coef=0.0, bc="event:2", seed=0,
+                    device="cpu", numba_threads=None)
+    assert cfg.hidden == (16, 8) and cfg.steps == 100
+
+
+def _comm_core_mid_episode(B=3, mode="transmit"):
+    from netsense.env.comm_policies import make_comm_policy
+    from netsense.rl.envs import make_core
+
+    core = make_core(COMM, B, control=mode, **COMM_SHORT)
+    obs, mask = core.reset(4)
+    pol = make_comm_policy("periodic:2", core)
+    for _ in range(2):
+        out = core.step(pol.act(obs, mask))
+        obs, mask = out.obs, out.action_mask
+    return core, pol, obs, mask
+
+
+def _comm_future(core, pol, obs, mask) -> list:
+    out = []
+    for _ in range(3):
+        res = core.step(pol.act(obs, mask))
+        obs, mask = res.obs, res.action_mask
+        out.append(tuple(res) + (core.x.copy(), core.Z.copy(), core.tau.copy()))
+    return out
+
+
+def _bits(core, value, dtype=np.int64):
+    a = np.zeros((core.B, core.N, core.nvec.size), dtype)
+    a[1, 2, 0] = value
+    return a
+
+
+COMM_CORE = [
+    # (id, bad call on a transmit-mode core mid-episode, match)
+    ("transmit-2^63-uint64",  # the issue's example: reported against 0..D + 1
+     lambda c: c.step(_bits(c, 2**63, np.uint64)),
+     r"agent 2 \(batch member 1\) for transmit is 9223372036854775808, outside 0..1"),
+    ("transmit-2", lambda c: c.step(_bits(c, 2)), "for transmit is 2, outside 0..1"),
+    ("transmit-negative", lambda c: c.step(_bits(c, -1)), "for transmit is -1, outside 0..1"),
+    ("transmit-half", lambda c: c.step(_bits(c, 0.5, float)), "actions must be integers"),
+    ("transmit-nan", lambda c: c.step(_bits(c, np.nan, float)), "actions must be integers"),
+    ("transmit-full-layout", lambda c: c.step(np.zeros((c.B, c.N, c.M + 1), np.int64)),
+     r"actions must have shape \(B, N, len\(nvec\)\)"),
+    ("transmit-str", lambda c: c.step(np.full((c.B, c.N, 1), "1")), "actions must be integers"),
+    ("env-seed-float", lambda c: __import__("netsense.rl.envs").rl.envs.NetSenseBatchedEnv(
+        c, seed=1.5), "seed must be an integer"),  # the issue's example: used seed 1
+    ("env-seed-negative", lambda c: __import__("netsense.rl.envs").rl.envs
+     .NetSenseBatchedEnv(c, seed=-1), "seed must be an integer"),
+    ("env-seed-str", lambda c: __import__("netsense.rl.envs").rl.envs.NetSenseBatchedEnv(
+        c, seed="3"), "seed must be an integer"),
+    ("env-reward-unknown", lambda c: __import__("netsense.rl.envs").rl.envs
+     .NetSenseBatchedEnv(c, reward="shaped"), "reward must be one of"),
+    ("env-device-bogus", lambda c: __import__("netsense.rl.envs").rl.envs
+     .NetSenseBatchedEnv(c, device="bogus"), "device must be 'auto', 'cpu'"),
+]
+
+
+@pytest.mark.parametrize("call, match", [c[1:] for c in COMM_CORE],
+                         ids=[c[0] for c in COMM_CORE])
+def test_comm_core_and_its_torchrl_env_reject_and_keep_stepping(call, match):
+    _torch()
+    core, pol, obs, mask = _comm_core_mid_episode()
+    twin = copy.deepcopy(core)
+    with pytest.raises(ValueError, match=match):
+        call(core)
+    _same(_comm_future(core, pol, obs, mask), _comm_future(twin, pol, obs, mask))
+
+
+def test_substates_core_names_the_substate_of_a_huge_bit():
+    _torch()
+    core, *_ = _comm_core_mid_episode(mode="substates")
+    with pytest.raises(ValueError, match="for substate 0 is 9223372036854775808, "
+                                         "outside 0..1"):
+        core.step(_bits(core, 2**63, np.uint64))
+
+
+MAKE_CORE = [
+    ("num_envs-float", {"num_envs": 2.5}, "num_envs must be an integer"),  # the issue's
+    ("num_envs-str", {"num_envs": "2"}, "num_envs must be an integer"),  # examples: ran
+    ("num_envs-bool", {"num_envs": True}, "num_envs must be an integer"),  # with B = 2, 2, 1
+    ("num_envs-zero", {"num_envs": 0}, "num_envs must be an integer >= 1"),
+    ("env-option", {"nonfinite": "raise"}, "options of the PettingZoo env"),
+    ("substate_cost-per-substate", {"control": "substates", "reward": {"substate_cost": 1e308}},
+     "substate_cost \\* M must be finite"),
+    ("channel-empty", {"channel": {}}, "field 'channel.capacity': is required"),
+    ("channel-capacity-float", {"channel": {"capacity": 1.5}}, "channel.capacity must be"),
+    ("channel-capacity-zero", {"channel": {"capacity": 0}}, "channel.capacity must be"),
+    ("channel-unknown-key", {"channel": {"capacity": 2, "slots": 3}}, "channel.slots"),
+]
+
+
+@pytest.mark.parametrize("kwargs, match", [c[1:] for c in MAKE_CORE],
+                         ids=[c[0] for c in MAKE_CORE])
+def test_make_core_refuses(kwargs, match):
+    _torch()
+    from netsense.rl.envs import make_core
+
+    kw = {"num_envs": 2, **COMM_SHORT, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        make_core(COMM, **kw)
+
+
+def test_a_huge_batch_is_a_value_error_naming_num_envs():
+    """Arrays that cannot be allocated: ``ValueError`` naming ``num_envs`` (was a bare
+    ``MemoryError``); run in a subprocess under a 2 GiB address-space limit."""
+    _torch()
+    res = _python("import resource; resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))\n"
+                  "from netsense.env.registry import make\n"
+                  "from netsense.rl.envs import make_core\n"
+                  "try:\n    make_core('fig1_scalar-v0', 10**8)\n"
+                  "except ValueError as e:\n    print('ValueError', e)\n")
+    assert "ValueError num_envs = 100000000: the core's arrays alone take about" in \
+        res.stdout, res.stdout + res.stderr
+
+
+def test_the_reward_bound_counts_the_payload_cost_per_substate():
+    """c_s M finite is accepted, and the rewards stay finite (the issue's example gave
+    -inf: the bound counted c_s once while it is paid for each of M = 5 substates)."""
+    from netsense.env.comm_policies import make_comm_policy
+
+    env = make("comm_substates-v0", horizon=4, reward={"substate_cost": 3e307,
+                                                      "message_cost": 0.0})
+    assert env.model.reward_bound == pytest.approx(1.0 + 5 * 3e307)
+    core = env.core
+    obs, mask = core.reset(0)
+    out = core.step(make_comm_policy("always", core).act(obs, mask))
+    assert np.isfinite(out.reward).all() and out.reward.min() < -1e307
+    with pytest.raises(ValueError, match="substate_cost \\* M must be finite"):
+        make("comm_substates-v0", reward={"substate_cost": 4e307})  # 5 x 4e307 overflows
+
+
+def test_the_torchrl_env_refuses_rewards_beyond_float32():
+    _torch()
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core
+
+    core = make_core(COMM, 2, reward={"error_weight": 1e300}, **COMM_SHORT)
+    with pytest.raises(ValueError, match="float32 reward spec"):
+        NetSenseBatchedEnv(core)
+
+
+@pytest.mark.parametrize("device, match", [
+    ("cuda", "torch sees no CUDA device here"),  # the issue's: a 46-line AssertionError
+    ("cuda:0", "torch sees no CUDA device here"),
+    ("bogus", "PPOConfig.device must be 'auto', 'cpu'"),  # was torch's own message
+])
+def test_device_is_checked_against_what_torch_has(device, match):
+    torch = pytest.importorskip("torch")
+    _torch()
+    from netsense.rl.config import device_of
+
+    if device.startswith("cuda") and torch.cuda.is_available():
+        assert device_of(device).type == "cuda"
+        with pytest.raises(ValueError, match="torch sees"):
+            device_of(f"cuda:{torch.cuda.device_count()}")
+        return
+    with pytest.raises(ValueError, match=match):
+        device_of(device)
+
+
+def test_a_control_override_is_a_valid_input():
+    """``overrides={"control": ...}`` crashed make_core with a TypeError (``control`` given
+    twice); it is folded into ``control`` and the run builds."""
+    _torch()
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+
+    cfg = PPOConfig("message_cost-v1", overrides={"control": {"mode": "transmit"},
+                                                  **COMM_SHORT})
+    assert cfg.control == {"mode": "transmit"} and "control" not in cfg.overrides
+    core = make_core(cfg.scenario, 2, control=cfg.control, **cfg.overrides)
+    assert core.control.mode == "transmit"
+    both = PPOConfig("message_cost-v1", control="substates",
+                     overrides={"control": {"mode": "transmit", "fusion": "tree"}})
+    assert both.control == {"mode": "substates", "fusion": "tree"}  # the flag wins on mode
+
+
+# ============================================================== policy files (.pt)
+@pytest.fixture(scope="module")
+def pt_files(tmp_path_factory):
+    """A valid ``.pt`` (MLP, transmit mode) and one broken variant per way a file can be
+    wrong; weights are untrained (loading, not acting well, is under test)."""
+    _torch()
+    import torch
+
+    from netsense.rl.checkpoint import read_policy, save_checkpoint, write_policy
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import actor_net
+
+    d = tmp_path_factory.mktemp("pt")
+    cfg = PPOConfig(COMM, control="transmit", hidden=(8,), set_hidden=8,
+                    overrides=COMM_SHORT)
+    core = make_core(COMM, 1, control="transmit", **COMM_SHORT)
+    net = actor_net(cfg, core)
+    save_checkpoint(d / "good.pt", cfg, net, net, 1, 8, core)
+    full = PPOConfig(COMM, network="set", control="full", set_hidden=8, overrides=COMM_SHORT)
+    fcore = make_core(COMM, 1, control="full", **COMM_SHORT)
+    fnet = actor_net(full, fcore)
+    save_checkpoint(d / "set_full.pt", full, fnet, fnet, 1, 8, fcore)
+    good = read_policy(d / "good.pt")
+
+    def variant(name, change, seal=True):
+        state = copy.deepcopy(good)
+        change(state)
+        if seal:
+            write_policy(d / name, state)
+        else:
+            torch.save(state, d / name)
+
+    first = next(iter(good["actor"]))
+    variant("nan.pt", lambda s: s["actor"][first].fill_(float("nan")))
+    variant("int_weights.pt", lambda s: s["actor"].__setitem__(
+        first, s["actor"][first].long()))
+    variant("unsealed.pt", lambda s: [s.pop(k) for k in ("sha256", "format",
+                                                          "format_version")], seal=False)
+    variant("no_hidden.pt", lambda s: s["config"].pop("hidden"))
+    variant("unknown_key.pt", lambda s: s["config"].__setitem__("frobnicate", 1))
+    variant("bad_lr.pt", lambda s: s["config"].__setitem__("lr", -1.0))
+    variant("unknown_scenario.pt", lambda s: s["config"].__setitem__("scenario", "gone-v0"))
+    variant("wrong_size.pt", lambda s: s["actor"].__setitem__(
+        first, torch.zeros(s["actor"][first].shape[0] + 3, s["actor"][first].shape[1])))
+    variant("future.pt", lambda s: s.__setitem__("format_version", 99), seal=False)
+    variant("trained_on.pt", lambda s: s["trained_on"].__setitem__("N", "10"))
+    variant("control.pt", lambda s: s.__setitem__("control", "transmit"))
+    variant("edited.pt", lambda s: s["config"].__setitem__("hidden", [16]), seal=False)
+    torch.save([1, 2, 3], d / "list.pt")
+    (d / "text.pt").write_text("hello\n")
+    (d / "truncated.pt").write_bytes((d / "good.pt").read_bytes()[:700])
+    (d / "dir.pt").mkdir()
+    flipped = d / "flipped.pt"  # the issue's probe: 8 bytes flipped in each tensor record
+    flipped.write_bytes((d / "good.pt").read_bytes())
+    _flip_tensor_records(flipped)
+    return d
+
+
+def _flip_tensor_records(path: Path) -> None:
+    """Flip 8 bytes inside every tensor data record of a ``torch.save`` zip (the zip's
+    own CRCs are not checked by torch: such a file loaded before checksums)."""
+    data = bytearray(path.read_bytes())
+    with zipfile.ZipFile(path) as z:
+        for info in z.infolist():
+            if "/data/" not in info.filename or info.file_size < 16:
+                continue
+            off = info.header_offset
+            name_len = int.from_bytes(data[off + 26:off + 28], "little")
+            extra_len = int.from_bytes(data[off + 28:off + 30], "little")
+            start = off + 30 + name_len + extra_len
+            for i in range(start + 4, start + 12):
+                data[i] ^= 0x5A
+    path.write_bytes(bytes(data))
+
+
+PT_FILES = [
+    # (file, text the message must contain besides the path)
+    ("nan.pt", "NaN or infinite; a policy with non-finite weights is refused"),  # the issue's
+    ("flipped.pt", "checksum mismatch"),  # the issue's: five actor tensors changed, loaded
+    ("no_hidden.pt", "the stored config lacks ['hidden']"),  # was KeyError: 'hidden'
+    ("wrong_size.pt", "the actor's weights do not fit the mlp network"),  # a tensordict error
+    ("set_full.pt", "trained in control mode 'full'"),  # a raw size mismatch
+    ("int_weights.pt", "has dtype torch.int64"),
+    ("unsealed.pt", "carries no checksum"),
+    ("unknown_key.pt", "keys this netsense does not know: ['frobnicate']"),
+    ("bad_lr.pt", "the stored config is refused: PPOConfig.lr"),
+    ("unknown_scenario.pt", "unknown scenario 'gone-v0'"),
+    ("future.pt", "version 99"),
+    ("trained_on.pt", "entry 'trained_on' must hold the integers"),
+    ("control.pt", "entry 'control' must be a dict"),
+    ("edited.pt", "checksum mismatch"),
+    ("list.pt", "not a policy file of netsense's batched trainer (a list"),
+    ("text.pt", "not a readable policy file"),
+    ("truncated.pt", "not a readable policy file"),
+    ("dir.pt", "not a policy file (a directory?)"),
+    ("missing.pt", "no policy file at"),
+]
+
+
+@pytest.mark.parametrize("name, match", PT_FILES, ids=[c[0] for c in PT_FILES])
+def test_pt_policy_files_are_refused_naming_the_file_and_the_mismatch(pt_files, name, match):
+    from netsense.rl.checkpoint import load_policy
+
+    core, pol, obs, mask = _comm_core_mid_episode()
+    twin = copy.deepcopy(core)
+    with pytest.raises(ValueError) as err:
+        load_policy(pt_files / name, core)
+    msg = str(err.value)
+    assert str(pt_files / name) in msg and match in msg, msg
+    _same(_comm_future(core, pol, obs, mask), _comm_future(twin, pol, obs, mask))
+
+
+def test_the_valid_pt_file_loads_and_acts(pt_files):
+    from netsense.rl.checkpoint import load_policy, read_policy
+
+    core, pol, obs, mask = _comm_core_mid_episode()
+    act = load_policy(pt_files / "good.pt", core).act(obs, mask)
+    assert act.shape == (core.B, core.N, 1)
+    core.step(act)
+    assert len(read_policy(pt_files / "good.pt")["sha256"]) == 64
+
+
+# ============================================================== policy files (.zip)
+@pytest.fixture(scope="module")
+def zip_files(policy_files, tmp_path_factory):
+    """Variants of a netsense MaskablePPO zip (``policy_files``' ``policy.zip``)."""
+    import torch
+
+    from netsense.rl.sb3_policy import write_sb3_metadata
+
+    d = tmp_path_factory.mktemp("zips")
+    good = policy_files / "policy.zip"
+    meta = json.loads(zipfile.ZipFile(good).read("netsense.json"))
+
+    def rewrite(name, members: dict, reseal_meta: dict | None = None):
+        with zipfile.ZipFile(good) as zin, zipfile.ZipFile(d / name, "w") as zout:
+            for n in zin.namelist():
+                zout.writestr(n, members.get(n, zin.read(n)))
+        if reseal_meta is not None:
+            write_sb3_metadata(d / name, reseal_meta)
+
+    def pth(change):
+        import io
+
+        w = torch.load(io.BytesIO(zipfile.ZipFile(good).read("policy.pth")),
+                       weights_only=True)
+        change(w)
+        buf = io.BytesIO()
+        torch.save(w, buf)
+        return buf.getvalue()
+
+    first = "mlp_extractor.policy_net.0.weight"
+    rewrite("nan.zip", {"policy.pth": pth(lambda w: w[first].fill_(float("inf")))}, meta)
+    rewrite("tampered.zip", {"netsense.json": json.dumps({**meta, "net_arch": [32]})})
+    rewrite("arch.zip", {}, {**meta, "net_arch": [32]})
+    rewrite("activation.zip", {}, {**meta, "activation": "sigmoid"})
+    rewrite("meta_json.zip", {"netsense.json": b"{not json"})
+    rewrite("flipped.zip", {"policy.pth": pth(lambda w: w[first].mul_(-1.0))})
+    return d
+
+
+ZIP_FILES = [
+    ("foreign.zip", "refused: a Stable-Baselines3 zip without netsense's metadata"),
+    ("nan.zip", "NaN or infinite"),
+    ("tampered.zip", "checksum mismatch"),
+    ("flipped.zip", "checksum mismatch"),
+    ("arch.zip", "the weights do not fit the policy its metadata describes"),
+    ("activation.zip", "'activation' must be one of ['tanh', 'relu']"),
+    ("meta_json.zip", "netsense.json is not valid JSON"),
+]
+
+
+@pytest.mark.parametrize("name, match", ZIP_FILES, ids=[c[0] for c in ZIP_FILES])
+def test_zip_policy_files_are_refused_naming_the_file_and_the_mismatch(zip_files,
+                                                                       policy_files,
+                                                                       name, match):
+    from netsense.rl.sb3_policy import LearnedPolicy
+
+    path = (policy_files if name == "foreign.zip" else zip_files) / name
+    with pytest.raises(ValueError) as err:
+        LearnedPolicy(path)
+    assert str(path) in str(err.value) and match in str(err.value), str(err.value)
+
+
+# ============================================================== malicious policy files
+class _Payload:
+    """Unpickling this object opens (creates) ``marker``: the proof that a loader ran code
+    from a file. ``__reduce__`` names ``builtins.open``, as a real attack would name
+    ``os.system``."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        import builtins
+
+        return (builtins.open, (self.marker, "w"))
+
+
+@pytest.fixture()
+def malicious(pt_files, policy_files, tmp_path):
+    """Policy files that run code when unpickled, and the marker file the code creates.
+
+    ``.pt``: a valid sealed checkpoint with the payload hidden as an extra entry (the
+    issue's probe), inside the config, and in place of a weight. ``.zip``: SB3's own zip
+    with the payload in a cloudpickled ``data`` entry (no netsense.json), a netsense zip
+    with the same poisoned ``data`` (netsense never reads it), and one whose
+    ``policy.pth`` holds the payload.
+    """
+    import base64
+
+    import cloudpickle
+    import torch
+
+    from netsense.rl.checkpoint import read_policy
+
+    marker = tmp_path / "payload_ran"
+    good = read_policy(pt_files / "good.pt")
+    out = {"marker": marker}
+    for name, change in (
+            ("extra", lambda s: s.__setitem__("note", _Payload(marker))),
+            ("config", lambda s: s["config"].__setitem__("device", _Payload(marker))),
+            ("weight", lambda s: s["actor"].__setitem__(next(iter(s["actor"])),
+                                                         _Payload(marker)))):
+        state = copy.deepcopy(good)
+        change(state)
+        torch.save(state, tmp_path / f"evil_{name}.pt")
+        out[f"pt_{name}"] = tmp_path / f"evil_{name}.pt"
+
+    def poison_data(src: Path, dst: Path, pth: bytes | None = None) -> Path:
+        with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w") as zout:
+            for n in zin.namelist():
+                b = zin.read(n)
+                if n == "data":
+                    d = json.loads(b)
+                    d["probe"] = {":type:": "<class 'object'>", ":serialized:": base64.b64encode(
+                        cloudpickle.dumps(_Payload(marker))).decode()}
+                    b = json.dumps(d).encode()
+                if n == "policy.pth" and pth is not None:
+                    b = pth
+                zout.writestr(n, b)
+        return dst
+
+    import io
+
+    buf = io.BytesIO()
+    torch.save({"w": _Payload(marker)}, buf)
+    out["zip_foreign"] = poison_data(policy_files / "foreign.zip", tmp_path / "evil_sb3.zip")
+    out["zip_data"] = poison_data(policy_files / "policy.zip", tmp_path / "evil_data.zip")
+    out["zip_pth"] = poison_data(policy_files / "policy.zip", tmp_path / "evil_pth.zip",
+                                 buf.getvalue())
+    assert not marker.exists()
+    return out
+
+
+def test_the_payloads_are_live(malicious):
+    """The files do run code when unpickled the usual way (so the tests below can fail)."""
+    import torch
+    from sb3_contrib import MaskablePPO
+
+    m = malicious["marker"]
+    for key in ("pt_extra", "pt_config", "pt_weight"):
+        torch.load(malicious[key], weights_only=False)
+        assert m.exists(), key
+        m.unlink()
+    MaskablePPO.load(malicious["zip_data"], device="cpu")
+    assert m.exists()
+
+
+PT_LOADERS = {
+    "read_policy": lambda f: __import__("netsense.rl.checkpoint").rl.checkpoint.read_policy(f),
+    "load_policy": lambda f: __import__("netsense.rl.checkpoint").rl.checkpoint.load_policy(f),
+    "seal_policy": lambda f: __import__("netsense.rl.checkpoint").rl.checkpoint.seal_policy(f),
+    "rollout": lambda f: ns.benchmark.rollout(COMM, f"learned:{f}", 1_000_000, COMM_SHORT),
+    "protocol.evaluate": lambda f: __import__("netsense.benchmark.protocol").benchmark
+    .protocol.evaluate(COMM, f"learned:{f}", [1_000_000], COMM_SHORT),
+    "protocol.frontier": lambda f: __import__("netsense.benchmark.protocol").benchmark
+    .protocol.frontier(COMM, episodes=1, families={}, learned=[str(f)],
+                       overrides=COMM_SHORT, progress=False),
+}
+
+
+@pytest.mark.parametrize("where", ["extra", "config", "weight"])
+@pytest.mark.parametrize("loader", list(PT_LOADERS))
+def test_no_python_loader_runs_a_pt_payload(malicious, loader, where):
+    import netsense.benchmark  # noqa: F401  (ns.benchmark in the table)
+
+    path = malicious[f"pt_{where}"]
+    with pytest.raises(ValueError, match="refused: the file holds Python objects") as err:
+        PT_LOADERS[loader](path)
+    assert str(path) in str(err.value) and "it references io.open" in str(err.value)
+    assert not malicious["marker"].exists()
+
+
+@pytest.mark.parametrize("key, refused", [("zip_foreign", "without netsense's metadata"),
+                                          ("zip_pth", "refused: the file holds Python"),
+                                          ("zip_data", None)])
+def test_no_python_loader_runs_a_zip_payload(malicious, key, refused):
+    """A poisoned ``data`` member is never read: a netsense zip carrying one loads and
+    acts; a zip without netsense.json or with a poisoned policy.pth is refused."""
+    from netsense.benchmark import rollout
+    from netsense.benchmark.protocol import evaluate
+    from netsense.rl.sb3_policy import LearnedPolicy
+
+    path = malicious[key]
+    calls = [lambda: LearnedPolicy(path),
+             lambda: rollout("fig1_scalar-v0", f"learned:{path}", 5, {"horizon": 8}),
+             lambda: evaluate("fig1_scalar-v0", f"learned:{path}", [1_000_000],
+                              {"horizon": 8})]
+    for call in calls:
+        if refused is None:
+            call()
+        else:
+            with pytest.raises(ValueError, match=refused):
+                call()
+        assert not malicious["marker"].exists()
+
+
+@pytest.mark.parametrize("key", ["pt_extra", "pt_config", "zip_foreign", "zip_pth",
+                                 "zip_data"])
+def test_no_cli_loader_runs_a_payload(malicious, key, tmp_path, capsys):
+    path = malicious[key]
+    zipped = key.startswith("zip")
+    sc, over = ("fig1_scalar-v0", "horizon=8") if zipped else (COMM, "horizon=12")
+    runs = [["benchmark", sc, "--policies", f"learned:{path}", "--seeds", "1", "--override",
+             over, "--out", str(tmp_path / "b"), "--no-progress"],
+            ["policy", "check", str(path)]]
+    if not zipped:  # the frontier reads .pt policies (a zip runs in the scenario's mode)
+        runs += [["benchmark", sc, "--frontier", "--learned", str(path), "--seeds", "1",
+                  "--families", "periodic", "--override", over, "--out",
+                  str(tmp_path / "f"), "--no-progress"],
+                 ["policy", "convert", str(path), "--trust", "--out", str(tmp_path / "x.pt")]]
+    for argv in runs:
+        rc = main(argv)
+        err = capsys.readouterr().err
+        if key == "zip_data":
+            assert rc == 0, err  # the poisoned member is never read
+        else:
+            assert rc == 2 and "refused" in err and str(path) in err, (argv, err)
+        assert not malicious["marker"].exists(), argv
+
+
+def test_converting_a_trusted_zip_is_the_one_place_that_unpickles(malicious, tmp_path):
+    """``convert --trust`` does run the file (that is what trusting it means); without
+    ``--trust`` it refuses before reading anything."""
+    from netsense.rl.sb3_policy import LearnedPolicy, convert_sb3_policy
+
+    with pytest.raises(ValueError, match="pass trust=True"):
+        convert_sb3_policy(malicious["zip_foreign"], tmp_path / "c.zip")
+    assert not malicious["marker"].exists()
+    assert main(["policy", "convert", str(malicious["zip_foreign"]), "--out",
+                 str(tmp_path / "c.zip")]) == 2
+    assert not malicious["marker"].exists()
+    out = convert_sb3_policy(malicious["zip_foreign"], tmp_path / "c.zip", trust=True)
+    assert malicious["marker"].exists()  # trusted, so unpickled: the payload ran
+    malicious["marker"].unlink()
+    LearnedPolicy(out)  # and the converted file reads as data from then on
+    assert not malicious["marker"].exists()
+
+
+# ============================================================== the CLI says what it did
+def test_cli_train_on_a_machine_without_the_device_says_so_before_training(tmp_path, capsys):
+    torch = pytest.importorskip("torch")
+    _torch()
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    rc = main(["train", "fig1_scalar-v0", "--backend", "torchrl", "--device", "cuda",
+               "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "torch sees no CUDA device here" in err and "Traceback" not in err
+    assert not (tmp_path / "t").exists()  # nothing written, nothing trained
+
+
+def test_cli_names_the_policies_a_scenario_skipped(tmp_path, capsys):
+    rc = main(["benchmark", COMM, "--policies", "freshness", "uniform_consensus", "--seeds",
+               "1", "--override", "horizon=5", "--out", str(tmp_path), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 0
+    assert f"note: uniform_consensus skipped on {COMM}:" in err, err
+    assert "freshness skipped" not in err
+
+
+def test_cli_torchrl_training_with_a_control_override_runs(tmp_path, capsys):
+    """The issue's crash (``make_core() got multiple values for keyword argument
+    'control'``) is a valid input: the run trains, says the minibatch is the whole
+    iteration and how many agent-steps it trained."""
+    _torch()
+    rc = main(["train", "message_cost-v1", "--backend", "torchrl", "--override",
+               'control={"mode": "transmit"}', "--override", "horizon=4", "--steps", "30",
+               "--num-envs", "2", "--rollout", "2", "--epochs", "1", "--eval-envs", "1",
+               "--out", str(tmp_path), "--no-progress"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert "note: --batch-size 256 is more than one iteration's 4 env-steps" in cap.err
+    assert "40 agent-steps (30 asked, whole iterations)" in cap.out
+    from netsense.rl.checkpoint import policy_control, read_policy
+
+    assert policy_control(read_policy(tmp_path / "seed_0" / "policy.pt"))["mode"] == \
+        "transmit"
+

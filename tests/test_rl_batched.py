@@ -236,7 +236,7 @@ def test_set_network_is_equivariant_to_slot_order():
     np.testing.assert_allclose(b[..., -2:], a[..., -2:], atol=1e-5)  # transmit unchanged
 
 
-def test_behaviour_cloning_learns_the_freshness_choices():
+def test_behaviour_cloning_learns_the_freshness_choices(capsys):
     from netsense.rl.cloning import behaviour_clone
     from netsense.rl.config import PPOConfig
     from netsense.rl.envs import make_core
@@ -246,9 +246,13 @@ def test_behaviour_cloning_learns_the_freshness_choices():
     cfg = PPOConfig(SCEN, network="set", num_envs=8, bc_minibatch=32, set_hidden=16,
                     overrides=SHORT)
     net = actor_net(cfg, make_core(SCEN, 1, **SHORT))
-    stats = behaviour_clone(net, cfg, "freshness", steps=192, epochs=8, lr=3e-3)
+    stats = behaviour_clone(net, cfg, "freshness", steps=192, epochs=8, lr=3e-3,
+                            progress=True)
     assert stats["ce_after"] < 0.5 * stats["ce_before"]
     assert stats["accuracy"] > stats["chance"] + 0.2
+    err = capsys.readouterr().err  # the phase shows progress: data, then gradient steps
+    assert "scripted data (freshness)" in err and "cloning freshness" in err
+    assert "48/48" in err  # 8 epochs x ceil(192 / 32) minibatches
 
 
 def test_behaviour_cloning_copies_a_communication_baseline():

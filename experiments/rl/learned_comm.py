@@ -110,11 +110,11 @@ def train(cfg, run: Path, retrain: bool) -> Path:
 def slim(policy: Path) -> None:
     """Drop the critic from a ``policy.pt`` (evaluation reads only the actor): the
     committed files stay small."""
-    import torch
+    from netsense.rl.checkpoint import read_policy, write_policy
 
-    state = torch.load(policy, map_location="cpu", weights_only=False)
+    state = read_policy(policy)  # read as data, checksum verified; rewritten with a new one
     if state.pop("critic", None) is not None:
-        torch.save(state, policy)
+        write_policy(policy, state)
 
 
 # %%

@@ -111,10 +111,14 @@ def _train_seeds(path: Path) -> list[int]:
         from netsense.rl.config import training_seeds
 
         return training_seeds(policy_config(read_policy(path)))
+    from netsense.rl.sb3_policy import read_sb3_policy
+
+    meta, _ = read_sb3_policy(path)  # the file's own record first, then its run's config
     cfg = path.parent / "train_config.json"
-    if not cfg.exists():
+    if "seed" not in meta and cfg.exists():
+        meta = json.loads(cfg.read_text())
+    if "seed" not in meta:
         return []
-    meta = json.loads(cfg.read_text())
     s, copies = int(meta.get("seed", 0)), int(meta.get("num_vec_envs", 1))
     return list(range(s, s + copies))
 
@@ -171,7 +175,7 @@ def _learned_actor(path: str, deterministic: bool, seed: int, core=None):
             torch.manual_seed(int(seed))
         return pol.act
 
-    from netsense.rl.sb3 import LearnedPolicy
+    from netsense.rl.sb3_policy import LearnedPolicy
 
     model = LearnedPolicy(path, deterministic=deterministic).model
     if not deterministic:
@@ -300,6 +304,9 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
     from tqdm.auto import tqdm
 
     seeds = eval_seeds(episodes, seed0)
+    for path in learned:  # a missing or refused file, or training seeds among the
+        # evaluation seeds, fail before the scripted runs (minutes) rather than after
+        check_disjoint(_train_seeds(Path(path.replace("{scenario}", scenario))), seeds)
     fams = dict(FAMILIES if families is None else families)
     comm_over = frontier_overrides(scenario, overrides)
     control = _mode(scenario, comm_over)

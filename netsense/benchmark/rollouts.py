@@ -135,7 +135,7 @@ def rollout(scenario: str, policy: str, seed: int, overrides: dict | None = None
             a = batched.act(*core.observe())[0]
             return {ag: a[j] for j, ag in enumerate(env.possible_agents) if ag in env.agents}
     elif learned:
-        from netsense.rl.sb3 import LearnedPolicy
+        from netsense.rl.sb3_policy import LearnedPolicy
         from netsense.rl.wrappers import MaskedFlatObs
 
         agent_env = MaskedFlatObs(env)

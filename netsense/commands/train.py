@@ -44,8 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--seed); --workers or --ray trains them at once")
     parser.add_argument("--num-envs", type=positive_int, default=4,
                         help="environment copies stepped together (default: 4)")
-    parser.add_argument("--n-steps", type=positive_int, default=128,
-                        help="PPO rollout length per vector slot (default: 128)")
+    parser.add_argument("--n-steps", type=positive_int, default=None,
+                        help="sb3: PPO rollout length per vector slot (default: 128; the "
+                             "torchrl backend's is --rollout)")
     parser.add_argument("--batch-size", type=positive_int, default=256,
                         help="PPO minibatch (default: 256)")
     parser.add_argument("--lr", type=positive_float, default=3e-4,
@@ -57,31 +58,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scenario override passed to netsense.make, e.g. horizon=40 "
                              "(repeatable; the value is parsed as JSON)")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    tr = parser.add_argument_group("torchrl backend")
-    tr.add_argument("--network", choices=("mlp", "set"), default="mlp",
-                    help="actor: shared MLP or the set network over message slots")
+    tr = parser.add_argument_group("torchrl backend (refused with --backend sb3)")
+    tr.add_argument("--network", choices=("mlp", "set"), default=None,
+                    help="actor: shared MLP (default) or the set network over message slots")
     tr.add_argument("--control", choices=("full", "transmit", "substates"), default=None,
                     help="control mode (default: the scenario's): full, or communication "
                          "only with one bit (transmit) or one bit per substate (substates); "
                          "the scenario's fusion rule adopts")
     tr.add_argument("--reward", choices=("scenario", "team", "agent", "counterfactual"),
-                    default="scenario", help="credit assignment (docs/rl.md)")
+                    default=None, help="credit assignment (docs/rl.md; default: scenario)")
     tr.add_argument("--critic", choices=("state", "joint", "local"), default=None,
                     help="mappo: state (default) or joint; ippo: local")
-    tr.add_argument("--rollout", type=positive_int, default=32,
+    tr.add_argument("--rollout", type=positive_int, default=None,
                     help="steps per environment per iteration (default: 32)")
-    tr.add_argument("--epochs", type=positive_int, default=4, help="PPO epochs (default: 4)")
-    tr.add_argument("--eval-interval", type=positive_int, default=10,
+    tr.add_argument("--epochs", type=positive_int, default=None,
+                    help="PPO epochs (default: 4)")
+    tr.add_argument("--eval-interval", type=positive_int, default=None,
                     help="evaluate + checkpoint every this many iterations (default: 10)")
-    tr.add_argument("--eval-envs", type=positive_int, default=16,
+    tr.add_argument("--eval-envs", type=positive_int, default=None,
                     help="evaluation episodes (default: 16)")
     tr.add_argument("--bc", default=None, metavar="POLICY",
                     help="behaviour-cloning warm start from a scripted policy (freshness, "
                          "uniform, open_loop, random, or a communication baseline such as "
                          "event:2 in a communication-only mode), then conservative "
                          "fine-tuning")
-    tr.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto",
-                    help="learner device (auto: CUDA when available)")
+    tr.add_argument("--device", default=None,
+                    help="learner device: auto (default: CUDA when available), cpu, cuda or "
+                         "cuda:<index>; checked before anything runs")
     many = parser.add_argument_group(
         "many runs (torchrl backend; the learning library is --backend's choice, these "
         "choose where the runs of --seeds train)")
@@ -103,30 +106,69 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            "0, the learner on the CPU)")
 
 
+
+#: Options of the torchrl backend and their defaults (``None`` in the parser, so that an
+#: option given with ``--backend sb3`` is refused instead of ignored).
+TORCHRL_DEFAULTS = {"network": "mlp", "control": None, "reward": "scenario", "critic": None,
+                    "rollout": 32, "epochs": 4, "eval_interval": 10, "eval_envs": 16,
+                    "bc": None, "device": "auto", "seeds": None}
+#: Options of the sb3 backend only.
+SB3_DEFAULTS = {"n_steps": 128}
+
+
 def parse_overrides(items: list[str]) -> dict:
-    """``["horizon=40", 'reward={"message_cost": 0.1}']`` -> dict (values parsed as JSON)."""
+    """``["horizon=40", 'reward={"message_cost": 0.1}']`` -> dict (values parsed as JSON;
+    a value that is not JSON is kept as a string, unless it looks like JSON: one starting
+    with ``{``, ``[`` or ``"`` must parse). A key given twice is refused."""
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
+        key = key.strip()
         if not sep or not key:
-            raise ValueError(f"override must look like KEY=VALUE, got {item!r}")
+            raise ValueError(f"--override must look like KEY=VALUE, got {item!r}")
+        if key in out:
+            raise ValueError(f"--override {key}= is given twice; give each key once (a "
+                             "table's keys go in one JSON object)")
         try:
             out[key] = json.loads(value)
-        except json.JSONDecodeError:
+        except json.JSONDecodeError as exc:
+            if value.lstrip()[:1] in ("{", "[", '"'):
+                raise ValueError(f"--override {key}=: not valid JSON ({exc.msg} at column "
+                                 f"{exc.colno}): {value!r}") from None
             out[key] = value
     return out
 
 
+def _given(args: argparse.Namespace, names) -> list[str]:
+    return ["--" + n.replace("_", "-") for n in names if getattr(args, n) is not None]
+
+
 def _check_inputs(args: argparse.Namespace) -> dict:
-    """Unknown scenario and bad overrides fail before any learning stack is imported."""
-    from netsense.env.registry import list_scenarios
+    """Unknown scenario, bad overrides and options of the other backend fail before any
+    learning stack is imported."""
+    from netsense.env.registry import list_scenarios, unknown_scenario
 
     if args.scenario not in list_scenarios():
-        raise ValueError(f"unknown scenario {args.scenario!r} (see `netsense list`)")
+        raise unknown_scenario(args.scenario)
     overrides = parse_overrides(args.override)
     from netsense.env.vector import load_model
 
     load_model(args.scenario, **overrides)  # bad override values name their field here
+    if args.backend == "sb3":
+        wrong = _given(args, TORCHRL_DEFAULTS)
+        if wrong:
+            raise ValueError(f"{', '.join(wrong)} belong{'s' if len(wrong) == 1 else ''} to "
+                             "--backend torchrl; the sb3 backend would ignore "
+                             f"{'it' if len(wrong) == 1 else 'them'}")
+        for k, v in SB3_DEFAULTS.items():
+            setattr(args, k, v if getattr(args, k) is None else getattr(args, k))
+    else:
+        wrong = _given(args, SB3_DEFAULTS)
+        if wrong:
+            raise ValueError(f"{', '.join(wrong)} belongs to --backend sb3 (torchrl: "
+                             "--rollout, steps per environment per iteration)")
+        for k, v in TORCHRL_DEFAULTS.items():
+            setattr(args, k, v if getattr(args, k) is None else getattr(args, k))
     return overrides
 
 
@@ -147,7 +189,15 @@ def run(args: argparse.Namespace) -> int:
                       num_vec_envs=args.num_envs, n_steps=args.n_steps,
                       batch_size=args.batch_size, learning_rate=args.lr, gamma=args.gamma,
                       ent_coef=args.ent_coef, overrides=overrides)
-    refs = baseline_returns(cfg, ("freshness", "uniform_consensus"))
+    asked_refs = ("freshness", "uniform_consensus")
+    refs = baseline_returns(cfg, asked_refs)
+    left = [r for r in asked_refs if r not in refs]
+    if left:
+        import sys
+
+        print(f"note: {', '.join(left)} do{'es' if len(left) == 1 else ''} not apply to "
+              f"{args.scenario} (not drawn as reference on the training curve)",
+              file=sys.stderr)
     out = args.out if args.out is not None else f"runs/{args.scenario}"
     res = train(cfg, out, progress=not args.no_progress, baselines=refs)
     last = res.curve[-1]["mean_episode_reward"] if res.curve else float("nan")
@@ -178,14 +228,18 @@ def _launch_options(args: argparse.Namespace) -> dict:
 def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
     from pathlib import Path
 
-    from netsense.rl.config import PPOConfig
+    from netsense.rl.config import PPOConfig, device_of
     from netsense.rl.launch import launch, make_runs
 
     algo = args.algo or "mappo"
     if algo == "maskable_ppo":
         raise ValueError("--algo maskable_ppo needs --backend sb3")
     where = _launch_options(args)
+    if args.seeds and args.seed != 0:
+        raise ValueError("give --seed or --seeds, not both (--seeds trains one run per seed)")
     seeds = args.seeds if args.seeds else [args.seed]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"--seeds lists a seed twice: {seeds}")
     out = Path(args.out if args.out is not None else f"runs/{args.scenario}")
     cfg = PPOConfig(scenario=args.scenario, algo=algo, network=args.network,
                     control=args.control, reward=args.reward, critic=args.critic,
@@ -197,7 +251,10 @@ def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
                     overrides=overrides)
     if args.bc:
         cfg = cfg.conservative()
-    summary = launch(make_runs(cfg, seeds), out, progress=not args.no_progress, **where)
+    runs = make_runs(cfg, seeds)  # every seed's config checked before the first run
+    device_of(cfg.device)  # a device torch does not have fails here, not mid-run
+    _say_adjusted(cfg, args)
+    summary = launch(runs, out, progress=not args.no_progress, **where)
     for e in summary:
         if e["status"] != "ok":
             print(f"seed {e['seed']}: FAILED: {e['error']}")
@@ -213,3 +270,20 @@ def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
               f"and configs are in {out / 'summary.json'}")
         return 1
     return 0
+
+
+def _say_adjusted(cfg, args: argparse.Namespace) -> None:
+    """Say (on stderr) where the run will differ from what was asked: the warm start's
+    conservative settings, a minibatch larger than one iteration's data."""
+    import sys
+
+    frames = cfg.num_envs * cfg.rollout
+    if cfg.minibatch > frames:
+        print(f"note: --batch-size {cfg.minibatch} is more than one iteration's "
+              f"{frames} env-steps (--num-envs {cfg.num_envs} x --rollout {cfg.rollout}); "
+              f"each minibatch is the whole iteration", file=sys.stderr)
+    if args.bc:
+        print(f"note: --bc {args.bc}: behaviour cloning first, then fine-tuning with clip "
+              f"{cfg.clip:g}, lr {cfg.lr:g}, entropy {cfg.entropy_coef:g} and "
+              f"{cfg.critic_warmup} critic-only iterations (PPOConfig.conservative)",
+              file=sys.stderr)

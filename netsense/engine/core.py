@@ -551,9 +551,13 @@ class BatchedCore:
             a = a.astype(np.int64)
         elif a.dtype == np.uint64:  # uint64 + int64 offsets would promote to float
             if a.size and a.max() >= 2**62:
-                pos = np.unravel_index(int(a.argmax()), a.shape)
-                raise ValueError(f"action of agent {pos[1]} (batch member {pos[0]}) for "
-                                 f"column {pos[2]} is {int(a[pos])}, outside 0..{self.D + 1}")
+                b, i, j = (int(v) for v in np.unravel_index(int(a.argmax()), a.shape))
+                if self.comm is None:
+                    what = f"substate {j}" if j < self.M else "transmit"
+                else:
+                    what = f"substate {j}" if self.comm.per_substate else "transmit"
+                raise ValueError(f"action of agent {i} (batch member {b}) for {what} is "
+                                 f"{int(a[b, i, j])}, outside 0..{int(self.nvec[j]) - 1}")
             a = a.astype(np.int64)
         return a
 

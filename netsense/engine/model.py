@@ -233,10 +233,38 @@ class CoreModel:
         if self.reward.substate_cost and not self.control.comm_only:
             raise ValueError("reward.substate_cost needs a communication-only control mode "
                              "(control.mode = 'transmit' or 'substates')")
+        bound = self.reward_bound
+        if not np.isfinite(bound):
+            rw = self.reward
+            raise ValueError(f"reward: |r_i| <= error_weight * error_clip + message_cost + "
+                             f"substate_cost * M must be finite, got {rw.error_weight:g} * "
+                             f"{rw.error_clip:g} + {rw.message_cost:g} + "
+                             f"{rw.substate_cost:g} * {self.num_substates} (the payload "
+                             "cost is paid per substate)")
         if (self.control.comm_only and self.control.fusion == "tree"
                 and not isinstance(self.graphs, PeriodicGraphs)):
             raise ValueError("control.fusion = 'tree' needs a periodic graph schedule, got "
                              f"{type(self.graphs).__name__}")
+
+    @property
+    def num_substates(self) -> int:
+        """``M``: substates the indices and actions cover (every agent's with ``substates =
+        "all"``, those of agents with a non-empty block of Lemma 1 with ``"sources"``)."""
+        N = self.plant.num_agents
+        if self.substates == "all":
+            return N
+        sizes = np.bincount(self.design.decomposition.block_of, minlength=N)
+        return int(np.count_nonzero(sizes))
+
+    @property
+    def reward_bound(self) -> float:
+        """Largest ``|r_i|`` of a step: ``w_e e_max + c + c_s M`` (:class:`RewardConfig`;
+        the payload cost ``c_s`` is paid for each of up to ``M`` substates in a message,
+        communication-only modes)."""
+        rw = self.reward
+        cs = float(rw.substate_cost) * self.num_substates if self.control.comm_only else 0.0
+        with np.errstate(over="ignore"):
+            return float(np.float64(rw.error_weight) * rw.error_clip + rw.message_cost + cs)
 
     def _check_types(self) -> None:
         """Every field of the right type, and the design made for this plant."""

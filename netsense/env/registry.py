@@ -76,7 +76,8 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     feedback = false                   # observation field acks: delivery per out-link
 
     [channel]                          # netsense.engine.control.Channel (default: none)
-    capacity = 2                       # at most K senders per step, else all messages lost
+    capacity = 2                       # required in the section: at most K senders per
+                                       # step, else all messages lost
 
 A malformed file raises ``ValueError("<file>: field '<section.key>': ...")``.
 """
@@ -106,6 +107,8 @@ _TOP = {"description", "horizon", "x0_std", "initial_transmit", "divergence_limi
         "plant", "graph", "design", "noise", "arrivals", "reward", "source_estimator",
         "faults", "substates", "control", "channel"}
 _ENV_KWARGS = {"render_mode", "invalid_actions", "action_mask_in", "aoi_info", "nonfinite"}
+#: Keywords of :func:`make` that are options of the PettingZoo env, not scenario keys.
+ENV_OPTIONS = frozenset(_ENV_KWARGS)
 _PLANT_FIELDS = {
     "fig1_scalar": ({"kind"}, {"a"}),
     "random_structured": ({"kind", "n", "num_agents", "seed"},
@@ -267,6 +270,9 @@ class Scenario:
             raise _err(source, "substates", f"must be 'all' or 'sources', got {substates!r}")
         control = dict(raw.get("control", {}))
         channel = dict(raw.get("channel", {}))
+        if "channel" in raw and not channel:  # an empty table is a mistake, not "none"
+            raise _err(source, "channel.capacity", "is required in a [channel] section "
+                       "(leave the section out for no shared channel)")
         _build_control(control, channel, source)  # checks the fields
         sc = cls(id=id, horizon=horizon, plant=plant, graph=dict(raw["graph"]),
                  description=desc, x0_std=float(x0), initial_transmit=it,
@@ -402,11 +408,24 @@ def list_scenarios() -> list[str]:
     return sorted(_files())
 
 
+def unknown_scenario(scenario_id: Any) -> ValueError:
+    """The error for an id that is not registered: ``unknown scenario '<id>'``, the closest
+    registered ids when there are some (``difflib``), and where the list is."""
+    import difflib
+
+    ids = list_scenarios()
+    close = (difflib.get_close_matches(scenario_id, ids, n=3, cutoff=0.6)
+             if isinstance(scenario_id, str) else [])
+    hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
+    return ValueError(f"unknown scenario {scenario_id!r}{hint}; `netsense list` shows the "
+                      f"{len(ids)} registered ids")
+
+
 def load(scenario_id: str) -> Scenario:
     """Parse and validate the scenario file of ``scenario_id``."""
     files = _files()
-    if scenario_id not in files:
-        raise ValueError(f"unknown scenario {scenario_id!r}; available: {sorted(files)}")
+    if not isinstance(scenario_id, str) or scenario_id not in files:
+        raise unknown_scenario(scenario_id)
     entry = files[scenario_id]
     return load_file(entry, scenario_id)
 

@@ -10,7 +10,9 @@ module                          what                                            
 ==============================  ======================================================  ==========
 ``netsense.rl.wrappers``        flat observations with the action mask appended         (core)
 ``netsense.rl.credit``          team / per-agent / counterfactual sender rewards        (core)
-``netsense.rl.sb3``             SuperSuit + MaskablePPO, ``train`` / ``LearnedPolicy``  ``rl``
+``netsense.rl.policy_files``    policy files are data: safe loading, checksums          ``rl``
+``netsense.rl.sb3_policy``      ``LearnedPolicy``: a ``policy.zip`` read as data        ``rl``
+``netsense.rl.sb3``             SuperSuit + MaskablePPO, ``train``                      ``rl``
 ``netsense.rl.rllib``           RLlib multi-agent PPO, one shared masked policy         ``rllib``
 ``netsense.rl.torchrl``         TorchRL ``PettingZooWrapper`` (the BenchMARL path)      ``torchrl``
 ==============================  ======================================================  ==========
@@ -47,6 +49,6 @@ Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense
 """
 
 __all__ = ["advantage", "checkpoint", "cloning", "config", "credit", "distributions", "envs",
-           "evaluation", "launch", "mappo", "memory", "models", "networks", "policy", "ppo",
-           "rllib", "rollout", "runlog", "sb3", "scripted", "set_network", "torchrl",
-           "torchrl_batched", "wrappers"]
+           "evaluation", "launch", "mappo", "memory", "models", "networks", "policy",
+           "policy_files", "ppo", "rllib", "rollout", "runlog", "sb3", "sb3_policy", "scripted",
+           "set_network", "torchrl", "torchrl_batched", "wrappers"]

@@ -12,15 +12,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-import numpy as np
 import torch
 
+from netsense.engine.control import MODES
+from netsense.kernels import checks
 from netsense.rl import credit
-from netsense.rl.envs import CONTROLS
+from netsense.rl.envs import resolve_device
 from netsense.rl.networks import ACTIVATIONS, CRITICS
 
-__all__ = ["ALGOS", "BC_HELDOUT_SEED", "EVAL_SEED", "NETWORKS", "PPOConfig", "device_of",
-           "training_seeds"]
+__all__ = ["ALGOS", "BC_HELDOUT_SEED", "CONFIG_CHECKS", "EVAL_SEED", "MAX_WIDTH", "NETWORKS",
+           "PPOConfig", "check_config_fields", "check_field", "device_of", "training_seeds"]
 
 ALGOS = ("mappo", "ippo")
 NETWORKS = ("mlp", "set")
@@ -29,6 +30,8 @@ NETWORKS = ("mlp", "set")
 EVAL_SEED = 10**9
 #: Held-out members of the behaviour-cloning check are seeded from here.
 BC_HELDOUT_SEED = 900_000
+#: Widest layer a config accepts (a million-wide layer is a typo, not a network).
+MAX_WIDTH = 65536
 
 
 def training_seeds(config: PPOConfig) -> list[int]:
@@ -56,9 +59,11 @@ class PPOConfig:
         Centralised (``critic`` ``"state"`` or ``"joint"``) or local critic.
     network : {"mlp", "set"}
         Actor network (:mod:`netsense.rl.networks`, :mod:`netsense.rl.set_network`).
-    control : {None, "full", "transmit", "substates"}
+    control : {None, "full", "transmit", "substates"} or dict
         Control mode (:func:`netsense.rl.envs.make_core`); ``None`` keeps the
-        scenario's.
+        scenario's; a dict sets ``[control]`` keys (``mode``, ``fusion``). A ``control``
+        entry of ``overrides`` is folded in here (a mode given here wins over its
+        ``mode``).
     reward : str
         Reward option (:data:`netsense.rl.credit.REWARDS`).
     steps : int
@@ -88,10 +93,11 @@ class PPOConfig:
         The MLP actors also read a one-hot of the substate the agent owns
         (:class:`netsense.rl.policy.OwnSubstateActor`).
     value_norm : bool
-        Critic trained on standardised value targets (:class:`netsense.rl.normalizers.
-        RunningNorm`).
+        Critic trained on standardised value targets (TorchRL's ``RunningValueNorm``;
+        :mod:`netsense.rl.advantage`).
     reward_scale : bool
-        Rewards divided by the running standard deviation of the discounted return.
+        Rewards divided by the running standard deviation of the discounted return
+        (:class:`netsense.rl.ppo.ReturnScaler`).
     obs_norm : bool
         Observations standardised by running statistics before the MLP actor (ignored by
         the set network, whose tokens are bounded by construction).
@@ -109,7 +115,7 @@ class PPOConfig:
         Evaluation episodes (one batch, deterministic actions, seeds from
         :data:`EVAL_SEED`).
     bc : str or None
-        Scripted policy to clone before PPO (:func:`~netsense.rl.scripted.scripted_actions`).
+        Scripted policy to clone before PPO (:func:`scripted_actions`).
     bc_steps, bc_epochs, bc_minibatch : int
         Env-steps of scripted data (split over ``num_envs`` members; each holds ``N``
         agent-steps), passes over it, env-steps per gradient step. The defaults clone a
@@ -133,7 +139,11 @@ class PPOConfig:
         matrix products waited on each other (a 20480 x 233 x 64 layer: 11.5 ms on one
         thread, 25 ms on two, with the other core busy).
     overrides : dict
-        Scenario overrides.
+        Scenario overrides (checked against the scenario file when the config is built).
+
+    Every field is checked when the config is built (:data:`CONFIG_CHECKS`): types are
+    not converted and ranges are checked before anything runs; the device's
+    availability is checked when training starts (:func:`device_of`).
     """
 
     scenario: str
@@ -181,30 +191,23 @@ class PPOConfig:
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name, options in (("algo", ALGOS), ("network", NETWORKS), ("control", CONTROLS),
-                              ("reward", credit.REWARDS)):
-            if getattr(self, name) not in options:
-                raise ValueError(f"PPOConfig.{name} must be one of {options}, got "
-                                 f"{getattr(self, name)!r}")
-        if self.critic is not None and self.critic not in CRITICS:
-            raise ValueError(f"PPOConfig.critic must be one of {CRITICS}, got {self.critic!r}")
+        check_config_fields(self, CONFIG_CHECKS)
         if self.algo == "ippo" and self.critic not in (None, "local"):
-            raise ValueError("ippo uses a local critic (critic='local')")
-        for name in ("steps", "num_envs", "rollout", "epochs", "minibatch", "eval_envs",
-                     "bc_steps", "bc_epochs", "bc_minibatch"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"PPOConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("lr", "bc_lr"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise ValueError(f"PPOConfig.{name} must be a finite number > 0, got {v!r}")
-        if isinstance(self.seed, bool) or int(self.seed) != self.seed or self.seed < 0:
-            raise ValueError(f"PPOConfig.seed must be an integer >= 0, got {self.seed!r}")
+            raise ValueError(f"PPOConfig.critic: ippo uses a local critic (critic='local' or "
+                             f"None), got {self.critic!r}")
         if (self.seed + 1) * self.num_envs > BC_HELDOUT_SEED:
             raise ValueError(f"PPOConfig.seed: training members are seeded seed * num_envs "
                              f"+ b, which must stay below {BC_HELDOUT_SEED} (evaluation "
                              f"seeds are kept apart); got seed {self.seed} with num_envs "
                              f"{self.num_envs}")
+        if self.device != "auto":
+            try:
+                kind = torch.device(self.device).type
+            except (RuntimeError, ValueError):
+                kind = None
+            if kind not in ("cpu", "cuda"):
+                raise ValueError(f"PPOConfig.device must be 'auto', 'cpu', 'cuda' or "
+                                 f"'cuda:<index>', got {self.device!r}")
         if self.bc and self.memory:
             raise ValueError("PPOConfig.bc: behaviour cloning trains a feed-forward actor "
                              "step by step; it is not available with memory > 0")
@@ -212,11 +215,8 @@ class PPOConfig:
             raise ValueError("PPOConfig.critic 'team' (one value per member) needs "
                              f"reward='team' (every agent's return the same), got reward "
                              f"{self.reward!r}")
-        if self.activation not in ACTIVATIONS:
-            raise ValueError(f"PPOConfig.activation must be one of {tuple(ACTIVATIONS)}, got "
-                             f"{self.activation!r}")
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise ValueError(f"PPOConfig.device must be auto, cpu or cuda, got {self.device!r}")
+        _check_bc(self.bc)
+        _check_scenario(self)
 
     @property
     def critic_kind(self) -> str:
@@ -237,7 +237,167 @@ class PPOConfig:
 
 
 def device_of(name: str) -> torch.device:
-    """``"auto"`` -> CUDA when available, else the CPU; ``"cpu"``/``"cuda"`` as named."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
+    """``"auto"`` -> CUDA when available, else the CPU; ``"cpu"``, ``"cuda"`` or
+    ``"cuda:<k>"`` as named, checked against what this torch has (``ValueError`` naming
+    ``PPOConfig.device`` when it has no such device; :func:`netsense.rl.envs.resolve_device`).
+    A config is checked for the device's *name* only, so a policy trained on a GPU still
+    loads on a machine without one; training calls this before anything else."""
+    return resolve_device(name, "PPOConfig.device")
+
+
+# ------------------------------------------------------------------ field checks
+#: How each field of :class:`PPOConfig` is checked (:func:`check_config_fields`): ``(kind,
+#: low, high)``. Kinds: ``"int"`` (an ``int``, not a bool, float or string, in ``[low,
+#: high]``), ``"int?"`` (the same or ``None``), ``"float"`` (a finite real number, not a
+#: bool or string; ``low`` / ``high`` as ``(value, open)`` pairs, ``None`` for no bound),
+#: ``"widths"`` (a non-empty tuple or list of ``int`` layer widths in ``[low, high]``),
+#: ``"choice"`` / ``"choice?"`` (one of ``low``, compared by type and value; ``?``: or
+#: ``None``), ``"str"``, ``"dict"``. A new field adds its row here.
+CONFIG_CHECKS: dict[str, tuple] = {
+    "scenario": ("str", None, None),
+    "algo": ("choice", ALGOS, None),
+    "network": ("choice", NETWORKS, None),
+    "reward": ("choice", credit.REWARDS, None),
+    "critic": ("choice?", CRITICS, None),
+    "steps": ("int", 1, checks.MAX_STEPS),
+    "seed": ("int", 0, BC_HELDOUT_SEED - 1),
+    "num_envs": ("int", 1, BC_HELDOUT_SEED),
+    "rollout": ("int", 1, checks.MAX_STEPS),
+    "epochs": ("int", 1, 10**6),
+    "minibatch": ("int", 1, checks.MAX_STEPS),
+    "lr": ("float", (0.0, True), None),
+    "clip": ("float", (0.0, True), (1.0, False)),
+    "gamma": ("float", (0.0, False), (1.0, False)),
+    "lmbda": ("float", (0.0, False), (1.0, False)),
+    "entropy_coef": ("float", (0.0, False), None),
+    "critic_coef": ("float", (0.0, True), None),
+    "max_grad_norm": ("float", (0.0, True), None),
+    "hidden": ("widths", 1, MAX_WIDTH),
+    "critic_hidden": ("widths", 1, MAX_WIDTH),
+    "set_hidden": ("int", 1, MAX_WIDTH),
+    "memory": ("int", 0, MAX_WIDTH),
+    "activation": ("choice", tuple(ACTIVATIONS), None),
+    "stagger": ("choice", (True, False), None),
+    "agent_features": ("choice", (True, False), None),
+    "value_norm": ("choice", (True, False), None),
+    "reward_scale": ("choice", (True, False), None),
+    "obs_norm": ("choice", (True, False), None),
+    "lr_decay": ("choice", (True, False), None),
+    "entropy_final": ("float?", (0.0, False), None),
+    "eval_interval": ("int", 0, checks.MAX_STEPS),
+    "eval_envs": ("int", 1, BC_HELDOUT_SEED),
+    "bc_steps": ("int", 1, checks.MAX_STEPS),
+    "bc_epochs": ("int", 1, 10**6),
+    "bc_minibatch": ("int", 1, checks.MAX_STEPS),
+    "bc_lr": ("float", (0.0, True), None),
+    "critic_warmup": ("int", 0, checks.MAX_STEPS),
+    "device": ("str", None, None),
+    "numba_threads": ("int?", 1, 4096),
+    "torch_threads": ("int?", 1, 4096),
+    "overrides": ("dict", None, None),
+}
+
+
+def check_field(owner: str, name: str, value, kind: str, low=None, high=None):
+    """Check one field (a row of :data:`CONFIG_CHECKS`); return the value to store (only a
+    list of widths changes: to a tuple). ``ValueError`` naming ``owner.name``, what it
+    must be and what it got; types are never converted (``"100"``, ``1.5``, ``True`` are
+    not integers, ``True`` is not a number)."""
+    where = f"{owner}.{name}"
+    if kind.endswith("?"):
+        if value is None:
+            return None
+        kind = kind[:-1]
+    if kind == "int":
+        return checks.integer(where, value, low, high)
+    if kind == "float":
+        lo, lo_open = low if low is not None else (None, False)
+        hi, hi_open = high if high is not None else (None, False)
+        return checks.number(where, value, lo, hi, lo_open=lo_open, hi_open=hi_open)
+    if kind == "choice":
+        return checks.choice(where, value, low)
+    if kind == "widths":
+        if not isinstance(value, (tuple, list)) or not value:
+            raise ValueError(f"{where} must be a non-empty tuple of layer widths, got "
+                             f"{value!r}")
+        return tuple(checks.integer(f"{where}[{i}]", w, low, high)
+                     for i, w in enumerate(value))
+    if kind == "str":
+        if not isinstance(value, str):
+            raise ValueError(f"{where} must be a string, got {value!r} "
+                             f"({type(value).__name__})")
+        return value
+    if kind == "dict":
+        if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
+            raise ValueError(f"{where} must be a dict with string keys, got {value!r}")
+        return value
+    raise ValueError(f"unknown check kind {kind!r} for {where}")
+
+
+def check_config_fields(config, table: dict[str, tuple]) -> None:
+    """Check every field of a frozen dataclass ``config`` named in ``table``, in order
+    (:func:`check_field`); normalised values (widths as tuples) are stored back."""
+    owner = type(config).__name__
+    for name, (kind, low, high) in table.items():
+        value = getattr(config, name)
+        out = check_field(owner, name, value, kind, low, high)
+        if out is not value and isinstance(out, tuple):
+            object.__setattr__(config, name, out)
+
+
+def _check_bc(bc) -> None:
+    """``bc``: ``None`` or the name of a scripted policy :func:`scripted_actions` knows."""
+    if bc is None:
+        return
+    from netsense.env.comm_policies import COMM_POLICIES, parse_spec
+    from netsense.env.policies import POLICIES
+
+    if not isinstance(bc, str):
+        raise ValueError(f"PPOConfig.bc must be None or a scripted policy name, got {bc!r}")
+    if bc.partition(":")[0] in COMM_POLICIES:
+        try:
+            parse_spec(bc)
+        except ValueError as exc:
+            raise ValueError(f"PPOConfig.bc: {exc}") from None
+    elif bc not in POLICIES:
+        raise ValueError(f"PPOConfig.bc must be a scripted policy: one of {list(POLICIES)} "
+                         f"or a communication baseline ({', '.join(COMM_POLICIES)}, with "
+                         f"an optional :knob), got {bc!r}")
+
+
+def _check_scenario(config) -> None:
+    """The scenario is registered; ``control`` is a mode, ``None`` or a dict of
+    ``[control]`` keys; the overrides are valid for the scenario (the scenario file's
+    checks, nothing built). A ``control`` override is folded into ``control`` (so that
+    ``make_core(..., control=config.control, **config.overrides)`` gets it once)."""
+    from netsense.env.registry import load, unknown_scenario, with_overrides
+
+    try:
+        base = load(config.scenario)
+    except ValueError as exc:
+        if "unknown scenario" in str(exc):
+            raise ValueError(f"PPOConfig.scenario: {unknown_scenario(config.scenario)}"
+                             ) from None
+        raise
+    over = dict(config.overrides)
+    control = config.control
+    if "control" in over:
+        section = over.pop("control")
+        if not isinstance(section, dict):
+            raise ValueError(f"PPOConfig.overrides['control'] must be a table of [control] "
+                             f"keys (mode, fusion), got {section!r}")
+        control = {**section, **({"mode": control} if isinstance(control, str) else
+                                 control if isinstance(control, dict) else {})}
+    if control is not None and not isinstance(control, dict):
+        checks.choice("PPOConfig.control", control, MODES)
+    try:
+        sc = with_overrides(base, **over, **({} if control is None else {
+            "control": control if isinstance(control, dict) else {"mode": control}}))
+    except ValueError as exc:
+        raise ValueError(f"PPOConfig.overrides: {exc}") from None
+    if isinstance(control, dict):
+        control = {k: sc.control[k] for k in control}  # checked by the scenario
+    if control is not config.control:
+        object.__setattr__(config, "control", control)
+    if over != config.overrides:
+        object.__setattr__(config, "overrides", over)

@@ -49,12 +49,14 @@ from torchrl.envs import EnvBase
 
 from netsense.engine.control import MODES
 from netsense.engine.core import BatchedCore, CoreModel
-from netsense.env.registry import control_overrides
+from netsense.env.registry import ENV_OPTIONS, control_overrides
 from netsense.env.vector import load_model
+from netsense.kernels import checks
 from netsense.kernels.update import OMEGA
 from netsense.rl import credit
 
-__all__ = ["CONTROLS", "NetSenseBatchedEnv", "global_state", "make_core", "state_size"]
+__all__ = ["CONTROLS", "NetSenseBatchedEnv", "global_state", "make_core", "resolve_device",
+           "state_size"]
 
 #: Control modes :func:`make_core` accepts (``None``: the scenario's own ``[control]``).
 CONTROLS = (None, *MODES)
@@ -68,13 +70,107 @@ def make_core(scenario: str | CoreModel, num_envs: int, *, control: str | dict |
     average per substate, transmit), ``"transmit"`` or ``"substates"`` (communication
     only: the scenario's fusion rule adopts, the agents send;
     :mod:`netsense.engine.control`) set its mode; a dict sets any of its keys.
+    ``num_envs`` is an integer >= 1 (not a float or a string); a batch whose arrays do not
+    fit in memory is a ``ValueError`` naming it.
     """
+    B = checks.integer("num_envs", num_envs, 1)
     if control is not None and not isinstance(scenario, str):
         raise ValueError("control needs a scenario id; a CoreModel carries its own mode")
+    env_only = sorted(set(overrides) & ENV_OPTIONS)
+    if env_only:
+        raise ValueError(f"{env_only} are options of the PettingZoo env, not scenario keys; "
+                         "a BatchedCore has no such option here")
     if isinstance(scenario, str):
         overrides = control_overrides(scenario, control, overrides)
     model, _ = load_model(scenario, **overrides)
-    return BatchedCore(model, int(num_envs))
+    if B >= _PROBE_FROM:
+        _check_memory(model, B)
+    try:
+        return BatchedCore(model, B)
+    except MemoryError:
+        raise ValueError(f"num_envs = {B}: the arrays of {B} copies of the scenario do not "
+                         "fit in this machine's memory; use fewer environments") from None
+
+
+#: Batch sizes from which :func:`make_core` measures a member's memory first.
+_PROBE_FROM = 4096
+
+
+def _array_bytes(obj) -> int:
+    arrays = [v for v in vars(obj).values() if isinstance(v, np.ndarray)]
+    comm = getattr(obj, "comm", None)
+    if comm is not None:
+        arrays += [v for v in vars(comm).values() if isinstance(v, np.ndarray)]
+    return sum(a.nbytes for a in arrays)
+
+
+def _available_bytes() -> float:
+    """Memory this process may still use: ``MemAvailable`` and the address-space limit."""
+    import resource
+
+    avail = float("inf")
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    avail = int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    if soft not in (resource.RLIM_INFINITY, -1):
+        avail = min(avail, soft)
+    return avail
+
+
+def _check_memory(model: CoreModel, B: int) -> None:
+    """Refuse a batch whose arrays cannot fit: a member's bytes measured on cores of one
+    and two members after a reset (a lower bound on what ``B`` members take)."""
+    sizes = []
+    for b in (1, 2):
+        probe = BatchedCore(model, b)
+        probe.reset(0)
+        sizes.append(_array_bytes(probe))
+    per = max(sizes[1] - sizes[0], 1)
+    need, avail = per * B, _available_bytes()
+    if need > avail:
+        raise ValueError(f"num_envs = {B}: the core's arrays alone take about "
+                         f"{need / 2**30:.1f} GiB ({per} bytes per member) and "
+                         f"{avail / 2**30:.1f} GiB are available; use fewer environments")
+
+
+def resolve_device(device, name: str = "device") -> torch.device:
+    """The torch device ``device`` names, checked against what this torch has.
+
+    ``"auto"``: CUDA when available, else the CPU; ``"cpu"``, ``"cuda"``, ``"cuda:<k>"``
+    or a ``torch.device`` of those kinds. ``ValueError`` naming ``name`` for anything
+    else, for CUDA when torch sees no CUDA device, and for an index beyond the devices.
+    """
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if isinstance(device, torch.device):
+        dev = device
+    elif isinstance(device, str):
+        try:
+            dev = torch.device(device)
+        except (RuntimeError, ValueError):
+            dev = None
+    else:
+        dev = None
+    if dev is None or dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"{name} must be 'auto', 'cpu', 'cuda' or 'cuda:<index>', got "
+                         f"{device!r}")
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            built = torch.version.cuda
+            raise ValueError(f"{name} = {device!r}, but torch sees no CUDA device here "
+                             f"(torch {torch.__version__}, "
+                             f"{'built with CUDA ' + built if built else 'a CPU-only build'})"
+                             "; use 'cpu' or 'auto'")
+        count = torch.cuda.device_count()
+        if dev.index is not None and dev.index >= count:
+            raise ValueError(f"{name} = {device!r}, but torch sees {count} CUDA "
+                             f"device{'s' if count != 1 else ''} (indices 0..{count - 1})")
+    return dev
 
 
 def state_size(N: int, M: int) -> int:
@@ -116,17 +212,28 @@ class NetSenseBatchedEnv(EnvBase):
         One of :data:`netsense.rl.credit.REWARDS`.
     seed : int, optional
         Seed of the first reset.
-    device : torch device
-        Where the env's tensors live (the core itself runs on the CPU).
+    device : str or torch device
+        Where the env's tensors live (the core itself runs on the CPU); checked by
+        :func:`resolve_device`.
     """
 
     batch_locked = True
 
     def __init__(self, core, *, reward: str = "scenario", seed: int | None = 0,
                  device="cpu") -> None:
-        if reward not in credit.REWARDS:
-            raise ValueError(f"reward must be one of {credit.REWARDS}, got {reward!r}")
+        if not isinstance(core, BatchedCore):
+            raise ValueError(f"core must be a BatchedCore (make_core), got "
+                             f"{type(core).__name__}")
+        checks.choice("reward", reward, credit.REWARDS)
+        if seed is not None:
+            seed = checks.seed_value("seed", seed, int(core.B))
+        bound = core.model.reward_bound
+        if not bound <= float(np.finfo(np.float32).max):
+            raise ValueError(f"reward: rewards up to {bound:.3g} in magnitude do not fit the "
+                             "float32 reward spec of the TorchRL env (|r| <= 3.4e38); scale "
+                             "the [reward] weights down")
         B, N = int(core.B), int(core.N)
+        device = resolve_device(device)
         super().__init__(device=device, batch_size=torch.Size([B]))
         self.core = core
         self.reward_option = reward

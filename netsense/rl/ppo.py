@@ -118,7 +118,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     env = NetSenseBatchedEnv(core, reward=config.reward, seed=config.seed * config.num_envs)
     N, B, T = core.N, core.B, config.rollout
     net = actor_net(config, core, device)
-    bc = behaviour_clone(net, config, config.bc, device=device) if config.bc else None
+    bc = (behaviour_clone(net, config, config.bc, device=device, progress=progress)
+          if config.bc else None)
     actor = build_actor(net, core.nvec).to(device)
     critic = critic_module(config, env, device).to(device)
     value_norm = RunningValueNorm(shape=1, device=device) if config.value_norm else None

@@ -12,8 +12,9 @@ Pipeline (one network for all agents, action masks reaching the learner)::
 
 MaskablePPO asks the vector env for masks through ``env_method("action_masks")``
 (:func:`sb3_contrib.common.maskable.utils.get_action_masks`); :class:`VecActionMasks`
-answers it. Requires the ``rl`` extra: ``pip install torch==2.13.0 && pip install -e
-".[rl]"``.
+answers it. Saved policies are read back as data by
+:class:`netsense.rl.sb3_policy.LearnedPolicy` (re-exported here). Requires the ``rl``
+extra: ``pip install torch==2.13.0 && pip install -e ".[rl]"``.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from netsense.rl.sb3_policy import LearnedPolicy, sb3_metadata, write_sb3_metadata
 from netsense.rl.wrappers import MaskedFlatObs, mask_allows
 
 try:
@@ -301,8 +303,9 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
           baselines: dict[str, float] | None = None) -> TrainResult:
     """Train a parameter-shared MaskablePPO policy and save it with its training curve.
 
-    Writes ``policy.zip``, ``training_curve.csv``, ``training_curve.png`` and
-    ``train_config.json`` into ``out``.
+    Writes ``policy.zip`` (an SB3 zip with netsense's metadata and checksum, read as data
+    by :class:`netsense.rl.sb3_policy.LearnedPolicy`), ``training_curve.csv``,
+    ``training_curve.png`` and ``train_config.json`` into ``out``.
 
     Parameters
     ----------
@@ -347,6 +350,10 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
     masks = monitor.venv  # VecMonitor -> VecActionMasks
     policy_path = out / "policy.zip"
     model.save(policy_path)
+    # netsense's metadata and checksum: LearnedPolicy reads the file without unpickling
+    write_sb3_metadata(policy_path, sb3_metadata(
+        model, scenario=config.scenario, overrides=config.overrides, seed=config.seed,
+        num_vec_envs=config.num_vec_envs))
     env.close()
     curve_csv = out / "training_curve.csv"
     with curve_csv.open("w", newline="") as fh:
@@ -387,72 +394,3 @@ def _plot_curve(rows: list[dict], path: Path, title: str,
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
-
-
-# -------------------------------------------------------------------------- inference
-class LearnedPolicy:
-    """A saved MaskablePPO policy acting for every agent of a netsense env.
-
-    Parameters
-    ----------
-    path : path
-        ``policy.zip`` written by :func:`train`.
-    deterministic : bool
-        Take the most likely allowed action (default) or sample.
-
-    Raises
-    ------
-    ValueError
-        If ``path`` does not exist, is not a file, or is not a readable MaskablePPO policy
-        (truncated, corrupted, another kind of file); :meth:`act` raises it when the
-        policy was trained for other observation or action spaces (another scenario).
-    """
-
-    def __init__(self, path: str | Path, *, deterministic: bool = True) -> None:
-        import torch
-        from gymnasium import spaces
-        from sb3_contrib import MaskablePPO
-
-        torch.set_num_threads(1)  # inference on small MLPs; leave cores to other workers
-        path = Path(path)
-        if not path.exists():
-            raise ValueError(f"no learned policy at {path} (train one with `netsense train`)")
-        if not path.is_file():
-            raise ValueError(f"{path}: not a policy file (a directory?)")
-        try:
-            self.model = MaskablePPO.load(path, device="cpu")
-        except Exception as exc:  # noqa: BLE001 - any failure to load is a bad file
-            text = " ".join(str(exc).split())[:200]
-            raise ValueError(f"{path}: not a readable MaskablePPO policy file (truncated or "
-                             f"corrupted?): {type(exc).__name__}: {text}") from None
-        obs, act = self.model.observation_space, self.model.action_space
-        if not (isinstance(obs, spaces.Box) and len(obs.shape) == 1
-                and isinstance(act, spaces.MultiDiscrete)):
-            raise ValueError(f"{path}: a policy for {obs} -> {act}, not a netsense policy "
-                             "(flat Box observations, MultiDiscrete actions)")
-        self.path = path
-        self.deterministic = deterministic
-
-    def act(self, flat_obs: dict[str, np.ndarray], wrapper: MaskedFlatObs) -> dict:
-        """Actions for every agent in ``flat_obs`` (observations of ``wrapper``)."""
-        self.check_env(wrapper)
-        agents = list(flat_obs)
-        stacked = np.stack([flat_obs[a] for a in agents])
-        _, masks = wrapper.split(stacked)
-        acts, _ = self.model.predict(stacked, action_masks=masks,
-                                     deterministic=self.deterministic)
-        return {a: np.asarray(acts[i]) for i, a in enumerate(agents)}
-
-    def check_env(self, wrapper: MaskedFlatObs) -> None:
-        """Raise ``ValueError`` unless the policy's spaces are ``wrapper``'s (the policy was
-        trained on this scenario's observation and action layout)."""
-        want_obs = self.model.observation_space.shape
-        want_nvec = np.asarray(self.model.action_space.nvec).tolist()
-        got_obs = wrapper.observation_space(wrapper.possible_agents[0]).shape
-        got_nvec = np.asarray(wrapper.nvec).tolist()
-        if tuple(got_obs) != tuple(want_obs) or got_nvec != want_nvec:
-            raise ValueError(f"the policy {getattr(self, 'path', '')} was trained for "
-                             f"observations of shape {tuple(want_obs)} and actions "
-                             f"MultiDiscrete({want_nvec}); this environment has "
-                             f"{tuple(got_obs)} and MultiDiscrete({got_nvec}) (a policy of "
-                             f"another scenario or overrides?)")

@@ -35,16 +35,21 @@ def scripted_actions(name: str, core, seed: int = 0):
     return make_policy(name, core, **({"seed": seed} if name == "random" else {})).act
 
 
-def collect_scripted(config: PPOConfig, name: str, steps: int, seed: int):
+def collect_scripted(config: PPOConfig, name: str, steps: int, seed: int, *,
+                     progress: bool = False):
     """Observations, masks and scripted actions of about ``steps`` env-steps (``num_envs``
-    members, ``ceil(steps / num_envs)`` steps each), as tensors ``(rows, N, ...)``."""
+    members, ``ceil(steps / num_envs)`` steps each), as tensors ``(rows, N, ...)``;
+    ``progress``: a tqdm bar over the steps."""
+    from tqdm.auto import tqdm
+
     core = make_core(config.scenario, config.num_envs, control=config.control,
                      **config.overrides)
     act = scripted_actions(name, core, seed)
     obs, mask = core.reset(seed)
     rng = np.random.default_rng(seed)
     O, Mk, A = [], [], []
-    for _ in range(-(-int(steps) // core.B)):
+    for _ in tqdm(range(-(-int(steps) // core.B)), desc=f"scripted data ({name})",
+                  unit="env-step", disable=not progress):
         a = act(obs, mask)
         O.append(obs.copy())
         Mk.append(mask.astype(bool))
