@@ -628,8 +628,8 @@ CLI = [
     ("train-sb3-with-torchrl-option", ["train", "fig1_scalar-v0", "--network", "set",
                                        "--reward", "team"],
      "--network, --reward belong to --backend torchrl; the sb3 backend would ignore them"),
-    ("train-torchrl-with-sb3-option", ["train", "fig1_scalar-v0", "--backend", "torchrl",
-                                       "--n-steps", "64"], "--n-steps belongs to --backend sb3"),
+    ("train-rollout-zero", ["train", "fig1_scalar-v0", "--backend", "torchrl",
+                            "--n-steps", "0"], "argument --rollout/--n-steps: must be >= 1"),
     ("train-torchrl-device-bogus", ["train", "fig1_scalar-v0", "--backend", "torchrl",
                                     "--device", "bogus", "--out", "{tmp}/t"],
      "PPOConfig.device must be 'auto', 'cpu', 'cuda' or 'cuda:<index>'"),
@@ -1478,7 +1478,7 @@ def test_cli_torchrl_training_with_a_control_override_runs(tmp_path, capsys):
                "--out", str(tmp_path), "--no-progress"])
     cap = capsys.readouterr()
     assert rc == 0, cap.err
-    assert "note: --batch-size 256 is more than one iteration's 4 env-steps" in cap.err
+    assert "note: --batch-size 2048 is more than one iteration's 4 env-steps" in cap.err
     assert "40 agent-steps (30 asked, whole iterations)" in cap.out
     from netsense.rl.checkpoint import policy_control, read_policy
 

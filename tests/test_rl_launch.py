@@ -30,8 +30,9 @@ def _runs():
     from netsense.rl.launch import Run, make_runs
 
     cfg = _tiny()
-    # a run that fails when it builds its environment (an unknown scenario field)
-    bad = Run(replace(cfg, overrides={"horizon": 12, "bogus": 1}), "bad")
+    # a run that fails when it starts: a learner device this machine does not have (a
+    # config checks the device's name only, so that GPU-trained policies load anywhere)
+    bad = Run(replace(cfg, device="cuda:97"), "bad")
     return [*make_runs({"mappo": cfg}, [0, 1]), bad]
 
 
@@ -88,8 +89,8 @@ def test_in_process_runs_and_a_failed_run(reference):
     ok, bad = summary[0], summary[2]
     assert ok["agent_steps"] == 2 * 4 * 8 * 10 and ok["mask_violations"] == 0
     assert all(ok[k] is not None for k in ("eval_return", "eval_sampled_error"))
-    assert "bogus" in bad["error"] and bad["error"].startswith("ValueError")
-    assert bad["config"]["overrides"] == {"horizon": 12, "bogus": 1}
+    assert "cuda:97" in bad["error"] and bad["error"].startswith("ValueError")
+    assert bad["config"]["device"] == "cuda:97"
     assert "Traceback" in bad["traceback"]
     for folder in ("mappo/seed_0", "mappo/seed_1"):
         assert {"config.json", "log.csv", "policy.pt", "summary.json"} <= {
@@ -230,7 +231,7 @@ def test_cli_seeds_train_what_launch_trains(reference, tmp_path, capsys):
     (["--backend", "torchrl", "--workers", "2", "--ray", "local"], "with --ray, Ray places"),
     (["--backend", "torchrl", "--cpus-per-run", "2"], "need --ray ADDRESS"),
     (["--backend", "torchrl", "--gpus-per-run", "0.5"], "need --ray ADDRESS"),
-    (["--seeds", "0", "1"], "--backend sb3 trains one"),
+    (["--seeds", "0", "1"], "--seeds belongs to --backend torchrl"),
     (["--workers", "2"], "--backend sb3 trains one"),
     (["--backend", "torchrl", "--workers", "0"], "argument --workers: must be >= 1"),
 ])

@@ -30,9 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "MAPPO / IPPO over BatchedCore (netsense.rl.ppo)")
     parser.add_argument("--algo", choices=ALGOS, default=None,
                         help="maskable_ppo (sb3) or mappo / ippo (torchrl; default mappo)")
-    parser.add_argument("--steps", type=positive_int, default=50_000,
-                        help="agent-steps of experience, rounded up to whole PPO rollouts "
-                             "(default: 50000)")
+    parser.add_argument("--steps", type=positive_int, default=None,
+                        help="agent-steps of experience (one env-step is N agent-steps), "
+                             "rounded up to whole iterations (default: sb3 50000, torchrl "
+                             "2000000)")
     parser.add_argument("--out", default=None,
                         help="output directory (default: runs/SCENARIO, the path "
                              "`netsense benchmark --policies learned:runs/{scenario}/policy.zip` "
@@ -42,18 +43,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         metavar="SEED",
                         help="torchrl: train one run per seed into OUT/seed_<s> (default: "
                              "--seed); --workers or --ray trains them at once")
-    parser.add_argument("--num-envs", type=positive_int, default=4,
-                        help="environment copies stepped together (default: 4)")
-    parser.add_argument("--n-steps", type=positive_int, default=None,
-                        help="sb3: PPO rollout length per vector slot (default: 128; the "
-                             "torchrl backend's is --rollout)")
-    parser.add_argument("--batch-size", type=positive_int, default=256,
-                        help="PPO minibatch (default: 256)")
-    parser.add_argument("--lr", type=positive_float, default=3e-4,
-                        help="learning rate (default: 3e-4)")
-    parser.add_argument("--gamma", type=finite_float, default=0.95, help="discount (default: 0.95)")
-    parser.add_argument("--ent-coef", type=finite_float, default=0.01,
-                        help="entropy bonus (default: 0.01)")
+    parser.add_argument("--num-envs", type=positive_int, default=None,
+                        help="environment copies stepped together, N agents each (default: "
+                             "sb3 4, torchrl 256)")
+    parser.add_argument("--rollout", "--n-steps", dest="rollout", type=positive_int,
+                        default=None,
+                        help="env-steps per environment per iteration, both backends (sb3: "
+                             "PPO's n_steps, default 128; torchrl: T, default 32)")
+    parser.add_argument("--batch-size", "--minibatch", dest="batch_size", type=positive_int,
+                        default=None,
+                        help="PPO minibatch: sb3 in agent-steps (every agent is a vector "
+                             "slot; default 256), torchrl in env-steps of N agents each, a "
+                             "recurrent actor takes it in whole sequences of --rollout "
+                             "env-steps (default 2048)")
+    parser.add_argument("--lr", type=positive_float, default=None,
+                        help="learning rate (default: sb3 3e-4, torchrl 1e-3)")
+    parser.add_argument("--gamma", type=finite_float, default=None,
+                        help="discount (default: sb3 0.95, torchrl 0.99)")
+    parser.add_argument("--ent-coef", type=finite_float, default=None,
+                        help="entropy bonus (default 0.01; torchrl decays it linearly to 0 "
+                             "over the run)")
     parser.add_argument("--override", action="append", default=[], metavar="KEY=JSON",
                         help="scenario override passed to netsense.make, e.g. horizon=40 "
                              "(repeatable; the value is parsed as JSON)")
@@ -66,17 +75,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          "only with one bit (transmit) or one bit per substate (substates); "
                          "the scenario's fusion rule adopts")
     tr.add_argument("--reward", choices=("scenario", "team", "agent", "counterfactual"),
-                    default=None, help="credit assignment (docs/rl.md; default: scenario)")
-    tr.add_argument("--critic", choices=("state", "joint", "local"), default=None,
-                    help="mappo: state (default) or joint; ippo: local")
-    tr.add_argument("--rollout", type=positive_int, default=None,
-                    help="steps per environment per iteration (default: 32)")
+                    default=None, help="credit assignment (docs/rl.md; default: team)")
+    tr.add_argument("--critic", choices=("team", "state", "joint", "local"), default=None,
+                    help="mappo: team (default with the team reward: V(s) once per "
+                         "environment), state, joint; ippo: local")
+    tr.add_argument("--memory", type=nonnegative_int, default=None, metavar="M",
+                    help="GRU state size of the actor over the agent's own history (default: "
+                         "0, a feed-forward actor)")
     tr.add_argument("--epochs", type=positive_int, default=None,
-                    help="PPO epochs (default: 4)")
+                    help="PPO epochs per iteration (default: 4)")
     tr.add_argument("--eval-interval", type=positive_int, default=None,
                     help="evaluate + checkpoint every this many iterations (default: 10)")
     tr.add_argument("--eval-envs", type=positive_int, default=None,
-                    help="evaluation episodes (default: 16)")
+                    help="evaluation episodes (default: 32)")
     tr.add_argument("--bc", default=None, metavar="POLICY",
                     help="behaviour-cloning warm start from a scripted policy (freshness, "
                          "uniform, open_loop, random, or a communication baseline such as "
@@ -107,13 +118,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 
-#: Options of the torchrl backend and their defaults (``None`` in the parser, so that an
-#: option given with ``--backend sb3`` is refused instead of ignored).
-TORCHRL_DEFAULTS = {"network": "mlp", "control": None, "reward": "scenario", "critic": None,
-                    "rollout": 32, "epochs": 4, "eval_interval": 10, "eval_envs": 16,
-                    "bc": None, "device": "auto", "seeds": None}
-#: Options of the sb3 backend only.
-SB3_DEFAULTS = {"n_steps": 128}
+#: Options of the torchrl backend only (``None`` in the parser, so that an option given with
+#: ``--backend sb3`` is refused instead of ignored; what is not given takes
+#: :class:`netsense.rl.config.PPOConfig`'s default).
+TORCHRL_ONLY = ("network", "control", "reward", "critic", "memory", "epochs", "eval_interval",
+                "eval_envs", "bc", "device", "seeds")
+#: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
+#: takes the backend's config default (``--help`` names both).
+SHARED = {"steps": ("steps", "steps"), "num_envs": ("num_envs", "num_vec_envs"),
+          "rollout": ("rollout", "n_steps"), "batch_size": ("minibatch", "batch_size"),
+          "lr": ("lr", "learning_rate"), "gamma": ("gamma", "gamma"),
+          "ent_coef": ("entropy_coef", "ent_coef")}
+
+
+def given_fields(args: argparse.Namespace, backend: str) -> dict:
+    """The shared flags the user gave, under the backend config's field names."""
+    i = 0 if backend == "torchrl" else 1
+    return {names[i]: getattr(args, flag) for flag, names in SHARED.items()
+            if getattr(args, flag) is not None}
 
 
 def parse_overrides(items: list[str]) -> dict:
@@ -155,20 +177,11 @@ def _check_inputs(args: argparse.Namespace) -> dict:
 
     load_model(args.scenario, **overrides)  # bad override values name their field here
     if args.backend == "sb3":
-        wrong = _given(args, TORCHRL_DEFAULTS)
+        wrong = _given(args, TORCHRL_ONLY)
         if wrong:
             raise ValueError(f"{', '.join(wrong)} belong{'s' if len(wrong) == 1 else ''} to "
                              "--backend torchrl; the sb3 backend would ignore "
                              f"{'it' if len(wrong) == 1 else 'them'}")
-        for k, v in SB3_DEFAULTS.items():
-            setattr(args, k, v if getattr(args, k) is None else getattr(args, k))
-    else:
-        wrong = _given(args, SB3_DEFAULTS)
-        if wrong:
-            raise ValueError(f"{', '.join(wrong)} belongs to --backend sb3 (torchrl: "
-                             "--rollout, steps per environment per iteration)")
-        for k, v in TORCHRL_DEFAULTS.items():
-            setattr(args, k, v if getattr(args, k) is None else getattr(args, k))
     return overrides
 
 
@@ -185,10 +198,8 @@ def run(args: argparse.Namespace) -> int:
     from netsense.benchmark.baselines import baseline_returns
     from netsense.rl.sb3 import TrainConfig, train
 
-    cfg = TrainConfig(scenario=args.scenario, steps=args.steps, seed=args.seed,
-                      num_vec_envs=args.num_envs, n_steps=args.n_steps,
-                      batch_size=args.batch_size, learning_rate=args.lr, gamma=args.gamma,
-                      ent_coef=args.ent_coef, overrides=overrides)
+    cfg = TrainConfig(scenario=args.scenario, seed=args.seed, overrides=overrides,
+                      **given_fields(args, "sb3"))
     asked_refs = ("freshness", "uniform_consensus")
     refs = baseline_returns(cfg, asked_refs)
     left = [r for r in asked_refs if r not in refs]
@@ -201,7 +212,8 @@ def run(args: argparse.Namespace) -> int:
     out = args.out if args.out is not None else f"runs/{args.scenario}"
     res = train(cfg, out, progress=not args.no_progress, baselines=refs)
     last = res.curve[-1]["mean_episode_reward"] if res.curve else float("nan")
-    asked = "" if res.agent_steps == args.steps else f" ({args.steps} asked, whole rollouts)"
+    asked = ("" if res.agent_steps == cfg.steps
+             else f" ({cfg.steps} asked, whole rollouts)")
     print(f"trained {args.algo} on {args.scenario} for {res.agent_steps} agent-steps{asked} "
           f"in {res.wall_s:.1f} s; final mean episode return {last:.4g}; "
           f"masked actions taken: {res.mask_violations}/{res.actions_checked}")
@@ -241,14 +253,10 @@ def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"--seeds lists a seed twice: {seeds}")
     out = Path(args.out if args.out is not None else f"runs/{args.scenario}")
-    cfg = PPOConfig(scenario=args.scenario, algo=algo, network=args.network,
-                    control=args.control, reward=args.reward, critic=args.critic,
-                    steps=args.steps, seed=seeds[0], num_envs=args.num_envs,
-                    rollout=args.rollout, epochs=args.epochs, minibatch=args.batch_size,
-                    lr=args.lr, gamma=args.gamma, entropy_coef=args.ent_coef,
-                    eval_interval=args.eval_interval, eval_envs=args.eval_envs,
-                    bc=args.bc, device=args.device,
-                    overrides=overrides)
+    own = {k: getattr(args, k) for k in TORCHRL_ONLY if k != "seeds"
+           and getattr(args, k) is not None}  # what is not given: PPOConfig's defaults
+    cfg = PPOConfig(scenario=args.scenario, algo=algo, seed=seeds[0], overrides=overrides,
+                    **own, **given_fields(args, "torchrl"))
     if args.bc:
         cfg = cfg.conservative()
     runs = make_runs(cfg, seeds)  # every seed's config checked before the first run
@@ -259,8 +267,10 @@ def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
         if e["status"] != "ok":
             print(f"seed {e['seed']}: FAILED: {e['error']}")
             continue
-        print(f"seed {e['seed']}: {algo}/{args.network} on {args.scenario}, "
-              f"{e['agent_steps']} agent-steps in {e['wall_s']:.1f} s; eval return "
+        asked = ("" if e["agent_steps"] == cfg.steps
+                 else f" ({cfg.steps} asked, whole iterations)")
+        print(f"seed {e['seed']}: {algo}/{cfg.network} on {args.scenario}, "
+              f"{e['agent_steps']} agent-steps{asked} in {e['wall_s']:.1f} s; eval return "
               f"{e['eval_return']:.4g}, error {e['eval_error']:.3g}, messages/agent-step "
               f"{e['eval_messages']:.3g}; masked actions taken: {e['mask_violations']}")
     print(f"wrote {out}/seed_*/(log.csv, policy.pt, checkpoints) and {out / 'summary.json'}")
