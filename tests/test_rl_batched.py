@@ -296,13 +296,19 @@ def test_bench_train_throughput_smoke(tmp_path):
     from experiment_loader import load_experiment
 
     mod = load_experiment("bench/train_throughput")
-    path = mod.main(["--paths", "torchrl-tx", "sb3-batched", "--rounds", "1", "--iters", "1",
-                     "--num-envs", "4", "--rollout", "4", "--sb3-steps", "512",
-                     "--sb3-envs", "20", "--out", str(tmp_path), "--tag", "smoke"])
+    path = mod.main(["--paths", "torchrl-defaults-tx", "torchrl-tuned-tx", "sb3-supersuit-tx",
+                     "--rounds", "1", "--iters", "1", "--grid", "4:8,8:16",
+                     "--defaults-envs", "4", "--defaults-minibatch", "8", "--sb3-steps", "512",
+                     "--out", str(tmp_path), "--tag", "smoke"])
     rows = list(csv.DictReader(open(path)))
-    assert [r["path"] for r in rows] == ["torchrl-tx", "sb3-batched"]
+    # the tuned path measures every grid point
+    assert [(r["path"], r["num_envs"]) for r in rows] == [
+        ("torchrl-defaults-tx", "4"), ("torchrl-tuned-tx", "4"), ("torchrl-tuned-tx", "8"),
+        ("sb3-supersuit-tx", "")]
     assert all(float(r["agent_steps_per_s"]) > 0 for r in rows)
-    assert (tmp_path / "smoke.png").exists() and (tmp_path / "smoke.txt").exists()
+    text = (tmp_path / "smoke.txt").read_text()
+    assert "ratio defaults / SB3 + SuperSuit, communication only: " in text
+    assert (tmp_path / "smoke.png").exists()
 
 
 # ------------------------------------------------------------------ policy files

@@ -146,7 +146,7 @@ def _check_structure(state, path: Path) -> None:
 
 
 def read_policy(path: str | Path) -> dict:
-    """The contents of a ``policy.pt`` / checkpoint of :func:`train_ppo`, checked.
+    """The contents of a ``policy.pt`` / checkpoint of :func:`~netsense.rl.ppo.train_ppo`, checked.
 
     Loads with ``torch.load(weights_only=True)`` (no code in the file runs), then checks
     the entries, the checksum (:func:`policy_checksum`), that the weights are finite and
@@ -261,7 +261,7 @@ class BatchedPolicy:
     Parameters
     ----------
     path : path
-        ``policy.pt`` or a checkpoint of :func:`train_ppo`.
+        ``policy.pt`` or a checkpoint of :func:`~netsense.rl.ppo.train_ppo`.
     core : optional
         The core the policy will act on (default: one of the training scenario). A set
         network runs on any layout of its kind (communication fields or not) and action

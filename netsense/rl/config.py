@@ -115,7 +115,7 @@ class PPOConfig:
         Evaluation episodes (one batch, deterministic actions, seeds from
         :data:`EVAL_SEED`).
     bc : str or None
-        Scripted policy to clone before PPO (:func:`scripted_actions`).
+        Scripted policy to clone before PPO (:func:`~netsense.rl.scripted.scripted_actions`).
     bc_steps, bc_epochs, bc_minibatch : int
         Env-steps of scripted data (split over ``num_envs`` members; each holds ``N``
         agent-steps), passes over it, env-steps per gradient step. The defaults clone a
@@ -346,7 +346,8 @@ def check_config_fields(config, table: dict[str, tuple]) -> None:
 
 
 def _check_bc(bc) -> None:
-    """``bc``: ``None`` or the name of a scripted policy :func:`scripted_actions` knows."""
+    """``bc``: ``None`` or the name of a scripted policy that
+    :func:`~netsense.rl.scripted.scripted_actions` knows."""
     if bc is None:
         return
     from netsense.env.comm_policies import COMM_POLICIES, parse_spec

@@ -244,7 +244,7 @@ def _update(loss, opt, data, config: PPOConfig, *, warm: bool, sequences: bool,
     for _ in range(config.epochs):
         perm = torch.randperm(rows, device=data.device)
         for s in range(0, rows - mb + 1, mb):
-            lv = loss(data[perm[s:s + mb]])
+            lv = loss(_gather(data, perm[s:s + mb]))
             total = lv["loss_critic"] if warm else (
                 lv["loss_objective"] + lv["loss_critic"] + lv["loss_entropy"])
             opt.zero_grad(set_to_none=True)
@@ -261,6 +261,11 @@ def _update(loss, opt, data, config: PPOConfig, *, warm: bool, sequences: bool,
     if not all(np.isfinite(list(out.values()))):
         raise FloatingPointError(f"non-finite PPO statistics: {out}")
     return out
+
+
+def _gather(data, idx: torch.Tensor):
+    """The minibatch ``data[idx]`` (a copy of the rows of every entry)."""
+    return data[idx]
 
 
 class ReturnScaler:

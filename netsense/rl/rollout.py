@@ -37,7 +37,10 @@ from netsense.rl.distributions import MaskedMultiCategorical
 from netsense.rl.envs import NetSenseBatchedEnv, global_state
 from netsense.rl.memory import is_recurrent
 
-__all__ = ["Collector", "Rollout"]
+__all__ = ["STAGGER_STEP", "Collector", "Rollout"]
+
+#: Granularity of the staggered episode phases (env-steps).
+STAGGER_STEP = 8
 
 
 @dataclass
@@ -104,11 +107,29 @@ class Collector:
                    if self.recurrent else None)
         self._acc = np.zeros((self.B, self.N))
 
+    def _actor(self, o: torch.Tensor) -> torch.Tensor:
+        """Logits of the current observations (a recurrent actor advances its state)."""
+        if self.recurrent:
+            logits, self._h = self.net(o, self._h)
+            return logits
+        return self.net(o)
+
+    def _sample(self, logits: torch.Tensor, m: torch.Tensor,
+                deterministic: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """Allowed actions (sampled or most likely) and their log-probabilities."""
+        d = MaskedMultiCategorical(logits, m, self.nvec)
+        a = d.deterministic_sample if deterministic else d.sample()
+        return a, d.log_prob(a)
+
     def _stagger(self, obs: np.ndarray, mask: np.ndarray, seed: int):
         """``H`` steps of random allowed actions; member ``b`` restarts at step ``s_b``."""
         env, H = self.env, int(self.env.core.horizon)
         gen = torch.Generator().manual_seed(int(seed))
-        restart_at = torch.randint(0, H, (self.B,), generator=gen).numpy()
+        # restarts on a grid of STAGGER_STEP steps: members end in groups afterwards, so a
+        # partial reset (whose fixed cost is that of a whole observation pass) runs every
+        # STAGGER_STEP steps, not at every step
+        grid = max(1, H // STAGGER_STEP)
+        restart_at = (torch.randint(0, grid, (self.B,), generator=gen) * STAGGER_STEP).numpy()
         for k in range(H):
             m = torch.from_numpy(np.ascontiguousarray(mask.view(np.bool_)))
             logits = torch.zeros(m.shape)
@@ -158,13 +179,10 @@ class Collector:
                 state[t] = global_state(env.core)
             if self.recurrent:
                 hid[t] = self._h
-                logits, self._h = self.net(o, self._h)
-            else:
-                logits = self.net(o)
-            d = MaskedMultiCategorical(logits, m, self.nvec)
-            a = d.deterministic_sample if deterministic else d.sample()
+            logits = self._actor(o)
+            a, logp = self._sample(logits, m, deterministic)
             act_t[t] = a
-            logp_t[t] = d.log_prob(a)
+            logp_t[t] = logp
             obs, mask, r, term, trunc = env.advance(a.cpu().numpy())
             rew[t] = r
             ended = term | trunc

@@ -1,0 +1,156 @@
+"""Where a training iteration's time goes: the batched trainer at the command line's defaults,
+split into its stages by a profile.
+
+Trains ``--iters`` iterations of :func:`netsense.rl.ppo.train_ppo` with the
+:class:`netsense.rl.config.PPOConfig` defaults (one torch and one numba thread) under
+:mod:`cProfile`, and attributes the wall time to disjoint stages by the cumulative time of
+the functions that implement them:
+
+==================  ==========================================================================
+stage               functions
+==================  ==========================================================================
+start (stagger)     spreading the members' episode phases before the first rollout (one
+                    horizon of random actions, once per run)
+core step           the collection minus the three stages below: ``NetSenseBatchedEnv.
+                    advance`` (the batched core's compiled step, the reward option),
+                    partial resets, copies into the rollout buffers
+global state        :func:`netsense.rl.envs.global_state` (the team critic's input, per step)
+actor (collection)  the actor network's forward passes during collection
+sampling            :class:`~netsense.rl.distributions.MaskedMultiCategorical`: building the
+                    masked distribution, sampling, log-probabilities (collection)
+advantage           :func:`netsense.rl.advantage.critic_values` (one critic pass over the
+                    rollout) and :func:`~netsense.rl.advantage.estimate` (TorchRL's GAE)
+loss batch          :func:`netsense.rl.advantage.loss_batch` (the rollout as a TensorDict)
+minibatch gather    ``TensorDict`` indexing of the minibatches
+loss forward        TorchRL's ``MAPPOLoss.forward`` (actor, distribution, critic, terms)
+backward            autograd's backward pass
+optimiser           ``Adam.step`` and gradient clipping
+other               the rest of the loop (building the core and networks, logging)
+==================  ==========================================================================
+
+Evaluation is timed on its own (one greedy and one sampled :func:`netsense.rl.evaluation.
+evaluate`, which the defaults run every 10 iterations). Writes ``profile.txt`` (a table:
+seconds and share per stage, plus the unprofiled wall time of the same run length measured
+first, and the evaluation's cost) and ``profile.png`` into ``--out``::
+
+    python experiments/bench/train_profile.py          # about 2 minutes
+"""
+
+# %%
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_profile"
+
+#: stage -> (file suffix, function name) pairs whose cumulative time it takes
+STAGES = {
+    "start (stagger)": [("rl/rollout.py", "_stagger")],
+    "core step": [("rl/rollout.py", "collect")],
+    "global state": [("rl/envs.py", "global_state")],
+    "actor (collection)": [("rollout.py", "_actor")],
+    "sampling": [("rollout.py", "_sample")],
+    "advantage": [("rl/advantage.py", "critic_values"), ("rl/advantage.py", "estimate")],
+    "loss batch": [("rl/advantage.py", "loss_batch")],
+    "minibatch gather": [("rl/ppo.py", "_gather")],
+    "loss forward": [("torchrl/objectives/ppo.py", "forward")],
+    "backward": [("torch/_tensor.py", "backward")],
+    "optimiser": [("torch/optim/adam.py", "step"), ("torch/nn/utils/clip_grad.py",
+                                                    "clip_grad_norm_")],
+}
+#: stages inside "core step" (its cumulative time is the whole collection): the rest of the
+#: collection is the core's step and the buffer copies
+INSIDE_COLLECTION = ("global state", "actor (collection)", "sampling")
+
+
+def _cumulative(stats: pstats.Stats, suffix: str, name: str) -> float:
+    total = 0.0
+    for (file, _line, fn), (_cc, _nc, _tt, ct, _callers) in stats.stats.items():
+        if fn == name and file.replace("\\", "/").endswith(suffix):
+            total += ct
+    return total
+
+
+def main(argv: list[str] | None = None) -> Path:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scenario", default="comm_process_noise-v0")
+    p.add_argument("--iters", type=int, default=10, help="training iterations profiled")
+    p.add_argument("--out", default=str(RESULTS))
+    args = p.parse_args(argv)
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.evaluation import evaluate
+    from netsense.rl.ppo import train_ppo
+
+    base = PPOConfig(args.scenario)
+    from netsense.rl.envs import make_core
+
+    N = make_core(args.scenario, 1).N
+    cfg = PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N * args.iters)
+    train_ppo(PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N), None,
+              evaluate_every=False)  # warm-up: compilation, allocation
+    t0 = time.perf_counter()
+    res = train_ppo(cfg, None, evaluate_every=False)
+    plain = time.perf_counter() - t0
+    prof = cProfile.Profile()
+    prof.enable()
+    t0 = time.perf_counter()
+    train_ppo(cfg, None, evaluate_every=False)
+    profiled = time.perf_counter() - t0
+    prof.disable()
+    from netsense.rl.policy import actor_net
+
+    net = actor_net(cfg, make_core(args.scenario, 1))
+    t0 = time.perf_counter()
+    evaluate(net, cfg)
+    evaluate(net, cfg, deterministic=False)
+    eval_s = time.perf_counter() - t0
+    stats = pstats.Stats(prof)
+    got = {stage: sum(_cumulative(stats, *f) for f in funcs) for stage, funcs in STAGES.items()}
+    got["core step"] -= sum(got[k] for k in INSIDE_COLLECTION)
+    rows = list(got.items())
+    rows.append(("other", max(0.0, profiled - sum(v for _, v in rows))))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    lines = [f"# {args.scenario}, PPOConfig defaults (B = {cfg.num_envs}, T = {cfg.rollout}, "
+             f"{cfg.epochs} epochs, minibatch {cfg.minibatch} env-steps, critic "
+             f"{cfg.critic_kind}), {args.iters} iterations = {res.agent_steps} agent-steps",
+             f"# without the profiler: {plain:.2f} s, {res.agent_steps / plain:,.0f} "
+             f"agent-steps/s (collection {res.rows[-1]['collect_s']:.2f} s, learning "
+             f"{res.rows[-1]['learn_s']:.2f} s)",
+             f"# under the profiler (shares below; the profiler slows Python-heavy stages "
+             f"more): {profiled:.2f} s",
+             f"# evaluation (not in the table): {eval_s:.2f} s for one greedy and one sampled "
+             f"evaluation of {cfg.eval_envs} episodes, every {cfg.eval_interval} iterations by "
+             f"default: {eval_s / cfg.eval_interval:.2f} s per iteration",
+             "stage                  seconds   share"]
+    for stage, v in rows:
+        lines.append(f"{stage:<20} {v:>9.2f}   {v / profiled:>5.1%}")
+    (out / "profile.txt").write_text("\n".join(lines) + "\n")
+    _plot(rows, profiled, out / "profile.png", args.scenario)
+    print("\n".join(lines))
+    return out / "profile.txt"
+
+
+def _plot(rows, total: float, path: Path, scenario: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    names = [r[0] for r in rows][::-1]
+    vals = [r[1] / total for r in rows][::-1]
+    ax.barh(names, vals, color="C0")
+    ax.set_xlabel("share of the training time (profiled)")
+    ax.set_title(f"one training run at the defaults, {scenario}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
