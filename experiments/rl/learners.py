@@ -431,7 +431,8 @@ def cmd_ablation(args, cfg: dict) -> None:
     runs = []
     for task in tasks:
         for name in names:
-            fields = _fields(cfg["defaults"], cfg["tasks"][task], variants[name])
+            fields = _fields(cfg["defaults"], cfg["tasks"][task], ab.get("base", {}),
+                             variants[name])
             fields["steps"] = args.steps or ab["steps"]
             runs += [(task, name, s, fields) for s in seeds]
     out = args.out / "ablation"

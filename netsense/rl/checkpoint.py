@@ -223,6 +223,9 @@ def policy_config(state: dict, path: str | Path | None = None) -> PPOConfig:
     if unknown:
         raise ValueError(f"{where}the stored config has keys this netsense does not know: "
                          f"{unknown} (written by a newer netsense?)")
+    # Files written before the activation was an option used tanh; the default changed
+    # since, so a file without the field must not take the new default.
+    cfg.setdefault("activation", "tanh")
     for key in ("hidden", "critic_hidden"):
         if isinstance(cfg.get(key), list):
             cfg[key] = tuple(cfg[key])

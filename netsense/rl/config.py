@@ -79,7 +79,8 @@ class PPOConfig:
     critic_hidden : tuple of int
     set_hidden : int
     activation : {"tanh", "relu"}
-        Hidden-layer activation of the MLP actor and the critics.
+        Hidden-layer activation of the MLP actor and the critics. ReLU by default: the
+        ablation finds the same returns as tanh, and it costs far less on a CPU.
     memory : int
         Size of the actor's GRU state over the agent's own observation history
         (:mod:`netsense.rl.memory`); 0: a feed-forward actor. Works with both networks and
@@ -168,7 +169,7 @@ class PPOConfig:
     critic_hidden: tuple[int, ...] = (128, 128)
     set_hidden: int = 32
     memory: int = 0
-    activation: str = "tanh"
+    activation: str = "relu"
     stagger: bool = True
     agent_features: bool = True
     value_norm: bool = True
