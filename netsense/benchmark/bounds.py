@@ -1,0 +1,346 @@
+"""Upper-bound references of the communication tasks: centralised full-information lookahead.
+
+Two references that say how far any policy is from the best possible, **not deployable
+policies**: they read the whole state of the simulation (plant, every estimate and index,
+the current graph) and simulate the future on forked copies of the evaluated core
+(:func:`netsense.engine.fork.fork`; there is no second simulator). Their policy names are
+``bound:causal`` and ``bound:clairvoyant`` (family and kind ``bound`` in the frontier).
+
+Receding-horizon lookahead (a rollout algorithm in the sense of Bertsekas, *Rollout,
+Policy Iteration, and Distributed Reinforcement Learning*, 2020, ch. 2). At every step
+``k`` and for every member, each candidate bit pattern ``c`` for step ``k`` (the
+communication bits of the control mode: one per agent in ``transmit`` mode, one per agent
+and substate in ``substates`` mode) is scored by
+
+.. math::
+
+    Q(c) = \\frac{1}{F} \\sum_{f=1}^{F} \\sum_{j=0}^{h-1} \\bar r_{k+j}^{(f)}(c),
+
+the return (reward per step averaged over agents, as the protocol's ``reward``) of
+``h`` steps on a fork whose lane applies ``c`` at ``k`` and a continuation policy ``p_c``
+at ``k + 1 .. k + h - 1``, over ``F`` futures; the evaluated core takes ``argmax_c Q(c)``
+(ties: the earliest candidate, the base policy's own action first). No terminal value is
+added (a truncated rollout), and steps past the episode end count nothing.
+
+* ``bound:causal`` -- the futures are **resampled** from the state at ``k``
+  (``future="resampled"`` forks: the plant state, estimates, indices, ``G[k]``, ``y[k]``
+  and the messages of ``k`` are known; the noise of ``k -> k + 1``, ``G[k+1]`` and
+  everything later are redrawn, see :mod:`netsense.engine.fork`). It never reads the
+  realised future: the best a centralised scheduler that knows the present exactly could
+  do, up to the search.
+* ``bound:clairvoyant`` -- the one **realised** future (``F = 1``): the lookahead knows
+  the future noise and graphs (who will receive a message sent now). A loose bound, above
+  anything causal.
+
+Search (:class:`BoundConfig`):
+
+* candidates ``"flips"`` (default): the action of every continuation policy (paired with
+  that policy as its continuation), then, paired with the first continuation (the base):
+  every allowed bit on, every bit off, and the base action with one bit flipped (one per
+  agent in ``transmit`` mode; one per agent and substate, plus each agent's whole row on
+  or off, in ``substates`` mode); duplicates are dropped per member. ``"exhaustive"``:
+  every pattern of allowed bits (``2^(N W)``) at each of the first ``depth`` steps (for
+  small tasks and the tests), then the base.
+* continuation: scripted communication policies of :mod:`netsense.env.comm_policies` (any
+  family, decentralised or centralised: the bound is centralised anyway) that act on the
+  current observation only; ``bernoulli`` (random) is refused. With the realised future,
+  a horizon reaching the episode end and each continuation's own action among the
+  candidates, the lookahead's return is at least every continuation policy's, episode by
+  episode (sequential improvement of rollout with several base heuristics; tested).
+* futures: member ``b``'s future ``f`` at step ``k`` is drawn from
+  ``SeedSequence([seed, s_b, k, f])`` with ``s_b`` the member's evaluation seed, so a
+  bound's result depends on (configuration, evaluation seeds) only.
+
+Cost: one fork per decision step holding every member x candidate x future as a lane,
+stepped ``h`` times: ``sum_b C_b F h`` core lane-steps per step of the evaluated core
+(:attr:`LookaheadBound.lane_steps`; :class:`BatchedCore` lane-steps cost a few
+microseconds each at these sizes). ``docs/communication.md`` gives the measured figures.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from netsense.kernels import checks
+
+__all__ = ["BOUND_KINDS", "CANDIDATES", "BoundConfig", "LookaheadBound", "parse_bound"]
+
+BOUND_KINDS = ("causal", "clairvoyant")
+CANDIDATES = ("flips", "exhaustive")
+#: Continuation used when none is named (overridden per task by the frontier: the best
+#: scripted point of the same run).
+DEFAULT_CONTINUATION = "event:2"
+#: Most patterns the exhaustive search enumerates per member and decision.
+MAX_EXHAUSTIVE = 4096
+
+
+@dataclass(frozen=True)
+class BoundConfig:
+    """Search settings of a lookahead bound (module docstring).
+
+    Attributes
+    ----------
+    kind : {"causal", "clairvoyant"}
+        Resampled futures, or the realised one.
+    horizon : int
+        ``h``: steps scored per candidate (the decision step and ``h - 1`` steps of
+        continuation).
+    futures : int
+        ``F``: resampled futures per candidate (``causal``; ``clairvoyant`` uses 1).
+    candidates : {"flips", "exhaustive"}
+        Candidate generation.
+    depth : int
+        ``exhaustive``: steps whose patterns are all enumerated (``2^(N W depth)``
+        sequences); must be 1 with ``flips``.
+    continuation : tuple of str
+        Communication policy specs; the first is the base (its action, all on / all off
+        and single flips are scored with it as the continuation).
+    seed : int
+        Seed of the resampled futures.
+    known_ahead : int
+        Graphs after ``G[k]`` known at ``k`` (kept by the resampled futures).
+    """
+
+    kind: str = "causal"
+    horizon: int = 8
+    futures: int = 4
+    candidates: str = "flips"
+    depth: int = 1
+    continuation: tuple[str, ...] = (DEFAULT_CONTINUATION,)
+    seed: int = 0
+    known_ahead: int = 0
+
+    def __post_init__(self) -> None:
+        checks.choice("kind", self.kind, BOUND_KINDS)
+        checks.choice("candidates", self.candidates, CANDIDATES)
+        checks.integer("horizon", self.horizon, 1)
+        checks.integer("futures", self.futures, 1)
+        checks.integer("depth", self.depth, 1)
+        checks.integer("known_ahead", self.known_ahead, 0)
+        checks.seed_value("seed", self.seed)
+        if self.depth > self.horizon:
+            raise ValueError(f"depth ({self.depth}) must be <= horizon ({self.horizon})")
+        if self.depth > 1 and self.candidates != "exhaustive":
+            raise ValueError("depth > 1 enumerates sequences: it needs candidates="
+                             "'exhaustive'")
+        cont = self.continuation
+        if isinstance(cont, str) or not cont or not all(isinstance(c, str) for c in cont):
+            raise ValueError(f"continuation must be a non-empty tuple of policy specs, got "
+                             f"{cont!r}")
+        from netsense.env.comm_policies import parse_spec
+
+        for spec in cont:
+            name, _ = parse_spec(spec)  # raises for unknown names and bad knobs
+            if name == "bernoulli":
+                raise ValueError("a continuation must be a deterministic function of the "
+                                 f"observation; {spec!r} draws random bits")
+        object.__setattr__(self, "continuation", tuple(cont))
+
+    @property
+    def num_futures(self) -> int:
+        """Futures per candidate: ``futures`` (causal) or 1 (clairvoyant)."""
+        return self.futures if self.kind == "causal" else 1
+
+
+def parse_bound(spec: str, config: BoundConfig | None = None) -> BoundConfig:
+    """The configuration of a policy spec ``bound:KIND`` or ``bound:KIND:CONTINUATION``
+    (e.g. ``bound:causal:sources:0``), on top of ``config`` (default settings otherwise)."""
+    name, _, rest = spec.partition(":")
+    kind, _, cont = rest.partition(":")
+    if name != "bound" or kind not in BOUND_KINDS:
+        raise ValueError(f"a bound spec is 'bound:causal' or 'bound:clairvoyant', optionally "
+                         f"followed by ':CONTINUATION' (e.g. bound:causal:event:2); got "
+                         f"{spec!r}")
+    base = config or BoundConfig()
+    kwargs = {f: getattr(base, f) for f in ("horizon", "futures", "candidates", "depth",
+                                            "continuation", "seed", "known_ahead")}
+    kwargs["kind"] = kind
+    if cont:
+        kwargs["continuation"] = (cont,)
+    return BoundConfig(**kwargs)
+
+
+class LookaheadBound:
+    """The lookahead as a policy of the core it evaluates.
+
+    Parameters
+    ----------
+    core : BatchedCore
+        The evaluated core (a communication-only mode; built with ``chunk=1`` for
+        ``causal``), stepped by the caller with the bits :meth:`act` returns.
+    config : BoundConfig
+    seeds : sequence of int
+        The evaluation seed of every member (seeds the futures).
+
+    Attributes
+    ----------
+    lane_steps : int
+        Core lane-steps spent so far (forked lanes x steps).
+    decisions : int
+        Decision steps taken.
+    seconds : float
+        Wall time spent deciding.
+    """
+
+    def __init__(self, core, config: BoundConfig, seeds: Sequence[int]) -> None:
+        from netsense.env.comm_policies import make_comm_policy
+
+        if core.comm is None:
+            raise ValueError("the bounds act in a communication-only control mode "
+                             "(scenario [control] mode = 'transmit' or 'substates')")
+        if not isinstance(config, BoundConfig):
+            raise TypeError(f"config must be a BoundConfig, got {type(config).__name__}")
+        seeds = [checks.seed_value(f"seeds[{b}]", s) for b, s in enumerate(seeds)]
+        if len(seeds) != core.B:
+            raise ValueError(f"seeds must hold one evaluation seed per member ({core.B}), "
+                             f"got {len(seeds)}")
+        if config.kind == "causal" and core.chunk != 1:
+            raise ValueError("bound:causal forks with resampled futures: build the evaluated "
+                             "core with chunk=1")
+        self.core, self.config, self.seeds = core, config, seeds
+        self.width = core.comm.width
+        self.policies = [make_comm_policy(s, core) for s in config.continuation]
+        if config.candidates == "exhaustive":
+            bits = core.N * self.width
+            if 2 ** (bits * config.depth) > MAX_EXHAUSTIVE:
+                raise ValueError(f"candidates='exhaustive' enumerates 2^(N W depth) = "
+                                 f"2^{bits * config.depth} sequences; at most "
+                                 f"{MAX_EXHAUSTIVE}")
+        self.lane_steps = 0
+        self.decisions = 0
+        self.seconds = 0.0
+
+    # ------------------------------------------------------------------ candidates
+    def candidates(self, obs: np.ndarray, mask: np.ndarray
+                   ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Per member: patterns ``(C_b, depth, N, W)`` int and continuation ids ``(C_b,)``."""
+        allowed = mask[..., 1::2] > 0  # (B, N, W)
+        acts = [p.act(obs, mask) for p in self.policies]  # (B, N, W) each
+        B, N, W = allowed.shape
+        pats, conts = [], []
+        for b in range(B):
+            if self.config.candidates == "exhaustive":
+                grid = np.array(list(itertools.product((0, 1), repeat=N * W)), dtype=np.int64)
+                grid = grid.reshape(-1, N, W) * allowed[b]
+                one = [np.unique(grid, axis=0)]
+                seqs = np.array(list(itertools.product(range(len(one[0])),
+                                                       repeat=self.config.depth)))
+                cand = one[0][seqs]  # (S, depth, N, W)
+                # the base policy's own action first (ties go to it)
+                first = np.flatnonzero((cand[:, 0] == acts[0][b]).all((1, 2)))
+                order = np.r_[first, np.setdiff1d(np.arange(len(cand)), first)]
+                pats.append(cand[order])
+                conts.append(np.zeros(len(cand), dtype=np.int64))
+                continue
+            own = [a[b] for a in acts]
+            base = own[0]
+            extra = [allowed[b].astype(np.int64), np.zeros((N, W), dtype=np.int64)]
+            for i in range(N):
+                for j in range(W):
+                    if allowed[b, i, j]:
+                        flip = base.copy()
+                        flip[i, j] ^= 1
+                        extra.append(flip)
+                if W > 1:
+                    for row in (allowed[b, i], np.zeros(W, bool)):
+                        whole = base.copy()
+                        whole[i] = row
+                        extra.append(whole)
+            cand = np.stack(own + extra)
+            cid = np.r_[np.arange(len(own)), np.zeros(len(extra), dtype=np.int64)]
+            key = np.concatenate([cand.reshape(len(cand), -1), cid[:, None]], axis=1)
+            _, first = np.unique(key, axis=0, return_index=True)
+            keep = np.sort(first)  # first occurrences, in order
+            pats.append(cand[keep][:, None])
+            conts.append(cid[keep])
+        return pats, conts
+
+    # ------------------------------------------------------------------ decision
+    def act(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """The bits ``(B, N, W)`` of the current step of the evaluated core."""
+        return self.decide(obs, mask)
+
+    def decide(self, obs: np.ndarray | None = None, mask: np.ndarray | None = None
+               ) -> np.ndarray:
+        """Score every candidate of every member on one fork and return the best bits."""
+        from netsense.engine.fork import fork
+
+        t0 = time.perf_counter()
+        core, cfg = self.core, self.config
+        if obs is None or mask is None:
+            obs, mask = core.observe()
+        pats, conts = self.candidates(obs, mask)
+        F = cfg.num_futures
+        sizes = np.array([len(p) for p in pats])
+        # lanes in the order (member, future, candidate)
+        member = np.repeat(np.arange(core.B), sizes * F)
+        fut = np.concatenate([np.repeat(np.arange(F), s) for s in sizes])
+        cand = np.concatenate([np.tile(np.arange(s), F) for s in sizes])
+        offsets = np.r_[0, np.cumsum(sizes)[:-1]]
+        flat_pats = np.concatenate(pats)  # (sum C_b, depth, N, W)
+        flat_cont = np.concatenate(conts)
+        row = offsets[member] + cand
+        steps = int(min(cfg.horizon, core.horizon - int(core.k.min())))
+        steps = max(steps, 1)
+        if cfg.kind == "causal":
+            ss = {(b, f): np.random.SeedSequence([cfg.seed, self.seeds[b], int(core.k[b]), f])
+                  for b in range(core.B) for f in range(F)}
+            seeds = [ss[b, f] for b, f in zip(member.tolist(), fut.tolist(), strict=True)]
+            # (chunk steps + 1: the last step loads position `steps`, and no lane refills)
+            lanes = fork(core, member, future="resampled", seeds=seeds,
+                         known_ahead=cfg.known_ahead,
+                         chunk=max(steps + 1, cfg.known_ahead + 1))
+        else:
+            lanes = fork(core, member, chunk=steps + 1)
+        lanes.invalid_actions = "keep"  # later patterns of a sequence may be masked
+        lane_cont = flat_cont[row]
+        policies = self._policies(lanes)
+        total = np.zeros(len(member))
+        live = np.ones(len(member), dtype=bool)
+        l_obs, l_mask = obs[member], mask[member]
+        for j in range(steps):
+            if j < cfg.depth:
+                act = flat_pats[row, j]
+            else:
+                act = self._continue(policies, lane_cont, l_obs, l_mask)
+            out = lanes.step(act, observe=j + 1 < steps)
+            total[live] += out.reward.mean(1)[live]
+            live &= ~(out.terminated | out.truncated)
+            l_obs, l_mask = out.obs, out.action_mask
+        self.lane_steps += len(member) * steps
+        score = np.zeros(len(flat_cont))
+        np.add.at(score, row, total)
+        best = np.empty((core.B, core.N, self.width), dtype=np.int64)
+        for b in range(core.B):
+            s = score[offsets[b]:offsets[b] + sizes[b]]
+            best[b] = pats[b][int(np.argmax(s)), 0]
+        self.decisions += 1
+        self.seconds += time.perf_counter() - t0
+        return best
+
+    def _policies(self, lanes) -> list:
+        from netsense.env.comm_policies import make_comm_policy
+
+        return [make_comm_policy(s, lanes) for s in self.config.continuation]
+
+    @staticmethod
+    def _continue(policies, lane_cont, obs, mask) -> np.ndarray:
+        if len(policies) == 1:
+            return policies[0].act(obs, mask)
+        out = policies[0].act(obs, mask)
+        for i, p in enumerate(policies[1:], start=1):
+            sel = lane_cont == i
+            if sel.any():
+                out[sel] = p.act(obs[sel], mask[sel])
+        return out
+
+    def cost(self) -> dict[str, float]:
+        """``lane_steps``, ``decisions``, ``seconds`` and lane-steps per decision."""
+        per = self.lane_steps / max(self.decisions, 1)
+        return {"lane_steps": self.lane_steps, "decisions": self.decisions,
+                "seconds": self.seconds, "lane_steps_per_decision": per}
