@@ -196,6 +196,53 @@ def test_the_causal_bound_never_reads_the_realised_future(monkeypatch):
     assert leaked > 0
 
 
+def test_selection_with_a_confidence_margin():
+    """Candidate 0 is the base; 1 is better on average but only by luck of one future;
+    2 is better on every future."""
+    model = tiny(5)
+    core = BatchedCore(model, 1, chunk=1)
+    core.reset(0)
+    q = np.array([[0.0, 12.0, 1.0], [0.0, -2.0, 1.2], [0.0, -2.5, 0.9], [0.0, -1.0, 1.1]])
+    plain = LookaheadBound(core, BoundConfig(confidence=0.0), [0])
+    careful = LookaheadBound(core, BoundConfig(confidence=1.0), [0])
+    assert plain._choose(q) == 1 and careful._choose(q) == 2
+    assert careful._choose(q[:, :2]) == 0  # nothing reliably better: keep the base
+    assert careful._choose(q[:1]) == 1  # one future: the plain argmax
+
+
+def test_terminal_estimate_counts_the_last_step_again():
+    """Clairvoyant scores: h = 2 with a terminal of 5 steps is the h = 2 return plus 5
+    times its second step (the h = 2 minus the h = 1 return)."""
+    model = tiny(12)
+    core = BatchedCore(model, 2, chunk=1)
+    obs, mask = core.reset([5, 6])
+    for _ in range(3):
+        obs, mask = core.step(np.ones((2, 3, 1), dtype=np.int64))[:2]
+    scores = {}
+    for h, t in ((1, 0), (2, 0), (2, 5)):
+        bound = LookaheadBound(core, BoundConfig(kind="clairvoyant", horizon=h, terminal=t,
+                                                 continuation=("event:1",)), [5, 6])
+        bound.act(obs, mask)
+        scores[h, t] = bound.scores
+    for b in range(2):
+        q1, q2, q25 = scores[1, 0][b], scores[2, 0][b], scores[2, 5][b]
+        np.testing.assert_allclose(q25, q2 + 5 * (q2 - q1), rtol=1e-12)
+
+
+def test_channel_candidates_swap_senders():
+    model = load_model("comm_channel_k2-v0", horizon=10)[0]
+    core = BatchedCore(model, 1, chunk=1)
+    obs, mask = core.reset([3])
+    bound = LookaheadBound(core, BoundConfig(continuation=("whittle:2",)), [3])
+    pats, _ = bound.candidates(obs, mask)
+    base = pats[0][0, 0, :, 0]
+    senders = {tuple(np.flatnonzero(p[0, :, 0])) for p in pats[0]}
+    on = np.flatnonzero(base)
+    assert len(on) == 2
+    swaps = {tuple(sorted({*on} - {i} | {j})) for i in on for j in range(10) if j not in on}
+    assert swaps <= senders and len(swaps) == 16
+
+
 def test_substates_mode_and_channel():
     for sid, over in (("comm_substates-v0", {}), ("comm_channel_k2-v0", {})):
         seeds = [1000000, 1000001]
@@ -327,3 +374,24 @@ def test_frontier_command_with_bounds(tmp_path, capsys):
         heads = list(csv.DictReader(fh))
     assert {h["reference_kind"] for h in heads} == {"decentralised"}  # no scheduler ran
     assert heads[0]["episodes"] == "2"
+
+
+def test_comm_bounds_experiment_smoke(tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "rl" / "comm_bounds.py"
+    spec = importlib.util.spec_from_file_location("_exp_comm_bounds", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    assert mod.main(["--smoke", "--tasks", "comm_channel_k2-v0", "--tradeoff-task",
+                     "comm_channel_k2-v0", "--out", str(tmp_path)]) == 0
+    for name in ("frontier.csv", "headroom.md", "tradeoff.csv", "tradeoff.png",
+                 "frontier_comm_channel_k2-v0.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    with (tmp_path / "tradeoff.csv").open() as fh:
+        trade = list(csv.DictReader(fh))
+    assert len(trade) == len(mod.TRADEOFF)
+    default = [t for t in trade if t["bound"] == "bound:causal" and t["horizon"] == "8"
+               and t["futures"] == "8" and t["confidence"] == "1"]
+    assert len(default) == 1 and float(default[0]["gain_vs_default"]) == 0

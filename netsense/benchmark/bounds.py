@@ -18,9 +18,15 @@ and substate in ``substates`` mode) is scored by
 
 the return (reward per step averaged over agents, as the protocol's ``reward``) of
 ``h`` steps on a fork whose lane applies ``c`` at ``k`` and a continuation policy ``p_c``
-at ``k + 1 .. k + h - 1``, over ``F`` futures; the evaluated core takes ``argmax_c Q(c)``
-(ties: the earliest candidate, the base policy's own action first). No terminal value is
-added (a truncated rollout), and steps past the episode end count nothing.
+at ``k + 1 .. k + h - 1``, over ``F`` futures; the evaluated core takes the best
+candidate: with one future ``argmax_c Q(c)`` (ties: the earliest candidate, the base
+policy's own action first); with ``F > 1`` the candidate of the largest lower confidence
+bound ``mean_f d_f(c) - z sd_f(d(c)) / sqrt(F)`` of its paired gain ``d_f(c) = Q_f(c) -
+Q_f(c_0)`` over the base action ``c_0``, and ``c_0`` when no bound is positive (the
+futures are shared by all candidates, common random numbers, and the maximum of many
+noisy estimates is biased upwards: without the margin the causal bound often chose worse
+than its base). By default no terminal value is added (a truncated rollout); steps past
+the episode end count nothing.
 
 * ``bound:causal`` -- the futures are **resampled** from the state at ``k``
   (``future="resampled"`` forks: the plant state, estimates, indices, ``G[k]``, ``y[k]``
@@ -38,7 +44,9 @@ Search (:class:`BoundConfig`):
   that policy as its continuation), then, paired with the first continuation (the base):
   every allowed bit on, every bit off, and the base action with one bit flipped (one per
   agent in ``transmit`` mode; one per agent and substate, plus each agent's whole row on
-  or off, in ``substates`` mode); duplicates are dropped per member. ``"exhaustive"``:
+  or off, in ``substates`` mode), and on a shared channel (``[channel]``) every swap of
+  one of the base's senders for a silent agent (who talks matters more than how many
+  there); duplicates are dropped per member. ``"exhaustive"``:
   every pattern of allowed bits (``2^(N W)``) at each of the first ``depth`` steps (for
   small tasks and the tests), then the base.
 * continuation: scripted communication policies of :mod:`netsense.env.comm_policies` (any
@@ -104,16 +112,26 @@ class BoundConfig:
         Seed of the resampled futures.
     known_ahead : int
         Graphs after ``G[k]`` known at ``k`` (kept by the resampled futures).
+    terminal : int
+        Terminal estimate: the last lookahead step's reward counted for this many more
+        steps (at most to the end of the episode); 0: none.
+    confidence : float
+        ``z >= 0``: leave the base policy's action (candidate 0) only for a candidate
+        whose paired gain over it, less ``z`` standard errors over the futures, is
+        positive (0: the plain argmax; the clairvoyant bound has one future and ignores
+        it). Guards against picking a candidate for its lucky futures.
     """
 
     kind: str = "causal"
     horizon: int = 8
-    futures: int = 4
+    futures: int = 8
     candidates: str = "flips"
     depth: int = 1
     continuation: tuple[str, ...] = (DEFAULT_CONTINUATION,)
     seed: int = 0
     known_ahead: int = 0
+    terminal: int = 0
+    confidence: float = 1.0
 
     def __post_init__(self) -> None:
         checks.choice("kind", self.kind, BOUND_KINDS)
@@ -122,6 +140,8 @@ class BoundConfig:
         checks.integer("futures", self.futures, 1)
         checks.integer("depth", self.depth, 1)
         checks.integer("known_ahead", self.known_ahead, 0)
+        checks.integer("terminal", self.terminal, 0)
+        checks.number("confidence", self.confidence, 0)
         checks.seed_value("seed", self.seed)
         if self.depth > self.horizon:
             raise ValueError(f"depth ({self.depth}) must be <= horizon ({self.horizon})")
@@ -158,7 +178,8 @@ def parse_bound(spec: str, config: BoundConfig | None = None) -> BoundConfig:
                          f"{spec!r}")
     base = config or BoundConfig()
     kwargs = {f: getattr(base, f) for f in ("horizon", "futures", "candidates", "depth",
-                                            "continuation", "seed", "known_ahead")}
+                                            "continuation", "seed", "known_ahead",
+                                            "terminal", "confidence")}
     kwargs["kind"] = kind
     if cont:
         kwargs["continuation"] = (cont,)
@@ -185,6 +206,9 @@ class LookaheadBound:
         Decision steps taken.
     seconds : float
         Wall time spent deciding.
+    scores : list of (F, C_b) arrays
+        The returns of the last decision, per member, future and candidate (in the order
+        of :meth:`candidates`).
     """
 
     def __init__(self, core, config: BoundConfig, seeds: Sequence[int]) -> None:
@@ -214,6 +238,7 @@ class LookaheadBound:
         self.lane_steps = 0
         self.decisions = 0
         self.seconds = 0.0
+        self.scores: list[np.ndarray] = []
 
     # ------------------------------------------------------------------ candidates
     def candidates(self, obs: np.ndarray, mask: np.ndarray
@@ -251,6 +276,12 @@ class LookaheadBound:
                         whole = base.copy()
                         whole[i] = row
                         extra.append(whole)
+            if self.core.capacity is not None:  # a shared channel: who, not how many
+                talk = base.any(-1)
+                for i, j in itertools.product(np.flatnonzero(talk), np.flatnonzero(~talk)):
+                    swap = base.copy()
+                    swap[i], swap[j] = 0, allowed[b, j]
+                    extra.append(swap)
             cand = np.stack(own + extra)
             cid = np.r_[np.arange(len(own)), np.zeros(len(extra), dtype=np.int64)]
             key = np.concatenate([cand.reshape(len(cand), -1), cid[:, None]], axis=1)
@@ -309,19 +340,38 @@ class LookaheadBound:
             else:
                 act = self._continue(policies, lane_cont, l_obs, l_mask)
             out = lanes.step(act, observe=j + 1 < steps)
-            total[live] += out.reward.mean(1)[live]
+            last = out.reward.mean(1)
+            total[live] += last[live]
             live &= ~(out.terminated | out.truncated)
             l_obs, l_mask = out.obs, out.action_mask
+        if cfg.terminal:  # the last step's reward for the steps after the lookahead
+            tail = np.minimum(cfg.terminal, np.maximum(lanes.horizon - lanes.k, 0))
+            total[live] += (tail * last)[live]
         self.lane_steps += len(member) * steps
-        score = np.zeros(len(flat_cont))
-        np.add.at(score, row, total)
         best = np.empty((core.B, core.N, self.width), dtype=np.int64)
+        start = 0
+        self.scores = []
         for b in range(core.B):
-            s = score[offsets[b]:offsets[b] + sizes[b]]
-            best[b] = pats[b][int(np.argmax(s)), 0]
+            q = total[start:start + F * sizes[b]].reshape(F, sizes[b])  # (future, cand.)
+            start += F * sizes[b]
+            self.scores.append(q)
+            best[b] = pats[b][self._choose(q), 0]
         self.decisions += 1
         self.seconds += time.perf_counter() - t0
         return best
+
+    def _choose(self, q: np.ndarray) -> int:
+        """The candidate of the highest mean return over futures, or with ``confidence``
+        ``z > 0`` the highest lower confidence bound of its paired gain over candidate 0
+        (``mean - z sd / sqrt(F)``; candidate 0 when none is positive)."""
+        F = q.shape[0]
+        z = self.config.confidence
+        if not z or F < 2:
+            return int(np.argmax(q.mean(0)))
+        d = q - q[:, :1]
+        lcb = d.mean(0) - z * d.std(0, ddof=1) / np.sqrt(F)
+        lcb[0] = 0.0
+        return int(np.argmax(lcb))
 
     def _policies(self, lanes) -> list:
         from netsense.env.comm_policies import make_comm_policy
