@@ -210,6 +210,22 @@ def test_selection_with_a_confidence_margin():
     assert careful._choose(q[:1]) == 1  # one future: the plain argmax
 
 
+def test_second_round_combines_every_improving_single_flip():
+    model = tiny(5)
+    core = BatchedCore(model, 1, chunk=1)
+    core.reset(0)
+    bound = LookaheadBound(core, BoundConfig(kind="clairvoyant"), [0])
+    base = np.array([[1], [0], [1]])
+    pats = np.stack([base, 1 - base, base ^ [[1], [0], [0]], base ^ [[0], [1], [0]],
+                     base ^ [[0], [0], [1]]])
+    conts = np.zeros(5, dtype=np.int64)
+    q = np.array([[0.0, 5.0, 1.0, 2.0, -1.0]])  # flips of agents 0 and 1 gain, 2 loses
+    np.testing.assert_array_equal(bound._combination(pats, conts, q), [[0], [1], [1]])
+    assert bound._combination(pats, conts, np.array([[0.0, 5.0, 1.0, -2.0, -1.0]])) is None
+    with pytest.raises(ValueError, match="rounds"):
+        BoundConfig(rounds=3)
+
+
 def test_terminal_estimate_counts_the_last_step_again():
     """Clairvoyant scores: h = 2 with a terminal of 5 steps is the h = 2 return plus 5
     times its second step (the h = 2 minus the h = 1 return)."""
@@ -393,5 +409,29 @@ def test_comm_bounds_experiment_smoke(tmp_path):
         trade = list(csv.DictReader(fh))
     assert len(trade) == len(mod.TRADEOFF)
     default = [t for t in trade if t["bound"] == "bound:causal" and t["horizon"] == "8"
-               and t["futures"] == "8" and t["confidence"] == "1"]
+               and t["futures"] == "8" and t["confidence"] == "1" and t["rounds"] == "2"]
     assert len(default) == 1 and float(default[0]["gain_vs_default"]) == 0
+
+
+def test_a_scenario_that_announces_the_next_graph_keeps_it_in_the_futures():
+    """A model attribute ``known_ahead`` (a schedule announced ahead) reaches the forks:
+    every resampled future then has the realised G[k+1]."""
+    from netsense.engine import fork as fork_module
+
+    model = tiny(10)
+    object.__setattr__(model, "known_ahead", 1)  # (what a scenario option would set)
+    core = BatchedCore(model, 1, chunk=1)
+    obs, mask = core.reset([7])
+    seen = {}
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return fork(*args, **kwargs)
+
+    bound = LookaheadBound(core, BoundConfig(horizon=2, futures=2), [7])
+    assert bound.known_ahead == 1
+    import unittest.mock
+
+    with unittest.mock.patch.object(fork_module, "fork", spy):
+        bound.act(obs, mask)
+    assert seen["known_ahead"] == 1 and seen["future"] == "resampled"

@@ -41,17 +41,19 @@ RESULTS = Path(__file__).resolve().parents[1] / "results" / "rl" / "comm_bounds"
 TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
          "message_cost-v0", "message_cost-v1")
 _D = BoundConfig()
-#: (kind, h, F, z) points of the trade-off study around the defaults (the clairvoyant
-#: bound has one future, so F and z do not apply to it)
+#: (kind, h, F, z, rounds) points of the trade-off study around the defaults (the
+#: clairvoyant bound has one future, so F and z do not apply to it)
 TRADEOFF = tuple(dict.fromkeys(
-    [("causal", h, _D.futures, _D.confidence) for h in (2, 4, 8, 16)]
-    + [("causal", _D.horizon, f, _D.confidence) for f in (1, 2, 4, 8, 16)]
-    + [("causal", _D.horizon, _D.futures, 0.0)]
-    + [("clairvoyant", h, 1, 0.0) for h in (2, 4, 8, 16)]))
-TRADEOFF_COLUMNS = ("task", "bound", "horizon", "futures", "confidence", "continuation",
-                    "episodes", "reward_mean", "reward_ci_low", "reward_ci_high",
-                    "gain_vs_default", "gain_ci_low", "gain_ci_high", "seconds_per_episode",
-                    "lane_steps_per_decision")
+    [("causal", h, _D.futures, _D.confidence, _D.rounds) for h in (2, 4, 8, 16)]
+    + [("causal", _D.horizon, f, _D.confidence, _D.rounds) for f in (1, 2, 4, 8, 16)]
+    + [("causal", _D.horizon, _D.futures, 0.0, _D.rounds),
+       ("causal", _D.horizon, _D.futures, _D.confidence, 1)]
+    + [("clairvoyant", h, 1, 0.0, _D.rounds) for h in (2, 4, 8, 16)]
+    + [("clairvoyant", _D.horizon, 1, 0.0, 1)]))
+TRADEOFF_COLUMNS = ("task", "bound", "horizon", "futures", "confidence", "rounds",
+                    "continuation", "episodes", "reward_mean", "reward_ci_low",
+                    "reward_ci_high", "gain_vs_default", "gain_ci_low", "gain_ci_high",
+                    "seconds_per_episode", "lane_steps_per_decision")
 
 
 # %% The frontier with bounds
@@ -65,29 +67,30 @@ def run_frontiers(tasks: Sequence[str], out: Path, episodes: int, bound_episodes
 
 # %% The trade-off of the search
 def tradeoff(task: str, continuation: tuple[str, ...], episodes: int,
-             points: Sequence[tuple[str, int, int, float]] = TRADEOFF,
+             points: Sequence[tuple[str, int, int, float, int]] = TRADEOFF,
              overrides: dict | None = None) -> list[dict]:
-    """Return and cost of the bounds at each ``(kind, h, F, z)`` of ``points`` on the first
+    """Return and cost of the bounds at each ``(kind, h, F, z, rounds)`` of ``points`` on
+    the first
     ``episodes`` evaluation seeds; the gain is paired against the default settings of the
     same kind (which ``points`` must hold)."""
     from tqdm.auto import tqdm
 
     seeds = pr.eval_seeds(episodes)
     over = pr.frontier_overrides(task, overrides)
-    default = {"causal": ("causal", _D.horizon, _D.futures, _D.confidence),
-               "clairvoyant": ("clairvoyant", _D.horizon, 1, 0.0)}
+    default = {"causal": ("causal", _D.horizon, _D.futures, _D.confidence, _D.rounds),
+               "clairvoyant": ("clairvoyant", _D.horizon, 1, 0.0, _D.rounds)}
     runs = {}
-    for kind, h, f, z in tqdm(points, desc=f"trade-off {task}"):
-        cfg = BoundConfig(kind=kind, horizon=h, futures=f, confidence=z,
+    for kind, h, f, z, n in tqdm(points, desc=f"trade-off {task}"):
+        cfg = BoundConfig(kind=kind, horizon=h, futures=f, confidence=z, rounds=n,
                           continuation=continuation)
-        runs[kind, h, f, z] = pr._evaluate(task, f"bound:{kind}", seeds, over, cfg)
+        runs[kind, h, f, z, n] = pr._evaluate(task, f"bound:{kind}", seeds, over, cfg)
     rows = []
-    for (kind, h, f, z), (vals, cost) in runs.items():
+    for (kind, h, f, z, n), (vals, cost) in runs.items():
         ref = runs[default[kind]][0]
         mean, lo, hi = pr.bootstrap_ci(vals["reward"])
         g, glo, ghi = pr.bootstrap_ci(vals["reward"] - ref["reward"])
         rows.append({"task": task, "bound": f"bound:{kind}", "horizon": h, "futures": f,
-                     "confidence": z, "continuation": " + ".join(continuation),
+                     "confidence": z, "rounds": n, "continuation": " + ".join(continuation),
                      "episodes": episodes, "reward_mean": mean, "reward_ci_low": lo,
                      "reward_ci_high": hi, "gain_vs_default": g, "gain_ci_low": glo,
                      "gain_ci_high": ghi, "seconds_per_episode": cost["seconds"] / episodes,
@@ -108,11 +111,11 @@ def write_tradeoff(rows: Sequence[dict], out: Path) -> None:
         for r in rows:
             w.writerow([f"{r[c]:.6g}" if isinstance(r[c], float) else r[c]
                         for c in TRADEOFF_COLUMNS])
-    lines = ["| bound | h | F | z | return | vs the defaults (paired) | s / episode | "
-             "lane-steps / decision |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| bound | h | F | z | rounds | return | vs the defaults (paired) | "
+             "s / episode | lane-steps / decision |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['bound']} | {r['horizon']} | {r['futures']} | "
-                     f"{r['confidence']:g} | "
+                     f"{r['confidence']:g} | {r['rounds']} | "
                      f"{r['reward_mean']:.2f} [{r['reward_ci_low']:.2f}, "
                      f"{r['reward_ci_high']:.2f}] | {r['gain_vs_default']:+.2f} "
                      f"[{r['gain_ci_low']:+.2f}, {r['gain_ci_high']:+.2f}] | "
@@ -122,13 +125,13 @@ def write_tradeoff(rows: Sequence[dict], out: Path) -> None:
         f"{rows[0]['continuation']}\n\n" + "\n".join(lines) + "\n")
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for kind, colour in (("bound:causal", "#b2182b"), ("bound:clairvoyant", "#762a83")):
-        rs = [r for r in rows if r["bound"] == kind and (
+        rs = [r for r in rows if r["bound"] == kind and r["rounds"] == _D.rounds and (
             kind == "bound:clairvoyant" or (r["futures"] == _D.futures
                                             and r["confidence"] == _D.confidence))]
         rs.sort(key=lambda r: r["horizon"])
         _errorbar(axes[0], [r["horizon"] for r in rs], rs, colour,
                   kind if kind == "bound:clairvoyant" else f"{kind}, F = {_D.futures}")
-    rs = sorted((r for r in rows if r["bound"] == "bound:causal"
+    rs = sorted((r for r in rows if r["bound"] == "bound:causal" and r["rounds"] == _D.rounds
                  and r["horizon"] == _D.horizon and r["confidence"] == _D.confidence),
                 key=lambda r: r["futures"])
     _errorbar(axes[1], [r["futures"] for r in rs], rs, "#b2182b",

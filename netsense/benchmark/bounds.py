@@ -46,7 +46,11 @@ Search (:class:`BoundConfig`):
   agent in ``transmit`` mode; one per agent and substate, plus each agent's whole row on
   or off, in ``substates`` mode), and on a shared channel (``[channel]``) every swap of
   one of the base's senders for a silent agent (who talks matters more than how many
-  there); duplicates are dropped per member. ``"exhaustive"``:
+  there); duplicates are dropped per member. With ``rounds = 2`` (default) a second fork,
+  on the same futures, scores the base action with *every* single flip that gained
+  (past the margin below) applied at once against the first round's choice: one step of
+  greedy coordinate improvement, so that several agents can change at once (e.g. every
+  agent without a receiver falls silent). ``"exhaustive"``:
   every pattern of allowed bits (``2^(N W)``) at each of the first ``depth`` steps (for
   small tasks and the tests), then the base.
 * continuation: scripted communication policies of :mod:`netsense.env.comm_policies` (any
@@ -111,7 +115,9 @@ class BoundConfig:
     seed : int
         Seed of the resampled futures.
     known_ahead : int
-        Graphs after ``G[k]`` known at ``k`` (kept by the resampled futures).
+        Graphs after ``G[k]`` known at ``k`` (kept by the resampled futures); a scenario
+        whose model has an attribute ``known_ahead`` (a schedule announced ahead) raises
+        it to that.
     terminal : int
         Terminal estimate: the last lookahead step's reward counted for this many more
         steps (at most to the end of the episode); 0: none.
@@ -120,6 +126,10 @@ class BoundConfig:
         whose paired gain over it, less ``z`` standard errors over the futures, is
         positive (0: the plain argmax; the clairvoyant bound has one future and ignores
         it). Guards against picking a candidate for its lucky futures.
+    rounds : {1, 2}
+        ``2`` (``flips``): a second fork scores the base action with every single-bit
+        flip that passed the margin flipped at once against the first round's choice
+        (a step of greedy coordinate improvement: several agents change at once).
     """
 
     kind: str = "causal"
@@ -132,6 +142,7 @@ class BoundConfig:
     known_ahead: int = 0
     terminal: int = 0
     confidence: float = 1.0
+    rounds: int = 2
 
     def __post_init__(self) -> None:
         checks.choice("kind", self.kind, BOUND_KINDS)
@@ -142,6 +153,9 @@ class BoundConfig:
         checks.integer("known_ahead", self.known_ahead, 0)
         checks.integer("terminal", self.terminal, 0)
         checks.number("confidence", self.confidence, 0)
+        checks.integer("rounds", self.rounds, 1)
+        if self.rounds > 2:
+            raise ValueError(f"rounds must be 1 or 2, got {self.rounds}")
         checks.seed_value("seed", self.seed)
         if self.depth > self.horizon:
             raise ValueError(f"depth ({self.depth}) must be <= horizon ({self.horizon})")
@@ -179,7 +193,7 @@ def parse_bound(spec: str, config: BoundConfig | None = None) -> BoundConfig:
     base = config or BoundConfig()
     kwargs = {f: getattr(base, f) for f in ("horizon", "futures", "candidates", "depth",
                                             "continuation", "seed", "known_ahead",
-                                            "terminal", "confidence")}
+                                            "terminal", "confidence", "rounds")}
     kwargs["kind"] = kind
     if cont:
         kwargs["continuation"] = (cont,)
@@ -227,6 +241,9 @@ class LookaheadBound:
             raise ValueError("bound:causal forks with resampled futures: build the evaluated "
                              "core with chunk=1")
         self.core, self.config, self.seeds = core, config, seeds
+        #: graphs after G[k] known at k: the configuration's, or the scenario's own
+        #: (a model attribute ``known_ahead``: a schedule announced ahead)
+        self.known_ahead = max(config.known_ahead, int(getattr(core.model, "known_ahead", 0)))
         self.width = core.comm.width
         self.policies = [make_comm_policy(s, core) for s in config.continuation]
         if config.candidates == "exhaustive":
@@ -298,38 +315,79 @@ class LookaheadBound:
 
     def decide(self, obs: np.ndarray | None = None, mask: np.ndarray | None = None
                ) -> np.ndarray:
-        """Score every candidate of every member on one fork and return the best bits."""
-        from netsense.engine.fork import fork
-
+        """Score every candidate of every member on one fork and return the best bits
+        (with ``rounds = 2``, then the combination of every improving single flip
+        against the first round's choice, on a second fork with the same futures)."""
         t0 = time.perf_counter()
         core, cfg = self.core, self.config
         if obs is None or mask is None:
             obs, mask = core.observe()
         pats, conts = self.candidates(obs, mask)
+        members = np.arange(core.B)
+        self.scores = self._score(obs, mask, members, pats, conts)
+        pick = [self._choose(q) for q in self.scores]
+        best = np.stack([p[c, 0] for p, c in zip(pats, pick, strict=True)])
+        if cfg.rounds > 1 and cfg.candidates == "flips":
+            combo = [self._combination(p[:, 0], c, q)
+                     for p, c, q in zip(pats, conts, self.scores, strict=True)]
+            again = np.flatnonzero([x is not None for x in combo])
+            if again.size:
+                pats2 = [np.stack([best[b], combo[b]])[:, None] for b in again]
+                conts2 = [np.array([conts[b][pick[b]], 0]) for b in again]
+                for b, q in zip(again, self._score(obs, mask, again, pats2, conts2),
+                                strict=True):
+                    if self._choose(q):
+                        best[b] = combo[b]
+        self.decisions += 1
+        self.seconds += time.perf_counter() - t0
+        return best
+
+    def _combination(self, pats: np.ndarray, conts: np.ndarray, q: np.ndarray
+                     ) -> np.ndarray | None:
+        """The base action with every single-bit flip whose paired gain passes the
+        margin of :meth:`_choose` flipped at once (None: fewer than two such flips)."""
+        base = pats[0]
+        diff = (pats != base).reshape(len(pats), -1)
+        single = (diff.sum(1) == 1) & (conts == 0)
+        F = q.shape[0]
+        d = q - q[:, :1]
+        gain = d.mean(0)
+        if F > 1 and self.config.confidence:
+            gain = gain - self.config.confidence * d.std(0, ddof=1) / np.sqrt(F)
+        good = single & (gain > 0)
+        if good.sum() < 2:
+            return None
+        flip = diff[good].any(0).reshape(base.shape)
+        return np.where(flip, 1 - base, base)
+
+    def _score(self, obs: np.ndarray, mask: np.ndarray, members: np.ndarray,
+               pats: list[np.ndarray], conts: list[np.ndarray]) -> list[np.ndarray]:
+        """Returns ``(F, C_b)`` of every candidate of ``members`` (one fork: a lane per
+        member, future and candidate, in that order)."""
+        from netsense.engine.fork import fork
+
+        core, cfg = self.core, self.config
         F = cfg.num_futures
         sizes = np.array([len(p) for p in pats])
-        # lanes in the order (member, future, candidate)
-        member = np.repeat(np.arange(core.B), sizes * F)
+        member = np.repeat(members, sizes * F)
         fut = np.concatenate([np.repeat(np.arange(F), s) for s in sizes])
         cand = np.concatenate([np.tile(np.arange(s), F) for s in sizes])
         offsets = np.r_[0, np.cumsum(sizes)[:-1]]
         flat_pats = np.concatenate(pats)  # (sum C_b, depth, N, W)
-        flat_cont = np.concatenate(conts)
-        row = offsets[member] + cand
-        steps = int(min(cfg.horizon, core.horizon - int(core.k.min())))
-        steps = max(steps, 1)
+        row = np.repeat(offsets, sizes * F) + cand
+        lane_cont = np.concatenate(conts)[row]
+        steps = max(int(min(cfg.horizon, core.horizon - int(core.k[members].min()))), 1)
         if cfg.kind == "causal":
             ss = {(b, f): np.random.SeedSequence([cfg.seed, self.seeds[b], int(core.k[b]), f])
-                  for b in range(core.B) for f in range(F)}
+                  for b in members.tolist() for f in range(F)}
             seeds = [ss[b, f] for b, f in zip(member.tolist(), fut.tolist(), strict=True)]
             # (chunk steps + 1: the last step loads position `steps`, and no lane refills)
             lanes = fork(core, member, future="resampled", seeds=seeds,
-                         known_ahead=cfg.known_ahead,
-                         chunk=max(steps + 1, cfg.known_ahead + 1))
+                         known_ahead=self.known_ahead,
+                         chunk=max(steps + 1, self.known_ahead + 1))
         else:
             lanes = fork(core, member, chunk=steps + 1)
         lanes.invalid_actions = "keep"  # later patterns of a sequence may be masked
-        lane_cont = flat_cont[row]
         policies = self._policies(lanes)
         total = np.zeros(len(member))
         live = np.ones(len(member), dtype=bool)
@@ -348,17 +406,9 @@ class LookaheadBound:
             tail = np.minimum(cfg.terminal, np.maximum(lanes.horizon - lanes.k, 0))
             total[live] += (tail * last)[live]
         self.lane_steps += len(member) * steps
-        best = np.empty((core.B, core.N, self.width), dtype=np.int64)
-        start = 0
-        self.scores = []
-        for b in range(core.B):
-            q = total[start:start + F * sizes[b]].reshape(F, sizes[b])  # (future, cand.)
-            start += F * sizes[b]
-            self.scores.append(q)
-            best[b] = pats[b][self._choose(q), 0]
-        self.decisions += 1
-        self.seconds += time.perf_counter() - t0
-        return best
+        bounds = np.r_[0, np.cumsum(sizes * F)]
+        return [total[bounds[i]:bounds[i + 1]].reshape(F, sizes[i])  # (future, cand.)
+                for i in range(len(members))]
 
     def _choose(self, q: np.ndarray) -> int:
         """The candidate of the highest mean return over futures, or with ``confidence``
