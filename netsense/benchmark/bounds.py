@@ -24,9 +24,8 @@ policy's own action first); with ``F > 1`` the candidate of the largest lower co
 bound ``mean_f d_f(c) - z sd_f(d(c)) / sqrt(F)`` of its paired gain ``d_f(c) = Q_f(c) -
 Q_f(c_0)`` over the base action ``c_0``, and ``c_0`` when no bound is positive (the
 futures are shared by all candidates, common random numbers, and the maximum of many
-noisy estimates is biased upwards: without the margin the causal bound often chose worse
-than its base). By default no terminal value is added (a truncated rollout); steps past
-the episode end count nothing.
+noisy estimates is biased upwards). By default no terminal value is added (a truncated
+rollout); steps past the episode end count nothing.
 
 * ``bound:causal`` -- the futures are **resampled** from the state at ``k``
   (``future="resampled"`` forks: the plant state, estimates, indices, ``G[k]``, ``y[k]``
