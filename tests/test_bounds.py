@@ -376,6 +376,8 @@ def test_plot_gives_every_series_its_own_legend_entry(tmp_path):
     index: dict = {}
     looks = [tuple(sorted(_style(k, lab, rs, index).items())) for k, lab, rs in series]
     assert len(set(looks)) == len(looks)  # and no two series look alike
+    old = [{k: v for k, v in r.items() if k != "kind"} for r in rows]  # an older CSV
+    assert [k for k, _, _ in _series(old)] == [k for k, _, _ in series]
 
 
 def test_frontier_command_with_bounds(tmp_path, capsys):

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from netsense.benchmark.kinds import family_kind
+
 __all__ = ["plot_frontier"]
 
 #: Hollow marker shapes of the decentralised families, in order of appearance.
@@ -52,7 +54,7 @@ def _series(rows: Sequence[dict]) -> list[tuple[str, str, list[dict]]]:
     out: dict[tuple[str, str], list[dict]] = {}
     seen: dict[str, int] = {}
     for r in rows:
-        kind = r.get("kind") or ("learned" if r["family"] == "learned" else "decentralised")
+        kind = r.get("kind") or family_kind(r["family"])  # (rows of older CSV files)
         if kind == "learned":
             run = r.get("label") or Path(str(r["knob"])).parent.name or "learned"
             label = f"{run} ({r['evaluation']})"

@@ -33,7 +33,8 @@ What a number from ``netsense benchmark --frontier`` means (cite this module's d
   all the seeds (member ``b`` = seed ``b``).
 
 * **Kinds.** Every row has a ``kind``: ``decentralised`` (what an agent could run from
-  its own observations: the scripted families but :data:`CENTRALISED_FAMILIES`, and the
+  its own observations: the scripted families but
+  :data:`~netsense.benchmark.kinds.CENTRALISED_FAMILIES`, and the
   endpoints), ``centralised`` (schedulers that read every agent's state), ``learned``, and
   ``bound`` (the lookahead references of :mod:`netsense.benchmark.bounds`: not
   deployable, they say how far any policy is from the best possible).
@@ -65,6 +66,7 @@ import numpy as np
 
 from netsense.benchmark.headroom import best_scripted, headroom, write_headroom
 from netsense.benchmark.intervals import CONFIDENCE, RESAMPLES, bootstrap_ci
+from netsense.benchmark.kinds import CENTRALISED_FAMILIES, KINDS, family_kind
 from netsense.benchmark.rollouts import is_batched_policy, learned_overrides
 
 __all__ = ["CENTRALISED_FAMILIES", "CONFIDENCE", "CSV_COLUMNS", "DEFAULT_BOUND_EPISODES",
@@ -88,21 +90,10 @@ FAMILIES: dict[str, tuple] = {
     "whittle": (1, 2, 3, 4, 6),
 }
 ENDPOINTS = ("always", "never")
-#: The kinds of thing that act in a communication task (each its own marker and column).
-KINDS = ("decentralised", "centralised", "bound", "learned")
-#: Scripted families that read every agent's state (a family not listed is decentralised).
-CENTRALISED_FAMILIES = frozenset({"oldest", "whittle"})
 CSV_COLUMNS = (("scenario", "control", "kind", "family", "policy", "knob", "evaluation",
                 "episodes", "seed_first", "seed_last", "pareto", "seconds")
                + tuple(f"{m}_{s}" for m in PROTOCOL_METRICS
                        for s in ("mean", "ci_low", "ci_high")))
-
-
-def family_kind(family: str) -> str:
-    """The kind (:data:`KINDS`) of a frontier family."""
-    if family in ("learned", "bound"):
-        return family
-    return "centralised" if family in CENTRALISED_FAMILIES else "decentralised"
 
 
 def eval_seeds(episodes: int = DEFAULT_EPISODES, seed0: int = EVAL_SEED0) -> list[int]:
