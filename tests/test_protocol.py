@@ -79,7 +79,8 @@ def test_smoke_frontier_writes_png_and_csv(tmp_path):
                 assert lo <= mean <= hi
     assert {r["control"] for r in rows} == {"transmit"}  # fig1 runs transmit-only
     assert len(_read(tmp_path / "frontier.csv")) == 10
-    assert "| fig1_scalar-v0 | periodic:5 |" in (tmp_path / "frontier.md").read_text()
+    md = (tmp_path / "frontier.md").read_text()
+    assert "| fig1_scalar-v0 | decentralised | periodic:5 |" in md
     # Pareto: never (no messages) always is; a dominated point is not
     flags = {r["policy"]: r["pareto"] for r in rows if r["scenario"] == "comm_channel_k2-v0"}
     assert flags["never"] and not flags["periodic:1"]
@@ -90,7 +91,7 @@ def test_frontier_command(tmp_path, capsys):
                  "--families", "event", "--override", "horizon=8", "--out", str(tmp_path),
                  "--no-progress"]) == 0
     out = capsys.readouterr().out
-    assert "| comm_substates-v0 | event:16 |" in out
+    assert "| comm_substates-v0 | decentralised | event:16 |" in out
     rows = _read(tmp_path / "frontier_comm_substates-v0.csv")
     assert {r["control"] for r in rows} == {"substates"}
 

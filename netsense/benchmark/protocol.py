@@ -32,11 +32,26 @@ What a number from ``netsense benchmark --frontier`` means (cite this module's d
   for bit). Every (policy, knob) is one :class:`netsense.engine.core.BatchedCore` run of
   all the seeds (member ``b`` = seed ``b``).
 
+* **Kinds.** Every row has a ``kind``: ``decentralised`` (what an agent could run from
+  its own observations: the scripted families but
+  :data:`~netsense.benchmark.kinds.CENTRALISED_FAMILIES`, and the
+  endpoints), ``centralised`` (schedulers that read every agent's state), ``learned``, and
+  ``bound`` (the lookahead references of :mod:`netsense.benchmark.bounds`: not
+  deployable, they say how far any policy is from the best possible).
+* **Bounds** (``bounds=("causal", "clairvoyant")``, ``--bounds``): policies
+  ``bound:causal`` / ``bound:clairvoyant`` on the first ``bound_episodes`` of the same
+  seeds (they cost far more than a scripted run; the ``episodes`` column says how many),
+  continuing with the best scripted point of the same run and the best decentralised one
+  (:func:`best_scripted`). :func:`netsense.benchmark.headroom.headroom` compares them with
+  the best decentralised (and centralised) scripted point on the common seeds, with a
+  paired bootstrap interval.
+
 Outputs (:func:`write_frontier`): ``frontier_<scenario>.csv`` (one row per policy and
-knob: the mean and interval of every metric and whether the point is on the Pareto front
-of error vs load), ``frontier_<scenario>.png`` (error vs messages per agent-step and
-reward vs messages, scripted curves through their knob settings, learned points with
-their intervals) and ``frontier.md`` (the table).
+knob: the mean and interval of every metric, the wall time of the run and whether the
+point is on the Pareto front of error vs load), ``frontier_<scenario>.png``
+(:func:`netsense.benchmark.frontier_plot.plot_frontier`: error vs messages per agent-step
+and reward vs messages, one marker and legend group per kind) and ``frontier.md`` (the
+table); with bounds, ``headroom.csv`` and ``headroom.md``.
 """
 
 from __future__ import annotations
@@ -49,18 +64,20 @@ from pathlib import Path
 
 import numpy as np
 
+from netsense.benchmark.headroom import best_scripted, headroom, write_headroom
+from netsense.benchmark.intervals import CONFIDENCE, RESAMPLES, bootstrap_ci
+from netsense.benchmark.kinds import CENTRALISED_FAMILIES, KINDS, family_kind
 from netsense.benchmark.rollouts import is_batched_policy, learned_overrides
 
-__all__ = ["CSV_COLUMNS", "DEFAULT_EPISODES", "EVAL_SEED0", "FAMILIES", "PROTOCOL_METRICS",
-           "TRAIN_SEED_LIMIT", "bootstrap_ci", "check_disjoint", "evaluate", "eval_seeds",
-           "frontier", "frontier_overrides", "markdown_frontier", "pareto_front",
-           "run_frontier", "write_frontier"]
+__all__ = ["CENTRALISED_FAMILIES", "CONFIDENCE", "CSV_COLUMNS", "DEFAULT_BOUND_EPISODES",
+           "DEFAULT_EPISODES", "EVAL_SEED0", "FAMILIES", "KINDS", "PROTOCOL_METRICS",
+           "RESAMPLES", "TRAIN_SEED_LIMIT", "best_scripted", "bootstrap_ci", "check_disjoint",
+           "evaluate", "eval_seeds", "family_kind", "frontier", "frontier_overrides",
+           "markdown_frontier", "pareto_front", "run_frontier", "write_frontier"]
 
 EVAL_SEED0 = 1_000_000
 TRAIN_SEED_LIMIT = EVAL_SEED0
 DEFAULT_EPISODES = 100
-CONFIDENCE = 0.95
-RESAMPLES = 9999
 PROTOCOL_METRICS = ("mean_rel_error", "final_rel_error", "msgs_per_agent_step",
                     "load_per_agent_step", "reward")
 #: Knob settings of each scripted family (from most to fewest messages, roughly); a
@@ -80,8 +97,8 @@ FAMILIES: dict[str, tuple] = {
     "whittle": (1, 2, 3, 4, 6),
 }
 ENDPOINTS = ("always", "never")
-CSV_COLUMNS = (("scenario", "control", "family", "policy", "knob", "evaluation", "episodes",
-                "seed_first", "seed_last", "pareto")
+CSV_COLUMNS = (("scenario", "control", "kind", "family", "policy", "knob", "evaluation",
+                "episodes", "seed_first", "seed_last", "pareto", "seconds")
                + tuple(f"{m}_{s}" for m in PROTOCOL_METRICS
                        for s in ("mean", "ci_low", "ci_high")))
 
@@ -121,29 +138,6 @@ def _train_seeds(path: Path) -> list[int]:
         return []
     s, copies = int(meta.get("seed", 0)), int(meta.get("num_vec_envs", 1))
     return list(range(s, s + copies))
-
-
-def bootstrap_ci(values: Sequence[float], confidence: float = CONFIDENCE,
-                 resamples: int = RESAMPLES, seed: int = 0) -> tuple[float, float, float]:
-    """Mean and percentile-bootstrap confidence interval of ``values``.
-
-    ``scipy.stats.bootstrap`` with ``resamples`` resamples from
-    ``numpy.random.default_rng(seed)``. Non-finite values make all three NaN; a single
-    value (or identical values) gives a zero-width interval.
-    """
-    from scipy import stats
-
-    v = np.asarray(values, dtype=float).ravel()
-    if v.size == 0 or not np.isfinite(v).all():
-        return (float("nan"),) * 3
-    mean = float(v.mean())
-    if v.size == 1 or np.ptp(v) <= 1e-12 * max(abs(mean), 1e-300):
-        return mean, mean, mean
-    res = stats.bootstrap((v,), np.mean, confidence_level=confidence, n_resamples=resamples,
-                          method="percentile", vectorized=True,
-                          random_state=np.random.default_rng(seed))
-    ci = res.confidence_interval
-    return mean, float(ci.low), float(ci.high)
 
 
 def frontier_overrides(scenario: str, overrides: dict | None = None) -> dict:
@@ -192,20 +186,33 @@ def _learned_actor(path: str, deterministic: bool, seed: int, core=None):
 
 
 def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None = None,
-             *, actor=None) -> dict[str, np.ndarray]:
+             *, actor=None, bound=None) -> dict[str, np.ndarray]:
     """Per-episode :data:`PROTOCOL_METRICS` of ``policy`` on ``seeds``, as one batched run.
 
     ``policy``: a communication baseline spec (``periodic:4``, ...), a scripted policy name
-    of :mod:`netsense.env.policies` (``freshness``, ...), ``learned:PATH`` (greedy) or
-    ``learned_sampled:PATH``. Member ``b`` is seeded with ``seeds[b]``; members that
-    terminate early (``divergence_limit``) are scored over their own steps.
+    of :mod:`netsense.env.policies` (``freshness``, ...), ``learned:PATH`` (greedy),
+    ``learned_sampled:PATH``, or a bound ``bound:causal`` / ``bound:clairvoyant``
+    (optionally ``bound:KIND:CONTINUATION``; search settings from ``bound``, a
+    :class:`~netsense.benchmark.bounds.BoundConfig`). Member ``b`` is seeded with
+    ``seeds[b]``; members that terminate early (``divergence_limit``) are scored over their
+    own steps.
     ``actor``: a callable ``(core, seeds) -> act`` that builds the acting function on the
     evaluated :class:`~netsense.engine.core.BatchedCore` instead (``policy`` is then only
     its label): a rule that is no registered policy, scored exactly like one.
     """
+    return _evaluate(scenario, policy, seeds, overrides, bound, actor)[0]
+
+
+def _evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None,
+              bound=None, actor=None) -> tuple[dict[str, np.ndarray], dict]:
+    """:func:`evaluate` and the run's cost: ``seconds`` and, for a bound, its
+    :meth:`~netsense.benchmark.bounds.LookaheadBound.cost`."""
+    import time
+
     from netsense.engine.core import BatchedCore
     from netsense.env.vector import load_model
 
+    t0 = time.perf_counter()
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise ValueError("seeds must be non-empty")
@@ -217,13 +224,22 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
         overrides = learned_overrides(scenario, arg, overrides)
     model, _ = load_model(scenario, **dict(overrides or {}))
     B = len(seeds)
-    core = BatchedCore(model, B)
+    lookahead = None
+    if actor is None and name == "bound":
+        from netsense.benchmark.bounds import LookaheadBound, parse_bound
+
+        config = parse_bound(policy, bound)
+        core = BatchedCore(model, B, chunk=1)  # (a resampled fork needs chunk=1)
+        lookahead = LookaheadBound(core, config, seeds)
+        act = lookahead.act
+    else:
+        core = BatchedCore(model, B)
     if actor is not None:
         act = actor(core, seeds)
     elif learned:
         check_disjoint(_train_seeds(Path(arg)), seeds)
         act = _learned_actor(arg, name == "learned", seeds[0], core)
-    else:
+    elif lookahead is None:
         act = _scripted(policy, core, seeds).act
     obs, mask = core.reset(seeds)
     floor = model.reward.error_floor
@@ -245,9 +261,13 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
         rew[live] += out.reward.mean(1)[live]
         steps[live] += 1
         live &= ~(out.terminated | out.truncated)
-    return {"mean_rel_error": err / steps, "final_rel_error": final,
-            "msgs_per_agent_step": msgs / steps, "load_per_agent_step": load / steps,
-            "reward": rew}
+    values = {"mean_rel_error": err / steps, "final_rel_error": final,
+              "msgs_per_agent_step": msgs / steps, "load_per_agent_step": load / steps,
+              "reward": rew}
+    cost = {"seconds": time.perf_counter() - t0}
+    if lookahead is not None:
+        cost.update(lookahead.cost())
+    return values, cost
 
 
 def _scripted(policy: str, core, seeds: Sequence[int]):
@@ -281,8 +301,11 @@ def pareto_front(rows: Sequence[dict], x: str = "load_per_agent_step",
 
 def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EVAL_SEED0,
              families: dict[str, Sequence] | None = None, learned: Sequence[str] = (),
-             overrides: dict | None = None, progress: bool = True) -> list[dict]:
-    """Rows of the scripted frontier and the learned points of one scenario.
+             overrides: dict | None = None, progress: bool = True,
+             bounds: Sequence[str] = (), bound_episodes: int | None = None,
+             bound_config=None, bound_continuation: str | Sequence[str] = "best"
+             ) -> list[dict]:
+    """Rows of the scripted frontier, the learned points and the bounds of one scenario.
 
     Parameters
     ----------
@@ -300,10 +323,38 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
         Scenario overrides (the learned policies run with exactly these).
     progress : bool
         A tqdm bar over the runs.
+    bounds : sequence of {"causal", "clairvoyant"}
+        Lookahead bounds to run (:mod:`netsense.benchmark.bounds`).
+    bound_episodes : int, optional
+        The bounds run on the first ``bound_episodes`` seeds (default
+        :data:`DEFAULT_BOUND_EPISODES`, at most ``episodes``).
+    bound_config : BoundConfig, optional
+        Search settings of the bounds (default :class:`~netsense.benchmark.bounds.
+        BoundConfig`); its ``kind`` and ``continuation`` are set here.
+    bound_continuation : "best" or sequence of str
+        The bounds' continuation policies: ``"best"`` takes the best scripted point of this
+        run and the best decentralised one (:func:`best_scripted`, deterministic families
+        only), else the specs given.
+
+    Returns
+    -------
+    list of dict
+        One row per run: the :data:`CSV_COLUMNS` and ``values`` (the per-episode metrics,
+        for paired comparisons such as :func:`netsense.benchmark.headroom.headroom`).
     """
     from tqdm.auto import tqdm
 
+    from netsense.benchmark.bounds import BOUND_KINDS, BoundConfig
+
     seeds = eval_seeds(episodes, seed0)
+    for kind in bounds:
+        if kind not in BOUND_KINDS:
+            raise ValueError(f"bounds must be among {BOUND_KINDS}, got {kind!r}")
+    E = min(DEFAULT_BOUND_EPISODES if bound_episodes is None else bound_episodes, episodes)
+    if isinstance(E, bool) or int(E) != E or E < 1:
+        raise ValueError(f"bound_episodes must be an integer >= 1, got {bound_episodes!r}")
+    if bound_config is not None and not isinstance(bound_config, BoundConfig):
+        raise TypeError(f"bound_config must be a BoundConfig, got {type(bound_config).__name__}")
     for path in learned:  # a missing or refused file, or training seeds among the
         # evaluation seeds, fail before the scripted runs (minutes) rather than after
         check_disjoint(_train_seeds(Path(path.replace("{scenario}", scenario))), seeds)
@@ -318,19 +369,53 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
         runs += [("learned", path, f"learned:{path}", "greedy", dict(overrides or {})),
                  ("learned", path, f"learned_sampled:{path}", "sampled",
                   dict(overrides or {}))]
+    runs += [("bound", kind, f"bound:{kind}", "lookahead", comm_over) for kind in bounds]
     rows = []
     for fam, knob, spec, how, over in tqdm(runs, desc=f"frontier {scenario}",
                                            disable=not progress):
-        vals = evaluate(scenario, spec, seeds, over)
+        run_seeds, config = seeds, None
+        if fam == "bound":
+            run_seeds = seeds[:int(E)]
+            cont = (_continuation(rows) if bound_continuation == "best"
+                    else tuple([bound_continuation] if isinstance(bound_continuation, str)
+                               else bound_continuation))
+            base = bound_config or BoundConfig()
+            config = BoundConfig(**{**_fields(base), "kind": knob, "continuation": cont})
+            knob = " + ".join(cont)
+        vals, cost = _evaluate(scenario, spec, run_seeds, over, config)
         mode = (_mode(scenario, learned_overrides(scenario, knob, over)) if fam == "learned"
                 else control)
-        rows.append({"scenario": scenario, "control": mode, "family": fam,
-                     "policy": spec, "knob": "" if knob is None else knob, "evaluation": how,
-                     "episodes": len(seeds), "seed_first": seeds[0], "seed_last": seeds[-1],
-                     **_summary(vals)})
-    for r, p in zip(rows, pareto_front(rows), strict=True):
+        row = {"scenario": scenario, "control": mode, "kind": family_kind(fam),
+               "family": fam, "policy": spec, "knob": "" if knob is None else knob,
+               "evaluation": how, "episodes": len(run_seeds), "seed_first": run_seeds[0],
+               "seed_last": run_seeds[-1], "seconds": cost["seconds"], **_summary(vals),
+               "values": vals}
+        if config is not None:
+            row["bound_config"], row["cost"] = config, cost
+        rows.append(row)
+    front = [r for r in rows if r["kind"] != "bound"]  # bounds are not points to reach
+    for r, p in zip(front, pareto_front(front), strict=True):
         r["pareto"] = p
+    for r in rows:
+        r.setdefault("pareto", "")
     return rows
+
+
+#: Episodes of the bounds in :func:`frontier` unless told (they cost far more per episode).
+DEFAULT_BOUND_EPISODES = 20
+
+
+def _fields(config) -> dict:
+    from dataclasses import fields
+
+    return {f.name: getattr(config, f.name) for f in fields(config)}
+
+
+def _continuation(rows: Sequence[dict]) -> tuple[str, ...]:
+    """The best scripted point and the best decentralised one (deterministic families)."""
+    best = best_scripted(rows, deterministic=True)["policy"]
+    dec = best_scripted(rows, "decentralised", deterministic=True)["policy"]
+    return (best,) if best == dec else (best, dec)
 
 
 # ----------------------------------------------------------------------------- outputs
@@ -357,55 +442,10 @@ def write_frontier(rows: Sequence[dict], out: str | Path) -> tuple[Path, Path]:
 
 
 def _plot(rows: Sequence[dict], path: Path) -> None:
-    import matplotlib
+    """:func:`netsense.benchmark.frontier_plot.plot_frontier` (the name scripts call)."""
+    from netsense.benchmark.frontier_plot import plot_frontier
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    per_sub = any(r["control"] == "substates" for r in rows if r["family"] != "learned")
-    xm = "load_per_agent_step" if per_sub else "msgs_per_agent_step"
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
-    for ax, ym, ylabel in ((axes[0], "mean_rel_error", "mean relative error"),
-                           (axes[1], "reward", "episode return (mean over agents)")):
-        groups: dict[str, list[dict]] = {}
-        for r in rows:
-            key = (r["family"] if r["family"] != "learned"
-                   else f"{r.get('label') or 'learned'} ({r['evaluation']})")
-            groups.setdefault(key, []).append(r)
-        for c, (key, rs) in enumerate(groups.items()):
-            rs = sorted(rs, key=lambda r: r[f"{xm}_mean"])
-            x = np.array([r[f"{xm}_mean"] for r in rs])
-            y = np.array([r[f"{ym}_mean"] for r in rs])
-            xerr = np.abs(np.array([[r[f"{xm}_ci_low"], r[f"{xm}_ci_high"]] for r in rs]).T
-                          - x)
-            yerr = np.abs(np.array([[r[f"{ym}_ci_low"], r[f"{ym}_ci_high"]] for r in rs]).T
-                          - y)
-            learned = rs[0]["family"] == "learned"
-            endpoint = key in ENDPOINTS
-            ax.errorbar(x, y, xerr=xerr, yerr=yerr, color="k" if endpoint else f"C{c % 10}",
-                        marker="*" if learned else ("s" if endpoint else "o"),
-                        ms=11 if learned else 5, ls="none" if learned or endpoint else "-",
-                        lw=1.2, capsize=2, elinewidth=0.8, label=key,
-                        mfc="none" if key.endswith("(sampled)") else None)
-            if not learned:
-                for r, xi, yi in zip(rs, x, y, strict=True):
-                    ax.annotate(key if endpoint else str(r["knob"]), (xi, yi), fontsize=6,
-                                xytext=(2, 2), textcoords="offset points",
-                                color="k" if endpoint else f"C{c % 10}")
-        ax.set_xlabel("substate messages per agent-step / M" if per_sub
-                      else "messages per agent-step")
-        ax.set_ylabel(ylabel)
-        if ym == "mean_rel_error":
-            ax.set_yscale("log")
-        ax.grid(alpha=0.3)
-    r0 = rows[0]
-    fig.suptitle(f"{r0['scenario']} ({r0['control']} control): {r0['episodes']} episodes, "
-                 f"seeds {r0['seed_first']}-{r0['seed_last']}, 95 % bootstrap CI",
-                 fontsize=10)
-    axes[1].legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plot_frontier(rows, path)
 
 
 def markdown_frontier(rows: Sequence[dict]) -> str:
@@ -419,19 +459,23 @@ def markdown_frontier(rows: Sequence[dict]) -> str:
             return f"{mean:.{digits}g}"
         return f"{mean:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
 
-    lines = ["| scenario | policy | evaluation | mean rel. error | msgs / agent-step | "
-             "load / agent-step | reward | Pareto |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| scenario | kind | policy | evaluation | episodes | mean rel. error | "
+             "msgs / agent-step | load / agent-step | reward | Pareto |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['scenario']} | {r['policy']} | {r['evaluation']} | "
+        policy = r["policy"] if r.get("kind") != "bound" else f"{r['policy']} ({r['knob']})"
+        lines.append(f"| {r['scenario']} | {r.get('kind', '')} | {policy} | "
+                     f"{r['evaluation']} | {r['episodes']} | "
                      f"{f(r, 'mean_rel_error')} | {f(r, 'msgs_per_agent_step')} | "
                      f"{f(r, 'load_per_agent_step')} | {f(r, 'reward')} | "
-                     f"{'yes' if r['pareto'] else ''} |")
+                     f"{'yes' if r['pareto'] is True else ''} |")
     return "\n".join(lines) + "\n"
 
 
 def run_frontier(scenarios: Sequence[str], out: str | Path, **kwargs) -> list[dict]:
     """:func:`frontier` of every scenario, written by :func:`write_frontier`, plus
-    ``frontier.csv`` (all rows) and ``frontier.md``."""
+    ``frontier.csv`` (all rows) and ``frontier.md``; with bounds, ``headroom.csv`` and
+    ``headroom.md`` (:mod:`netsense.benchmark.headroom`)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -445,4 +489,6 @@ def run_frontier(scenarios: Sequence[str], out: str | Path, **kwargs) -> list[di
         for r in rows:
             w.writerow([_cell(r[c]) for c in CSV_COLUMNS])
     (out / "frontier.md").write_text(markdown_frontier(rows))
+    if any(r["kind"] == "bound" for r in rows):
+        write_headroom(headroom(rows), out)
     return rows

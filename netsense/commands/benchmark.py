@@ -1,6 +1,7 @@
 """``netsense benchmark``: scenarios x policies x seeds -> CSV, Markdown table, PNG plots;
-``--frontier``: the scripted communication frontier and learned points per scenario under
-the evaluation protocol of :mod:`netsense.benchmark.protocol` (Pareto PNG + CSV)."""
+``--frontier``: the scripted communication frontier, learned points and (``--bounds``) the
+lookahead bounds per scenario under the evaluation protocol of
+:mod:`netsense.benchmark.protocol` (Pareto PNG + CSV, headroom table)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,13 @@ HELP = ("Benchmark learned and scripted policies and a centralized KF oracle on 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from netsense.benchmark import BACKENDS, DEFAULT_POLICIES, POLICY_NAMES
-    from netsense.benchmark.protocol import DEFAULT_EPISODES, EVAL_SEED0, FAMILIES
+    from netsense.benchmark.bounds import BOUND_KINDS, BoundConfig
+    from netsense.benchmark.protocol import (
+        DEFAULT_BOUND_EPISODES,
+        DEFAULT_EPISODES,
+        EVAL_SEED0,
+        FAMILIES,
+    )
 
     parser.add_argument("scenarios", nargs="+", help="scenario ids (see `netsense list`)")
     parser.add_argument("--policies", nargs="+", default=None,
@@ -44,6 +51,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--backend torchrl` (run in the control mode it was trained in) "
                              "or a MaskablePPO policy.zip ({scenario} is replaced by the "
                              "scenario id); repeatable")
+    parser.add_argument("--bounds", nargs="+", default=[], metavar="KIND",
+                        choices=list(BOUND_KINDS),
+                        help="--frontier: lookahead bounds to add (causal, clairvoyant; "
+                             "centralised full-information references, not deployable)")
+    parser.add_argument("--bound-episodes", type=positive_int, default=DEFAULT_BOUND_EPISODES,
+                        help="--bounds: run them on the first N evaluation seeds (default: "
+                             f"{DEFAULT_BOUND_EPISODES}; they cost far more per episode)")
+    parser.add_argument("--bound-horizon", type=positive_int, default=BoundConfig.horizon,
+                        help=f"--bounds: lookahead steps h (default: {BoundConfig.horizon})")
+    parser.add_argument("--bound-futures", type=positive_int, default=BoundConfig.futures,
+                        help="--bounds: resampled futures F of the causal bound (default: "
+                             f"{BoundConfig.futures})")
+    parser.add_argument("--bound-continuation", nargs="+", default=None, metavar="POLICY",
+                        help="--bounds: continuation policies (default: the best scripted "
+                             "point of the run and the best decentralised one)")
+    parser.add_argument("--bound-seed", type=nonnegative_int, default=BoundConfig.seed,
+                        help=f"--bounds: seed of the resampled futures (default: "
+                             f"{BoundConfig.seed})")
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="relative-error threshold of 'steps to eps' (default: 0.01; "
                              "not a --frontier metric)")
@@ -189,12 +214,21 @@ def _say_skipped(scenarios, policies, seeds, overrides: dict, results) -> None:
 
 
 def _frontier(args: argparse.Namespace, overrides: dict) -> int:
+    from netsense.benchmark.bounds import BoundConfig
+    from netsense.benchmark.headroom import headroom, markdown_headroom
     from netsense.benchmark.protocol import FAMILIES, markdown_frontier, run_frontier
 
     families = FAMILIES if args.families is None else {f: FAMILIES[f] for f in args.families}
+    config = BoundConfig(horizon=args.bound_horizon, futures=args.bound_futures,
+                         seed=args.bound_seed)
     rows = run_frontier(args.scenarios, args.out, episodes=args.seeds, seed0=args.seed0,
                         families=dict(families), learned=args.learned, overrides=overrides,
-                        progress=not args.no_progress)
+                        progress=not args.no_progress, bounds=args.bounds,
+                        bound_episodes=args.bound_episodes, bound_config=config,
+                        bound_continuation=args.bound_continuation or "best")
     print(markdown_frontier(rows))
-    print(f"wrote {args.out}/frontier.csv, frontier.md and frontier_<scenario>.csv/.png")
+    if args.bounds:
+        print(markdown_headroom(headroom(rows)))
+    print(f"wrote {args.out}/frontier.csv, frontier.md and frontier_<scenario>.csv/.png"
+          + (", headroom.csv and headroom.md" if args.bounds else ""))
     return 0

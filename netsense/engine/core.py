@@ -123,15 +123,16 @@ NONFINITE = ("terminate", "raise")
 
 
 @contextmanager
-def _rows(buf: np.ndarray, members: np.ndarray) -> Iterator[np.ndarray]:
-    """The rows ``buf[members]`` to write into: a view when the members are contiguous,
-    else a scratch array that is copied into ``buf`` on exit."""
-    if members.size and members[-1] - members[0] + 1 == members.size:
+def _rows(buf: np.ndarray, members: np.ndarray, start: int = 0) -> Iterator[np.ndarray]:
+    """The rows ``buf[members, start:]`` to write into: a view when the members are
+    contiguous and ``start = 0``, else a scratch array that is copied into ``buf`` on
+    exit."""
+    if not start and members.size and members[-1] - members[0] + 1 == members.size:
         yield buf[members[0]:members[-1] + 1]
         return
-    out = np.empty((members.size, *buf.shape[1:]), buf.dtype)
+    out = np.empty((members.size, buf.shape[1] - start, *buf.shape[2:]), buf.dtype)
     yield out
-    buf[members] = out
+    buf[members, start:] = out
 
 
 class StepResult(NamedTuple):
@@ -341,6 +342,12 @@ class BatchedCore:
         B, N, n, r, K = self.B, self.N, self.n, self.r, self.chunk
         self.rngs: list[dict[str, np.random.Generator]] = [{} for _ in range(B)]
         self.graph_state: list = [None] * B
+        #: per member, the graph process state before the last drawn step was drawn
+        #: (with ``chunk = 1``: the state ``G[k]`` came from; :mod:`netsense.engine.fork`)
+        self.graph_state_prev: list = [None] * B
+        # lanes of a fork share their generators, graph states and samplers until their
+        # first refill (netsense.engine.fork): member -> the shared snapshot to copy then
+        self._snapshots: dict[int, tuple] = {}
         self.meas_sampler: list = [None] * B
         self.msg_sampler: list = [None] * B
         self.x = np.zeros((B, n))
@@ -388,6 +395,7 @@ class BatchedCore:
         rngs = {name: np.random.default_rng(c) for name, c in zip(_STREAMS, children,
                                                                    strict=True)}
         self.rngs[b] = rngs
+        self._snapshots.pop(b, None)
         self.x[b] = m.x0_std * rngs["init"].standard_normal(self.n)
         self.Z[b] = 0.0
         self.tau[b] = kernels.OMEGA
@@ -409,42 +417,67 @@ class BatchedCore:
 
     def _refill(self, members: np.ndarray) -> None:
         """Draw the next ``chunk`` steps of graphs, noise and arrivals for ``members``."""
-        m, K = self.model, self.chunk
         members = np.asarray(members, dtype=np.int64)
+        if self._snapshots:
+            self._materialise(members)
+        for b in members:
+            self.graph_state_prev[b] = self.graph_state[b]
+        self._draw(members)
+        self.ptr[members] = 0
+
+    def _draw(self, members: np.ndarray, graph: int = 0, process: int = 0,
+              other: int = 0) -> None:
+        """Fill the chunk positions from ``graph`` on with graphs, from ``process`` on
+        with process noise and from ``other`` on with measurement noise and arrivals, for
+        ``members``, each from its own generators and samplers (positions before the
+        starts are left as they are; a fork fills them, :mod:`netsense.engine.fork`)."""
+        m, K = self.model, self.chunk
         # graphs for groups of members at once (each from its own "graph" generator, so
         # equal to per-member sampling), in groups that keep the process's temporaries
         # near 16 MB; slot tables written straight into the chunk buffer
         group = max(1, (16 * 2**20) // max(m.graphs.slot_sample_bytes(K), 1))
-        for g in range(0, len(members), group):
+        for g in range(0, len(members) if graph < K else 0, group):
             mem = members[g:g + group]
-            with _rows(self.buf_nbr, mem) as out:
+            with _rows(self.buf_nbr, mem, graph) as out:
                 _, states = m.graphs.sample_slots_many(
-                    [self.rngs[b]["graph"] for b in mem], K,
+                    [self.rngs[b]["graph"] for b in mem], K - graph,
                     [self.graph_state[b] for b in mem], self.D, out=out)
             for b, st in zip(mem, states, strict=True):
                 self.graph_state[b] = st
         # noise of all members in one call per model (one compiled pass for Gaussian
         # noise), each member from its own generator: the same numbers as member by member
-        if self._has_pnoise:
-            with _rows(self.buf_w, members) as out:
+        if self._has_pnoise and process < K:
+            with _rows(self.buf_w, members, process) as out:
                 m.plant.process_noise.sample_many(
                     [self.rngs[b]["process_noise"] for b in members],
-                    (K, self.W.shape[1]), out)
+                    (K - process, self.W.shape[1]), out)
+        if other >= K:
+            return
         if self._has_mnoise:
-            with _rows(self.buf_v, members) as out:
+            with _rows(self.buf_v, members, other) as out:
                 m.plant.measurement_noise.sample_many(
                     [self.rngs[b]["measurement_noise"] for b in members],
-                    (K, self.N, self.r), out)
+                    (K - other, self.N, self.r), out)
                 if not self._outputs_all_real:
                     out *= self.output_mask  # padded outputs carry no noise
         for b in members if not (self._meas_always and self._msg_always) else ():
             if not self._meas_always:
                 s = self.meas_sampler[b]
-                self.buf_meas[b] = np.stack([s.next() for _ in range(K)])
+                self.buf_meas[b, other:] = np.stack([s.next() for _ in range(K - other)])
             if not self._msg_always:
                 s = self.msg_sampler[b]
-                self.buf_msg[b] = np.stack([s.next() for _ in range(K)])
-        self.ptr[members] = 0
+                self.buf_msg[b, other:] = np.stack([s.next() for _ in range(K - other)])
+
+    def _materialise(self, members: np.ndarray) -> None:
+        """Give the members that still share a fork's snapshot their own copies of its
+        generators, graph states and samplers (before anything draws from them)."""
+        import copy
+
+        for b in members:
+            snap = self._snapshots.pop(int(b), None)
+            if snap is not None:
+                (self.rngs[b], self.graph_state[b], self.graph_state_prev[b],
+                 self.meas_sampler[b], self.msg_sampler[b]) = copy.deepcopy(snap)
 
     def _load_step(self) -> None:
         """Expose the current step's graph, measurements and messages (from the chunk)."""
@@ -504,6 +537,8 @@ class BatchedCore:
         import copy
 
         members = np.asarray(members, dtype=np.int64)
+        if self._snapshots:  # lanes of a fork that still share its generators
+            self._materialise(members)
         rngs = [copy.deepcopy(self.rngs[b]["graph"]) for b in members]
         states = [copy.deepcopy(self.graph_state[b]) for b in members]
         out = np.empty((members.size, 1, self.N, self.D), dtype=self._slot_dtype)

@@ -207,6 +207,42 @@ class GraphProcess:
         out[...] = nbr
         return out, new
 
+    def redraw_state(self, rng: np.random.Generator, state: Any, previous: Any,
+                     graph: np.ndarray) -> Any:
+        """A state to continue from after step ``k`` whose unseen randomness is redrawn.
+
+        The state :meth:`sample` returns after drawing ``G[k]`` may already hold randomness
+        about ``G[k+1]`` (e.g. the next link states). This returns a state drawn from the
+        process's law given the state ``previous`` that ``G[k]`` was drawn from and the
+        graph ``graph`` = ``G[k]`` it gave, using ``rng`` for everything else
+        (:mod:`netsense.graphs.conditional`).
+
+        The default draws step ``k`` again from ``previous`` with ``rng`` and keeps the
+        state that gives: exact for processes whose ``G[k]`` is a function of the state
+        before it (static, periodic, Markov link failures: ``G[k]`` is the link states,
+        mobility: the disk graph of the positions at ``k``). A process that draws ``G[k]``
+        itself at random must override this; the default raises ``NotImplementedError``
+        when the graph it draws is not ``graph``.
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            Fresh randomness.
+        state : state
+            The state after ``G[k]`` as drawn (what is redrawn).
+        previous : state
+            The process state before ``G[k]`` was drawn.
+        graph : (N, N) bool
+            ``G[k]``.
+        """
+        adj, state = self.sample(rng, 1, previous)
+        if not np.array_equal(adj[0], graph):
+            raise NotImplementedError(
+                f"{type(self).__name__} draws G[k] at random from the state before it, so "
+                "the state after it cannot be redrawn by drawing step k again: the process "
+                "must implement redraw_state")
+        return state
+
     @property
     def max_in_degree(self) -> int:
         """Upper bound on any node's in-degree (fixes the env's slot count)."""
@@ -334,6 +370,18 @@ class RandomJointlyConnected(GraphProcess):
             k += take
             pos = (pos + take) % self.period
         return out, (pos, window)
+
+    def redraw_state(self, rng, state, previous, graph):
+        """The state after ``G[k]`` with the unseen steps of its window redrawn from their
+        law given the shown ones (:func:`netsense.graphs.conditional.redraw_window`; ``N <=
+        16``); at the end of a window nothing of the next one is drawn yet and the state is
+        returned as is."""
+        from netsense.graphs.conditional import redraw_window
+
+        pos, window = state
+        if pos == 0:
+            return state
+        return pos, redraw_window(window, pos, float(self.extra_edge_prob), rng)
 
     def to_dict(self) -> dict:
         return {"kind": "random_jsc", "num_nodes": self.num_nodes, "period": self.period,
@@ -505,6 +553,10 @@ class Gossip(GraphProcess):
         out = np.zeros((num_steps,) + self.base.shape, dtype=bool)
         out[np.arange(num_steps), i[pick], l[pick]] = True
         return out, state
+
+    def redraw_state(self, rng, state, previous, graph):
+        """Nothing to redraw: every step's edge is drawn afresh."""
+        return state
 
     def to_dict(self) -> dict:
         i, l = np.nonzero(self.base)

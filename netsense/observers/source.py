@@ -38,6 +38,9 @@ Rngs = np.random.Generator | Sequence[np.random.Generator] | None
 class SourceEstimator:
     """Base class of source-node estimators (see the module docstring)."""
 
+    #: Whether the estimator draws random numbers (from the ``rng`` of :meth:`reset`).
+    uses_rng: bool = False
+
     def reset(self, design: ObserverDesign, batch_size: int,
               rng: Rngs = None) -> None:
         """Prepare for a run of ``batch_size`` independent copies."""
@@ -53,6 +56,18 @@ class SourceEstimator:
         """
         raise NotImplementedError(f"{type(self).__name__} keeps state per run but does not "
                                   "implement reset_members(members, rng)")
+
+    def take(self, members: np.ndarray, rng: Rngs = None) -> SourceEstimator:
+        """A new estimator whose member ``m`` continues member ``members[m]`` of this one.
+
+        For the forks of :mod:`netsense.engine.fork`: the per-member state is copied
+        (members may repeat); ``rng`` (one generator per new member) replaces the
+        members' random streams when given (a resampled future), else each new member
+        continues a copy of its member's stream. This estimator is not changed. Stateful
+        estimators must implement it.
+        """
+        raise NotImplementedError(f"{type(self).__name__} does not implement take(members, "
+                                  "rng): its runs cannot be forked")
 
     def correction(self, k: int | np.ndarray, Z: np.ndarray, y: np.ndarray,
                    arrived: np.ndarray | None) -> np.ndarray:
@@ -97,6 +112,14 @@ class LuenbergerSource(SourceEstimator):
 
     def reset_members(self, members: np.ndarray, rng: Rngs = None) -> None:
         """Nothing to restart (stateless)."""
+
+    def take(self, members: np.ndarray, rng: Rngs = None) -> LuenbergerSource:
+        """Stateless: a copy for ``len(members)`` members."""
+        import copy
+
+        out = copy.copy(self)
+        out.batch_size = len(members)
+        return out
 
     def reset(self, design: ObserverDesign, batch_size: int,
               rng: Rngs = None) -> None:

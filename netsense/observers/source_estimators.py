@@ -107,6 +107,22 @@ class KFIOSource(SourceEstimator):
                              f"got {members.shape}")
         self._first = self._first | members
 
+    def take(self, members: np.ndarray, rng: Rngs = None) -> KFIOSource:
+        """The selected members' filters (estimates, covariances, first-step flags);
+        the filters draw nothing, so ``rng`` is unused."""
+        import copy
+
+        members = np.asarray(members, dtype=np.int64)
+        out = copy.copy(self)
+        out.batch_size = len(members)
+        out.sources = []
+        for j, b, f, P0_j in self.sources:
+            g = copy.copy(f)
+            g.x, g.P = f.x[members].copy(), f.P[members].copy()
+            out.sources.append((j, b, g, P0_j))
+        out._first = self._first[members].copy()
+        return out
+
     # ------------------------------------------------------------------- steps
     def correction(self, k: int | np.ndarray, Z: np.ndarray, y: np.ndarray,
                    arrived: np.ndarray | None) -> np.ndarray:

@@ -53,6 +53,8 @@ class EqualizedSource(SourceEstimator):
         its block lost).
     """
 
+    uses_rng = True
+
     def __init__(self, language: DelayLanguage, eta_v: float, *, eta_w: float = 0.0,
                  mu1: float | None = None, channel: DelayChannel | None = None) -> None:
         if not isinstance(language, DelayLanguage):
@@ -119,6 +121,28 @@ class EqualizedSource(SourceEstimator):
             self.samplers[b] = {j: self.channel.sampler(rngs[b]) for j in ds}
             self._buf[b] = {j: {} for j in ds}
             self.k[b] = 0
+
+    def take(self, members: np.ndarray, rng: Rngs = None) -> EqualizedSource:
+        """Copies of the selected members' estimators, delay samplers and buffers; with
+        ``rng`` (one generator per new member) the samplers draw their later words from
+        it (the delays already drawn for measurements taken are kept)."""
+        import copy
+
+        members = np.asarray(members, dtype=np.int64)
+        out = copy.copy(self)
+        out.batch_size = len(members)
+        parts = [copy.deepcopy((self.est[b], self.samplers[b], self._buf[b]))
+                 for b in members]
+        out.est = [e for e, _, _ in parts]
+        out.samplers = [s for _, s, _ in parts]
+        out._buf = [f for _, _, f in parts]
+        out.k = self.k[members].copy()
+        if rng is not None:
+            for gen, samplers in zip(self.member_rngs(rng, len(members)), out.samplers,
+                                     strict=True):
+                for smp in samplers.values():
+                    smp.rng = gen
+        return out
 
     @property
     def bounds(self) -> np.ndarray:

@@ -19,6 +19,14 @@ class ArrivalSampler:
     def next(self) -> np.ndarray:  # pragma: no cover - interface
         raise NotImplementedError
 
+    def redraw(self, rng: np.random.Generator) -> ArrivalSampler:
+        """A sampler that continues from the state before the last :meth:`next` as if
+        that step had been drawn with ``rng``: the last step's arrivals are kept (they
+        were seen), the randomness of its transition to the next state is redrawn, and
+        later steps draw from ``rng`` (the resampled futures of
+        :mod:`netsense.engine.fork`). This sampler is not changed."""
+        raise NotImplementedError(f"{type(self).__name__} cannot redraw its future")
+
 
 class ArrivalModel:
     """Frozen description of an arrival process."""
@@ -36,6 +44,9 @@ class _AlwaysSampler(ArrivalSampler):
 
     def next(self) -> np.ndarray:
         return np.ones(self.shape, dtype=bool)
+
+    def redraw(self, rng: np.random.Generator) -> ArrivalSampler:
+        return _AlwaysSampler(self.shape)
 
 
 class AlwaysArrive(ArrivalModel):

@@ -64,6 +64,10 @@ class _PerSender(ArrivalSampler):
     def next(self) -> np.ndarray:
         return np.broadcast_to(self.inner.next(), self.shape).copy()
 
+    def redraw(self, rng: np.random.Generator) -> _PerSender:
+        """The senders' channels redrawn as one sampler's (:meth:`ArrivalSampler.redraw`)."""
+        return _PerSender(self.inner.redraw(rng), self.shape)
+
 
 def _scoped(make, rng: np.random.Generator, shape: tuple[int, ...], scope: str
             ) -> ArrivalSampler:
@@ -92,6 +96,10 @@ class BernoulliSampler(ArrivalSampler):
 
     def next(self) -> np.ndarray:
         return self.rng.random(self.shape) < self.p
+
+    def redraw(self, rng: np.random.Generator) -> BernoulliSampler:
+        """Independent steps: the same law with ``rng``."""
+        return BernoulliSampler(self.p, rng, self.shape)
 
 
 @dataclass(frozen=True)
@@ -160,8 +168,23 @@ class GilbertElliottSampler(ArrivalSampler):
         loss = np.where(self.bad, m.loss_bad, m.loss_good)
         arrived = self.rng.random(self.shape) >= loss
         u = self.rng.random(self.shape)
-        self.bad = np.where(self.bad, u >= m.p_bad_to_good, u < m.p_good_to_bad)
+        self._before = self.bad  # the state of the step just drawn (for redraw)
+        self.bad = self._move(self.bad, u)
         return arrived
+
+    def _move(self, bad: np.ndarray, u: np.ndarray) -> np.ndarray:
+        m = self.model
+        return np.where(bad, u >= m.p_bad_to_good, u < m.p_good_to_bad)
+
+    def redraw(self, rng: np.random.Generator) -> GilbertElliottSampler:
+        """The channel states of the last step drawn, moved on with ``rng``."""
+        if not hasattr(self, "_before"):
+            raise ValueError("redraw needs a sampler that has drawn a step")
+        out = object.__new__(GilbertElliottSampler)
+        out.model, out.rng, out.shape = self.model, rng, self.shape
+        out._before = self._before
+        out.bad = self._move(self._before, rng.random(self.shape))
+        return out
 
 
 @dataclass(frozen=True)

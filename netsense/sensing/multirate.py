@@ -79,7 +79,20 @@ class MultiRateSampler(ArrivalSampler):
             return np.zeros(self.shape, dtype=int)
         return self.rng.integers(0, self.model.jitter + 1, size=self.shape)
 
+    def redraw(self, rng: np.random.Generator) -> MultiRateSampler:
+        """The state before the last step drawn, that step drawn again with ``rng``
+        (its jitter and drop draws redrawn; the report times fixed before it kept)."""
+        if not hasattr(self, "_before"):
+            raise ValueError("redraw needs a sampler that has drawn a step")
+        out = object.__new__(MultiRateSampler)
+        out.__dict__.update(self.__dict__)
+        out.rng = rng
+        out.k, out.nominal, out.actual = self._before
+        out.next()
+        return out
+
     def next(self) -> np.ndarray:
+        self._before = (self.k, self.nominal, self.actual)  # (for redraw)
         reported = self.actual == self.k
         if reported.any():
             self.nominal = np.where(reported, self.nominal + self.period, self.nominal)

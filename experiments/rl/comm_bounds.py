@@ -1,0 +1,190 @@
+"""Lookahead bounds on the communication tasks: headroom over the scripted frontier, and
+what the bounds' search settings buy.
+
+The bounds (:mod:`netsense.benchmark.bounds`) are centralised full-information references,
+not deployable policies: ``bound:causal`` (rollouts on futures resampled from the current
+state) and ``bound:clairvoyant`` (the realised future; a loose bound). This script
+
+1. runs the protocol's frontier of every task (all scripted families on ``--episodes``
+   evaluation seeds) with both bounds on the first ``--bound-episodes`` of those seeds, at
+   the bounds' default search settings: ``frontier.csv``/``.md``, ``frontier_<task>.png``,
+   ``headroom.csv``/``.md`` (bound minus the best decentralised and the best centralised
+   scripted point, paired bootstrap intervals);
+2. measures the trade-off of the search on one task (``--tradeoff-task``): the causal
+   bound's return and cost against the lookahead ``h`` and the number of futures ``F``,
+   the clairvoyant bound's against ``h``, each on the first ``--tradeoff-episodes`` seeds,
+   continuing with the policies the frontier chose for that task: ``tradeoff.csv``,
+   ``tradeoff.png``, ``tradeoff.md``.
+
+Writes into ``experiments/results/rl/comm_bounds/``. Run (about 20 minutes on two cores;
+``--smoke`` for a seconds-long check)::
+
+    NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py
+"""
+
+# %%
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from netsense.benchmark import protocol as pr
+from netsense.benchmark.bounds import BoundConfig
+from netsense.benchmark.headroom import headroom, markdown_headroom
+
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "rl" / "comm_bounds"
+TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
+         "message_cost-v0", "message_cost-v1")
+_D = BoundConfig()
+#: (kind, h, F, z, rounds) points of the trade-off study around the defaults (the
+#: clairvoyant bound has one future, so F and z do not apply to it)
+TRADEOFF = tuple(dict.fromkeys(
+    [("causal", h, _D.futures, _D.confidence, _D.rounds) for h in (2, 4, 8, 16)]
+    + [("causal", _D.horizon, f, _D.confidence, _D.rounds) for f in (1, 2, 4, 8, 16)]
+    + [("causal", _D.horizon, _D.futures, 0.0, _D.rounds),
+       ("causal", _D.horizon, _D.futures, _D.confidence, 1)]
+    + [("clairvoyant", h, 1, 0.0, _D.rounds) for h in (2, 4, 8, 16)]
+    + [("clairvoyant", _D.horizon, 1, 0.0, 1)]))
+TRADEOFF_COLUMNS = ("task", "bound", "horizon", "futures", "confidence", "rounds",
+                    "continuation", "episodes", "reward_mean", "reward_ci_low",
+                    "reward_ci_high", "gain_vs_default", "gain_ci_low", "gain_ci_high",
+                    "seconds_per_episode", "lane_steps_per_decision")
+
+
+# %% The frontier with bounds
+def run_frontiers(tasks: Sequence[str], out: Path, episodes: int, bound_episodes: int,
+                  overrides: dict | None = None) -> list[dict]:
+    """:func:`netsense.benchmark.protocol.run_frontier` of ``tasks`` with both bounds."""
+    return pr.run_frontier(tasks, out, episodes=episodes, overrides=overrides,
+                           bounds=("causal", "clairvoyant"), bound_episodes=bound_episodes,
+                           bound_config=BoundConfig())
+
+
+# %% The trade-off of the search
+def tradeoff(task: str, continuation: tuple[str, ...], episodes: int,
+             points: Sequence[tuple[str, int, int, float, int]] = TRADEOFF,
+             overrides: dict | None = None) -> list[dict]:
+    """Return and cost of the bounds at each ``(kind, h, F, z, rounds)`` of ``points`` on
+    the first
+    ``episodes`` evaluation seeds; the gain is paired against the default settings of the
+    same kind (which ``points`` must hold)."""
+    from tqdm.auto import tqdm
+
+    seeds = pr.eval_seeds(episodes)
+    over = pr.frontier_overrides(task, overrides)
+    default = {"causal": ("causal", _D.horizon, _D.futures, _D.confidence, _D.rounds),
+               "clairvoyant": ("clairvoyant", _D.horizon, 1, 0.0, _D.rounds)}
+    runs = {}
+    for kind, h, f, z, n in tqdm(points, desc=f"trade-off {task}"):
+        cfg = BoundConfig(kind=kind, horizon=h, futures=f, confidence=z, rounds=n,
+                          continuation=continuation)
+        runs[kind, h, f, z, n] = pr._evaluate(task, f"bound:{kind}", seeds, over, cfg)
+    rows = []
+    for (kind, h, f, z, n), (vals, cost) in runs.items():
+        ref = runs[default[kind]][0]
+        mean, lo, hi = pr.bootstrap_ci(vals["reward"])
+        g, glo, ghi = pr.bootstrap_ci(vals["reward"] - ref["reward"])
+        rows.append({"task": task, "bound": f"bound:{kind}", "horizon": h, "futures": f,
+                     "confidence": z, "rounds": n, "continuation": " + ".join(continuation),
+                     "episodes": episodes, "reward_mean": mean, "reward_ci_low": lo,
+                     "reward_ci_high": hi, "gain_vs_default": g, "gain_ci_low": glo,
+                     "gain_ci_high": ghi, "seconds_per_episode": cost["seconds"] / episodes,
+                     "lane_steps_per_decision": cost["lane_steps_per_decision"]})
+    return rows
+
+
+def write_tradeoff(rows: Sequence[dict], out: Path) -> None:
+    """``tradeoff.csv``, ``tradeoff.md`` and ``tradeoff.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with (out / "tradeoff.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(TRADEOFF_COLUMNS)
+        for r in rows:
+            w.writerow([f"{r[c]:.6g}" if isinstance(r[c], float) else r[c]
+                        for c in TRADEOFF_COLUMNS])
+    lines = ["| bound | h | F | z | rounds | return | vs the defaults (paired) | "
+             "s / episode | lane-steps / decision |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['bound']} | {r['horizon']} | {r['futures']} | "
+                     f"{r['confidence']:g} | {r['rounds']} | "
+                     f"{r['reward_mean']:.2f} [{r['reward_ci_low']:.2f}, "
+                     f"{r['reward_ci_high']:.2f}] | {r['gain_vs_default']:+.2f} "
+                     f"[{r['gain_ci_low']:+.2f}, {r['gain_ci_high']:+.2f}] | "
+                     f"{r['seconds_per_episode']:.2f} | {r['lane_steps_per_decision']:.0f} |")
+    (out / "tradeoff.md").write_text(
+        f"{rows[0]['task']}, {rows[0]['episodes']} episodes, continuation "
+        f"{rows[0]['continuation']}\n\n" + "\n".join(lines) + "\n")
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for kind, colour in (("bound:causal", "#b2182b"), ("bound:clairvoyant", "#762a83")):
+        rs = [r for r in rows if r["bound"] == kind and r["rounds"] == _D.rounds and (
+            kind == "bound:clairvoyant" or (r["futures"] == _D.futures
+                                            and r["confidence"] == _D.confidence))]
+        rs.sort(key=lambda r: r["horizon"])
+        _errorbar(axes[0], [r["horizon"] for r in rs], rs, colour,
+                  kind if kind == "bound:clairvoyant" else f"{kind}, F = {_D.futures}")
+    rs = sorted((r for r in rows if r["bound"] == "bound:causal" and r["rounds"] == _D.rounds
+                 and r["horizon"] == _D.horizon and r["confidence"] == _D.confidence),
+                key=lambda r: r["futures"])
+    _errorbar(axes[1], [r["futures"] for r in rs], rs, "#b2182b",
+              f"bound:causal, h = {_D.horizon}")
+    axes[0].set_xlabel("lookahead h (steps)")
+    axes[1].set_xlabel("resampled futures F")
+    for ax in axes:
+        ax.set_xscale("log", base=2)
+        ax.set_ylabel("episode return (mean over agents)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{rows[0]['task']}: bounds vs their search settings, "
+                 f"{rows[0]['episodes']} episodes, 95 % bootstrap CI", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / "tradeoff.png", dpi=110)
+    plt.close(fig)
+
+
+def _errorbar(ax, x, rs, colour, label) -> None:
+    y = np.array([r["reward_mean"] for r in rs])
+    err = np.abs(np.array([[r["reward_ci_low"], r["reward_ci_high"]] for r in rs]).T - y)
+    ax.errorbar(x, y, yerr=err, color=colour, marker="D", capsize=2, label=label)
+
+
+# %% Main
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--tasks", nargs="+", default=list(TASKS))
+    p.add_argument("--episodes", type=int, default=pr.DEFAULT_EPISODES)
+    p.add_argument("--bound-episodes", type=int, default=pr.DEFAULT_BOUND_EPISODES)
+    p.add_argument("--tradeoff-task", default="comm_process_noise-v0")
+    p.add_argument("--tradeoff-episodes", type=int, default=10)
+    p.add_argument("--out", type=Path, default=RESULTS)
+    p.add_argument("--smoke", action="store_true",
+                   help="horizon 12, 3 episodes, 2 for the bounds and the trade-off")
+    args = p.parse_args(argv)
+    over = None
+    if args.smoke:
+        over = {"horizon": 12}
+        args.episodes, args.bound_episodes, args.tradeoff_episodes = 3, 2, 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = run_frontiers(args.tasks, args.out, args.episodes, args.bound_episodes, over)
+    print(markdown_headroom(headroom(rows)))
+    if args.tradeoff_task:
+        cont = next(r["knob"] for r in rows if r["scenario"] == args.tradeoff_task
+                    and r["policy"] == "bound:causal")
+        trade = tradeoff(args.tradeoff_task, tuple(cont.split(" + ")),
+                         args.tradeoff_episodes, overrides=over)
+        write_tradeoff(trade, args.out)
+        print((args.out / "tradeoff.md").read_text())
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
