@@ -147,3 +147,16 @@ def test_each_driver_build_compiles_for_one_signature():
         "                  for name, drv in compiled_drivers()}))\n")
     counts = json.loads(res.stdout.strip().splitlines()[-1])
     assert counts and all(max(c) <= 1 for c in counts.values()), counts
+
+
+def test_warmup_has_policies_every_scenario_accepts():
+    """`netsense warmup` steps every scenario with two policies; a communication-only
+    scenario refuses an adoption rule of its own, so it must get ones it accepts."""
+    from netsense.env.policies import make_policy
+    from netsense.env.registry import list_scenarios, make
+    from netsense.env.warmup import _policies
+
+    for sid in list_scenarios():
+        env = make(sid)
+        for name in _policies(env.model):
+            make_policy(name, env)  # raises on a policy the scenario refuses

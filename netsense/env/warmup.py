@@ -53,12 +53,18 @@ class WarmupReport:
     seconds: float
 
 
+def _policies(model) -> tuple[str, str]:
+    """Freshness and uniform consensus; in a communication-only scenario (which refuses an
+    adoption rule of its own) freshness and random transmit bits."""
+    return ("freshness", "random") if model.control.comm_only else ("freshness", "uniform")
+
+
 def _run_env(scenario: str) -> None:
     from netsense.env.policies import make_policy
     from netsense.env.registry import make
 
     env = make(scenario)
-    for name in ("freshness", "uniform"):
+    for name in _policies(env.model):
         policy = make_policy(name, env)
         obs, infos = env.reset(seed=0)
         for _ in range(3):
@@ -70,7 +76,7 @@ def _run_batched(scenario: str) -> None:
     from netsense.env.vector import BatchedEnv
 
     env = BatchedEnv(scenario, num_envs=BATCH)
-    for name in ("freshness", "uniform"):
+    for name in _policies(env.core.model):
         policy = make_policy(name, env.core)
         obs, info = env.reset(seed=0)
         for _ in range(3):
