@@ -9,7 +9,8 @@ state) and ``bound:clairvoyant`` (the realised future; a loose bound). This scri
    evaluation seeds) with both bounds on the first ``--bound-episodes`` of those seeds, at
    the bounds' default search settings: ``frontier.csv``/``.md``, ``frontier_<task>.png``,
    ``headroom.csv``/``.md`` (bound minus the best decentralised and the best centralised
-   scripted point, paired bootstrap intervals);
+   scripted point, paired bootstrap intervals), ``episodes.csv`` (the bounds' return per
+   episode);
 2. measures the trade-off of the search on one task (``--tradeoff-task``): the causal
    bound's return and cost against the lookahead ``h`` and the number of futures ``F``,
    the clairvoyant bound's against ``h``, each on the first ``--tradeoff-episodes`` seeds,
@@ -39,7 +40,8 @@ from netsense.benchmark.headroom import headroom, markdown_headroom
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "rl" / "comm_bounds"
 TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
-         "message_cost-v0", "message_cost-v1")
+         "message_cost-v0", "message_cost-v1", "comm_announced-v0", "comm_fading-v0",
+         "comm_schedule-v0")
 _D = BoundConfig()
 #: (kind, h, F, z, rounds) points of the trade-off study around the defaults (the
 #: clairvoyant bound has one future, so F and z do not apply to it)
@@ -63,6 +65,21 @@ def run_frontiers(tasks: Sequence[str], out: Path, episodes: int, bound_episodes
     return pr.run_frontier(tasks, out, episodes=episodes, overrides=overrides,
                            bounds=("causal", "clairvoyant"), bound_episodes=bound_episodes,
                            bound_config=BoundConfig())
+
+
+def write_bound_episodes(rows: Sequence[dict], path: Path) -> None:
+    """``episodes.csv``: the bounds' return on each of their episodes (the first
+    ``--bound-episodes`` evaluation seeds), for paired comparisons elsewhere (the learners'
+    normalised scores in ``experiments/rl/learners.py``)."""
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(("scenario", "policy", "episode", "seed", "reward"))
+        for r in rows:
+            if r["kind"] != "bound":
+                continue
+            for e, v in enumerate(r["values"]["reward"]):
+                w.writerow((r["scenario"], r["policy"], e, int(r["seed_first"]) + e,
+                            float(v)))
 
 
 # %% The trade-off of the search
@@ -174,6 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.episodes, args.bound_episodes, args.tradeoff_episodes = 3, 2, 2
     args.out.mkdir(parents=True, exist_ok=True)
     rows = run_frontiers(args.tasks, args.out, args.episodes, args.bound_episodes, over)
+    write_bound_episodes(rows, args.out / "episodes.csv")
     print(markdown_headroom(headroom(rows)))
     if args.tradeoff_task:
         cont = next(r["knob"] for r in rows if r["scenario"] == args.tradeoff_task

@@ -396,6 +396,8 @@ def cmd_results(args, cfg: dict) -> None:
             fields = _fields(defaults, cfg["learners"][learner], over)
             if args.steps:
                 fields["steps"] = args.steps
+            if args.eval_interval:
+                fields["eval_interval"] = args.eval_interval
             runs += [(task, learner, s, fields) for s in seeds]
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -564,6 +566,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
     p.add_argument("--seeds", type=int, nargs="+")
     p.add_argument("--steps", type=int, help="agent-steps per run (default: the config's)")
+    p.add_argument("--eval-interval", type=int,
+                   help="PPO iterations between the learning curve's evaluations (default: "
+                        "the config's)")
     p.add_argument("--episodes", type=int, default=EPISODES,
                    help="protocol evaluation episodes (default: 100)")
     p.add_argument("--out", type=Path, default=RESULTS)
