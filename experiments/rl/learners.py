@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 import shutil
 import sys
@@ -371,12 +372,14 @@ def _f(v: float, d: int = 1) -> str:
 
 
 def markdown_summary(rows: list[dict]) -> str:
-    lines = ["| task | learner | evaluation | IQM return [95 % CI] | best decentralised "
-             "scripted | causal bound | never | P(learned > scripted) | gap closed |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| task | learner | agent-steps | evaluation | IQM return [95 % CI] | best "
+             "decentralised scripted | causal bound | never | P(learned > scripted) | "
+             "gap closed |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['task']} | {r['learner']} | {r['evaluation']} | {_f(r['iqm'])} "
+            f"| {r['task']} | {r['learner']} | {r.get('agent_steps', 0) / 1e6:.1f}M | "
+            f"{r['evaluation']} | {_f(r['iqm'])} "
             f"[{_f(r['iqm_ci_low'])}, {_f(r['iqm_ci_high'])}] | "
             f"{_f(r['best_decentralised'])} (`{r['best_decentralised_spec']}`) | "
             f"{_f(r['causal_bound'])} | {_f(r['never'])} | {r['p_improvement']:.2f} | "
@@ -407,6 +410,10 @@ def cmd_results(args, cfg: dict) -> None:
     rows = evaluate_all(tasks, folders, args.episodes)
     write_csv(out / "episodes.csv", rows)
     summary, norm = summarise(rows, learners)
+    for r in summary:  # the training budget the row's runs had
+        r["agent_steps"] = int(np.median([
+            json.loads((d / "summary.json").read_text())["agent_steps"]
+            for (t, ln, _), d in folders.items() if t == r["task"] and ln == r["learner"]]))
     write_csv(out / "summary.csv", summary)
     (out / "summary.md").write_text(markdown_summary(summary))
     curves = learning_curves(folders, learners)

@@ -1,0 +1,84 @@
+"""The learners' aggregates (experiments/rl/learners.py): rliable's IQM and intervals, the
+probability of improvement and the fraction of the gap closed, on returns whose answers
+are known."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rliable")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def learners():
+    spec = importlib.util.spec_from_file_location("learners", ROOT / "experiments" / "rl" /
+                                                  "learners.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["learners"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _rows(learned: dict[int, np.ndarray], best: np.ndarray, causal: np.ndarray,
+          never: np.ndarray) -> list[dict]:
+    rows = []
+    for policy, values in (("never", never), ("best_decentralised", best),
+                           ("bound:causal", causal)):
+        rows += [{"task": "t", "policy": policy, "spec": "event:2", "seed": "",
+                  "evaluation": "scripted", "episode": e, "reward": float(v)}
+                 for e, v in enumerate(values)]
+    for seed, values in learned.items():
+        rows += [{"task": "t", "policy": "mlp", "spec": "mlp", "seed": seed,
+                  "evaluation": "greedy", "episode": e, "reward": float(v)}
+                 for e, v in enumerate(values)]
+    return rows
+
+
+def test_gap_closed_and_scores_on_known_returns(learners):
+    rng = np.random.default_rng(0)
+    best = -50 + rng.normal(0, 1, 100)
+    causal = np.full(20, -30.0)
+    never = np.full(100, -100.0)
+    # five seeds whose returns sit halfway between the best scripted mean and the bound
+    target = best.mean() + 0.5 * (-30.0 - best.mean())
+    learned = {s: np.full(100, target) for s in range(5)}
+    summary, norm = learners.summarise(_rows(learned, best, causal, never), ["mlp"])
+    (row,) = summary
+    assert row["seeds"] == 5 and row["episodes"] == 500
+    assert row["iqm"] == pytest.approx(target) and row["iqm_ci_low"] <= target + 1e-9
+    assert row["gap_closed"] == pytest.approx(0.5)
+    assert row["p_improvement"] == pytest.approx(1.0)  # every learned episode is above
+    # normalised per seed: never = 0, causal bound = 1
+    np.testing.assert_allclose(norm["mlp (greedy)"]["t"], (target + 100) / 70)
+
+
+def test_iqm_discards_the_outer_quartiles(learners):
+    """One seed far below the others moves the mean but not the interquartile mean."""
+    best = np.full(100, -50.0)
+    learned = {s: np.full(100, -40.0) for s in range(7)}
+    learned[7] = np.full(100, -1000.0)
+    summary, _ = learners.summarise(_rows(learned, best, np.full(20, -30.0),
+                                          np.full(100, -100.0)), ["mlp"])
+    assert summary[0]["iqm"] == pytest.approx(-40.0)
+    assert summary[0]["p_improvement"] == pytest.approx(7 / 8)
+
+
+def test_evaluation_seeds_are_disjoint_from_every_training_seed(learners):
+    """The protocol's evaluation episodes never reuse a training member's seed."""
+    from netsense.benchmark.protocol import eval_seeds
+
+    pytest.importorskip("torch")
+    from netsense.rl.config import training_seeds
+
+    cfg = learners.load_config()
+    seeds = set(eval_seeds(learners.EPISODES))
+    for task in cfg["tasks"]:
+        for s in cfg["defaults"]["seeds"]:
+            config = learners.ppo_config(task, s, learners._fields(cfg["defaults"],
+                                                                   cfg["tasks"][task]))
+            assert not seeds & set(training_seeds(config))
