@@ -103,6 +103,25 @@ def test_episodes_not_steps_are_held_out():
     np.testing.assert_array_equal(episode, np.repeat(np.arange(3), 8))
 
 
+def test_substate_samples_are_the_features_the_clone_builds():
+    """In ``substates`` mode a sample is the agent's features then its bit's one-hot, as
+    :func:`with_substate` builds them for the acting clone; forced bits are left out."""
+    rng = np.random.default_rng(0)
+    E, T, N, F, W = 2, 5, 3, 4, 3
+    obs = rng.normal(size=(E, T, N, F)).astype(np.float32)
+    mask = np.ones((E, T, N, 2 * W), np.int8)
+    mask[0, 1, 2, 3] = 0  # bit 1 of agent 2 at step 1 cannot be 1
+    rec = {"obs": obs, "mask": mask, "bits": rng.integers(0, 2, (E, T, N, W)),
+           "live": np.ones((E, T), bool)}
+    X, y, episode = exp.samples(rec, 2)
+    full = exp.with_substate(np.moveaxis(exp.stack_history(np.moveaxis(obs, 1, 0), 2), 0, 1),
+                             W)
+    keep = exp.free_bits(mask)
+    assert keep.sum() == E * T * N * W - 1 == len(y)
+    np.testing.assert_array_equal(X, full[keep])
+    np.testing.assert_array_equal(y, rec["bits"][keep])
+
+
 def test_history_is_newest_first_and_zero_before_the_episode():
     seq = np.arange(1, 4, dtype=np.float32)[:, None]  # (T=3, F=1)
     np.testing.assert_array_equal(exp.stack_history(seq, 2), [[1, 0], [2, 1], [3, 2]])

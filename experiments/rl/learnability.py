@@ -210,14 +210,14 @@ def free_bits(mask: np.ndarray) -> np.ndarray:
 def samples(rec: dict[str, np.ndarray], history: int
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Features ``X``, bits ``y`` and episode ids of every free decision of ``rec``."""
-    obs = rec["obs"]  # (E, T, N, F)
-    E, T, N, _ = obs.shape
     W = rec["bits"].shape[-1]
-    feats = np.moveaxis(stack_history(np.moveaxis(obs, 1, 0), history), 0, 1)
-    X = with_substate(feats, W)  # (E, T, N, W, F')
-    keep = free_bits(rec["mask"]) & rec["live"][:, :, None, None]
-    episode = np.broadcast_to(np.arange(E)[:, None, None, None], keep.shape)
-    return X[keep], rec["bits"][keep].astype(np.int64), episode[keep]
+    feats = np.moveaxis(stack_history(np.moveaxis(rec["obs"], 1, 0), history), 0, 1)
+    keep = free_bits(rec["mask"]) & rec["live"][:, :, None, None]  # (E, T, N, W)
+    e, t, i, j = np.nonzero(keep)
+    X = feats[e, t, i]
+    if W > 1:  # as with_substate: the features, then the substate's one-hot
+        X = np.concatenate([X, np.eye(W, dtype=X.dtype)[j]], axis=1)
+    return X, rec["bits"][e, t, i, j].astype(np.int64), e
 
 
 def split_episodes(episodes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -436,8 +436,32 @@ def markdown(rows: Sequence[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_markdown(rows: Sequence[dict], path: Path, command: str, seconds: float) -> None:
-    """``learnability.md``: what was run, the table and how to read it."""
+def details(rows: Sequence[dict]) -> str:
+    """The second table of ``learnability.md``: ROC AUC, each model's validation balanced
+    accuracy, messages per agent-step, the bound's return on the training episodes and the
+    wall time of each part."""
+
+    def num(v, fmt="{:.3f}"):
+        return "–" if not math.isfinite(v) else fmt.format(v)
+
+    lines = ["| task | continuation | ROC AUC (a) / (b) | validation logistic / hgb (a) | "
+             "validation logistic / hgb (b) | msgs / agent-step: bound, clone (a), (b) | "
+             "bound return, training episodes | s: bound, fit, clone |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['task']} | {r['continuation']} | {num(r['roc_auc_a'])} / "
+            f"{num(r['roc_auc_b'])} | {num(r['val_logistic_a'])} / {num(r['val_hgb_a'])} | "
+            f"{num(r['val_logistic_b'])} / {num(r['val_hgb_b'])} | "
+            f"{num(r['bound_msgs'])}, {num(r['clone_msgs_a'])}, {num(r['clone_msgs_b'])} | "
+            f"{num(r['bound_train_return'], '{:.2f}')} | {r['seconds_bound']:.0f}, "
+            f"{r['seconds_fit']:.0f}, {r['seconds_eval']:.0f} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_markdown(rows: Sequence[dict], path: Path, command: str, seconds: float,
+                   frontier: str | Path = FRONTIER) -> None:
+    """``learnability.md``: what was run, the tables and how to read them."""
     r0 = rows[0]
     head = (f"Learnability of `bound:causal`'s decisions (`experiments/rl/learnability.py`).\n\n"
             f"Command: `{command}` ({seconds / 60:.1f} min).\n\n"
@@ -450,12 +474,21 @@ def write_markdown(rows: Sequence[dict], path: Path, command: str, seconds: floa
             f"observation, (b) its last {HISTORY}; model kept by validation balanced "
             f"accuracy. Clone returns: the kept classifier acting for every agent on its own "
             f"observation, {r0['eval_episodes']} evaluation seeds {r0['eval_seed_first']}–"
-            f"{r0['eval_seed_last']}, mean [95 % bootstrap CI]. Bound return: the committed "
-            f"frontier's `bound:causal` ({r0['bound_episodes']} evaluation seeds); best "
-            f"decentralised: the frontier's best decentralised scripted point (100 "
-            f"evaluation seeds). Headroom recovered: (clone - best decentralised) / (bound - "
-            f"best decentralised).\n\n")
-    path.write_text(head + markdown(rows))
+            f"{r0['eval_seed_last']}, mean [95 % bootstrap CI]. Bound return: "
+            f"`bound:causal` in the frontier `{_shown(frontier)}` (the first "
+            f"{r0['bound_episodes']} evaluation seeds); best decentralised: its best "
+            f"decentralised scripted point (100 evaluation seeds). Headroom recovered: "
+            f"(clone - best decentralised) / (bound - best decentralised).\n\n")
+    path.write_text(head + markdown(rows) + "\n" + details(rows))
+
+
+def _shown(path: str | Path) -> str:
+    """``path`` relative to the repository when inside it."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        return Path(path).resolve().relative_to(root).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def plot(rows: Sequence[dict], path: Path) -> None:
@@ -526,7 +559,8 @@ def main(argv: Sequence[str] | None = None) -> list[dict]:
     command = "python experiments/rl/learnability.py " + " ".join(
         sys.argv[1:] if argv is None else argv)
     write_csv(rows, args.out / "learnability.csv")
-    write_markdown(rows, args.out / "learnability.md", command.strip(), seconds)
+    write_markdown(rows, args.out / "learnability.md", command.strip(), seconds,
+                   args.frontier)
     plot(rows, args.out / "learnability.png")
     print(markdown(rows))
     print(f"wrote {args.out} in {seconds:.0f} s")
