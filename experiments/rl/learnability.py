@@ -74,8 +74,10 @@ HISTORY = 4
 TRAIN_SEED0 = 900_000
 #: Episodes the bound runs at once (the frontier's bound_episodes, whose cost is measured).
 BATCH = pr.DEFAULT_BOUND_EPISODES
-#: Training episodes per task by default (about 30 min for all eight tasks on one core).
-EPISODES = 30
+#: Training episodes per task by default: the causal bound costs about 70 s per episode of
+#: all eight tasks together on one core of the two-core machine (comm_substates-v0 and
+#: comm_announced-v0 most), so with the classifiers and the clones about 30 min.
+EPISODES = 20
 MODELS = ("logistic", "hgb")
 FEATURES = {"a": 1, "b": HISTORY}
 COLUMNS = (
@@ -475,7 +477,7 @@ def write_markdown(rows: Sequence[dict], path: Path, command: str, seconds: floa
             f"accuracy. Clone returns: the kept classifier acting for every agent on its own "
             f"observation, {r0['eval_episodes']} evaluation seeds {r0['eval_seed_first']}–"
             f"{r0['eval_seed_last']}, mean [95 % bootstrap CI]. Bound return: "
-            f"`bound:causal` in the frontier `{_shown(frontier)}` (the first "
+            f"`bound:causal` in the frontier `{_shown(frontier)}; the first "
             f"{r0['bound_episodes']} evaluation seeds); best decentralised: its best "
             f"decentralised scripted point (100 evaluation seeds). Headroom recovered: "
             f"(clone - best decentralised) / (bound - best decentralised).\n\n")
@@ -483,12 +485,16 @@ def write_markdown(rows: Sequence[dict], path: Path, command: str, seconds: floa
 
 
 def _shown(path: str | Path) -> str:
-    """``path`` relative to the repository when inside it."""
-    root = Path(__file__).resolve().parents[2]
-    try:
-        return Path(path).resolve().relative_to(root).as_posix()
-    except ValueError:
-        return str(path)
+    """``path`` from its ``experiments/`` folder on (the repository's layout, whichever
+    checkout it was read from) and the first 12 hex digits of its SHA-256."""
+    import hashlib
+
+    path = Path(path).resolve()
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+    parts = path.parts
+    shown = (Path(*parts[parts.index("experiments"):]).as_posix() if "experiments" in parts
+             else str(path))
+    return f"{shown}` (sha256 {digest}…"
 
 
 def plot(rows: Sequence[dict], path: Path) -> None:
