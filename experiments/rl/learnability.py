@@ -41,7 +41,8 @@ that reads only one agent's observation could reproduce. Per communication task:
 
 Writes into ``experiments/results/rl/learnability/``: ``learnability.csv`` (one row per
 task, :data:`COLUMNS`), ``learnability.md`` (the table) and ``learnability.png`` (balanced
-accuracy and headroom recovered per task). Run (one core; ``--smoke`` for a seconds-long
+accuracy and headroom recovered per task). Run (27 min at the defaults, measured on one
+core while two other jobs shared the two-core machine; ``--smoke`` for a seconds-long
 check on a 12-step horizon)::
 
     NUMBA_NUM_THREADS=1 OMP_NUM_THREADS=1 python experiments/rl/learnability.py
