@@ -13,6 +13,8 @@ path                       what runs
                            communication-only scenario (transmit bit; freshness fusion adopts)
 ``torchrl-tuned-tx``       the same with the fastest ``(num_envs, minibatch)`` of ``--grid``
                            (epochs and everything else as the defaults)
+``torchrl-tanh-tx``        the defaults with tanh hidden layers instead of ReLU (what the
+                           activation costs on this CPU)
 ``sb3-supersuit-tx``       ``netsense train`` with its default backend: MaskablePPO through
                            SuperSuit (:func:`netsense.rl.sb3.train`, ``TrainConfig``
                            defaults), same scenario
@@ -52,12 +54,14 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
-PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "sb3-supersuit-tx",
+PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "sb3-supersuit-tx",
          "torchrl-defaults-full", "torchrl-tuned-full", "sb3-supersuit-full")
 
 
-def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: int) -> dict:
-    """``iters`` iterations of the PPOConfig defaults with ``num_envs = B`` and ``minibatch``."""
+def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: int,
+             **fields) -> dict:
+    """``iters`` iterations of the PPOConfig defaults with ``num_envs = B``, ``minibatch``
+    and ``fields``."""
     from netsense.rl.config import PPOConfig
     from netsense.rl.envs import make_core
     from netsense.rl.ppo import train_ppo
@@ -65,7 +69,7 @@ def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: 
     N = make_core(scenario, 1, control=control).N
     base = PPOConfig(scenario, control=control)
     cfg = PPOConfig(scenario, control=control, num_envs=B, minibatch=minibatch,
-                    steps=B * base.rollout * N * iters)
+                    steps=B * base.rollout * N * iters, **fields)
     res = train_ppo(cfg, None, evaluate_every=False)
     last = res.rows[-1]
     return {"agent_steps": res.agent_steps, "wall_s": res.wall_s,
@@ -101,6 +105,9 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     if "defaults" in path:
         return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
                          args.iters)]
+    if "tanh" in path:
+        return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
+                         args.iters, activation="tanh")]
     return [_torchrl(scenario, control, b, m, args.iters) for b, m in _grid(args.grid)]
 
 
@@ -215,7 +222,9 @@ def _report(rows: list[dict], args, path: Path) -> None:
               f"{_ratio(s, 'torchrl-defaults-full', 'torchrl-tuned-full')}",
               f"ratio defaults / SB3 + SuperSuit, communication only: "
               f"{_ratio(s, 'torchrl-defaults-tx', 'sb3-supersuit-tx')}; full control: "
-              f"{_ratio(s, 'torchrl-defaults-full', 'sb3-supersuit-full')}"]
+              f"{_ratio(s, 'torchrl-defaults-full', 'sb3-supersuit-full')}",
+              f"ratio defaults (ReLU) / tanh layers, communication only: "
+              f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tanh-tx')}"]
     path.write_text("\n".join(lines) + "\n")
 
 
