@@ -101,14 +101,15 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     if path.startswith("sb3"):
         return [_sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch)]
     if warm:
-        return [_torchrl(scenario, control, 4, 16, 1)]
+        return [_torchrl(scenario, control, 4, 16, 1, device=args.device)]
+    dev = {"device": args.device}
     if "defaults" in path:
         return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
-                         args.iters)]
+                         args.iters, **dev)]
     if "tanh" in path:
         return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
-                         args.iters, activation="tanh")]
-    return [_torchrl(scenario, control, b, m, args.iters) for b, m in _grid(args.grid)]
+                         args.iters, activation="tanh", **dev)]
+    return [_torchrl(scenario, control, b, m, args.iters, **dev) for b, m in _grid(args.grid)]
 
 
 # %%
@@ -136,6 +137,9 @@ def main(argv: list[str] | None = None) -> Path:
                    help="minibatch of the defaults paths (default: PPOConfig's)")
     p.add_argument("--sb3-steps", type=int, default=30_000,
                    help="agent-steps per SB3 measurement")
+    p.add_argument("--device", default="cpu",
+                   help="the TorchRL learner's device (cpu, cuda, auto); the core and the "
+                        "collection stay on the CPU")
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--tag", default="bench_train_throughput", help="output file stem")
     args = p.parse_args(argv)
@@ -201,7 +205,7 @@ def _report(rows: list[dict], args, path: Path) -> None:
     s = _summary(rows)
     lines = [f"# {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.node()}, "
              f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end, "
-             f"torch {torch.__version__}, learner on the cpu",
+             f"torch {torch.__version__}, TorchRL learner on {args.device}",
              f"# {args.comm_scenario} (-tx: communication only) and {args.scenario} (-full); "
              f"TorchRL: PPOConfig defaults, {args.iters} iterations per measurement, tuned over "
              f"num_envs:minibatch {args.grid}; SB3 + SuperSuit: TrainConfig defaults, "
