@@ -55,6 +55,8 @@ def test_gap_closed_and_scores_on_known_returns(learners):
     assert row["p_improvement"] == pytest.approx(1.0)  # every learned episode is above
     # normalised per seed: never = 0, causal bound = 1
     np.testing.assert_allclose(norm["mlp (greedy)"]["t"], (target + 100) / 70)
+    # the best scripted policy on the same scale, for the aggregate plot
+    np.testing.assert_allclose(norm[learners.SCRIPTED]["t"], (best.mean() + 100) / 70)
 
 
 def test_iqm_discards_the_outer_quartiles(learners):

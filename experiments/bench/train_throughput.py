@@ -13,6 +13,8 @@ path                       what runs
                            communication-only scenario (transmit bit; freshness fusion adopts)
 ``torchrl-tuned-tx``       the same with the fastest ``(num_envs, minibatch)`` of ``--grid``
                            (epochs and everything else as the defaults)
+``torchrl-tanh-tx``        the defaults with tanh hidden layers instead of ReLU (what the
+                           activation costs on this CPU)
 ``sb3-supersuit-tx``       ``netsense train`` with its default backend: MaskablePPO through
                            SuperSuit (:func:`netsense.rl.sb3.train`, ``TrainConfig``
                            defaults), same scenario
@@ -52,12 +54,14 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
-PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "sb3-supersuit-tx",
+PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "sb3-supersuit-tx",
          "torchrl-defaults-full", "torchrl-tuned-full", "sb3-supersuit-full")
 
 
-def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: int) -> dict:
-    """``iters`` iterations of the PPOConfig defaults with ``num_envs = B`` and ``minibatch``."""
+def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: int,
+             **fields) -> dict:
+    """``iters`` iterations of the PPOConfig defaults with ``num_envs = B``, ``minibatch``
+    and ``fields``."""
     from netsense.rl.config import PPOConfig
     from netsense.rl.envs import make_core
     from netsense.rl.ppo import train_ppo
@@ -65,7 +69,7 @@ def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: 
     N = make_core(scenario, 1, control=control).N
     base = PPOConfig(scenario, control=control)
     cfg = PPOConfig(scenario, control=control, num_envs=B, minibatch=minibatch,
-                    steps=B * base.rollout * N * iters)
+                    steps=B * base.rollout * N * iters, **fields)
     res = train_ppo(cfg, None, evaluate_every=False)
     last = res.rows[-1]
     return {"agent_steps": res.agent_steps, "wall_s": res.wall_s,
@@ -97,11 +101,15 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     if path.startswith("sb3"):
         return [_sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch)]
     if warm:
-        return [_torchrl(scenario, control, 4, 16, 1)]
+        return [_torchrl(scenario, control, 4, 16, 1, device=args.device)]
+    dev = {"device": args.device}
     if "defaults" in path:
         return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
-                         args.iters)]
-    return [_torchrl(scenario, control, b, m, args.iters) for b, m in _grid(args.grid)]
+                         args.iters, **dev)]
+    if "tanh" in path:
+        return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
+                         args.iters, activation="tanh", **dev)]
+    return [_torchrl(scenario, control, b, m, args.iters, **dev) for b, m in _grid(args.grid)]
 
 
 # %%
@@ -129,6 +137,9 @@ def main(argv: list[str] | None = None) -> Path:
                    help="minibatch of the defaults paths (default: PPOConfig's)")
     p.add_argument("--sb3-steps", type=int, default=30_000,
                    help="agent-steps per SB3 measurement")
+    p.add_argument("--device", default="cpu",
+                   help="the TorchRL learner's device (cpu, cuda, auto); the core and the "
+                        "collection stay on the CPU")
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--tag", default="bench_train_throughput", help="output file stem")
     args = p.parse_args(argv)
@@ -194,7 +205,7 @@ def _report(rows: list[dict], args, path: Path) -> None:
     s = _summary(rows)
     lines = [f"# {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.node()}, "
              f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end, "
-             f"torch {torch.__version__}, learner on the cpu",
+             f"torch {torch.__version__}, TorchRL learner on {args.device}",
              f"# {args.comm_scenario} (-tx: communication only) and {args.scenario} (-full); "
              f"TorchRL: PPOConfig defaults, {args.iters} iterations per measurement, tuned over "
              f"num_envs:minibatch {args.grid}; SB3 + SuperSuit: TrainConfig defaults, "
@@ -215,7 +226,9 @@ def _report(rows: list[dict], args, path: Path) -> None:
               f"{_ratio(s, 'torchrl-defaults-full', 'torchrl-tuned-full')}",
               f"ratio defaults / SB3 + SuperSuit, communication only: "
               f"{_ratio(s, 'torchrl-defaults-tx', 'sb3-supersuit-tx')}; full control: "
-              f"{_ratio(s, 'torchrl-defaults-full', 'sb3-supersuit-full')}"]
+              f"{_ratio(s, 'torchrl-defaults-full', 'sb3-supersuit-full')}",
+              f"ratio defaults (ReLU) / tanh layers, communication only: "
+              f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tanh-tx')}"]
     path.write_text("\n".join(lines) + "\n")
 
 

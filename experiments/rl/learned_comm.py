@@ -73,7 +73,8 @@ def ppo_config(scenario: str, seed: int, fields: dict, steps: int | None,
     from netsense.rl.config import PPOConfig
 
     skip = ("seeds", "eval_sizes", "scenario", "train_size", "conservative")
-    kw = {k: v for k, v in fields.items() if k not in skip}
+    # (TOML has no null: "none" means None, e.g. entropy_final = "none")
+    kw = {k: (None if v == "none" else v) for k, v in fields.items() if k not in skip}
     if kw.get("bc") == "best":
         kw["bc"] = bc
     if steps is not None:

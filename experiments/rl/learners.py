@@ -66,6 +66,8 @@ RESULTS = ROOT / "experiments" / "results" / "rl" / "learners"
 BOUNDS = ROOT / "experiments" / "results" / "rl" / "comm_bounds" / "episodes.csv"
 FRONTIER = ROOT / "experiments" / "results" / "rl" / "comm_bounds" / "frontier.csv"
 NONE = "none"  # TOML has no null: "none" in the config means None
+#: the best decentralised scripted policy's row in the aggregate plot
+SCRIPTED = "best decentralised scripted"
 EPISODES = 100
 
 
@@ -252,6 +254,9 @@ def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
                 if math.isfinite(c_mean) and c_mean > n_mean:
                     norm.setdefault(f"{learner} ({kind})", {})[task] = np.array(
                         [(v.mean() - n_mean) / (c_mean - n_mean) for v in per_seed])
+                    # the reference on the same scale: one "run", its mean
+                    norm.setdefault(SCRIPTED, {})[task] = np.array(
+                        [(b_mean - n_mean) / (c_mean - n_mean)])
     return out, norm
 
 
@@ -311,6 +316,7 @@ def plot_aggregate(norm: dict, path: Path) -> None:
     prof, prof_ci = rly.create_performance_profile(scores, taus)
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 3.8))
     names = list(scores)
+    colors = {k: f"C{i}" for i, k in enumerate(names)}
     for i, k in enumerate(names):
         a0.errorbar([point[k][0]], [i], xerr=[[point[k][0] - ci[k][0, 0]],
                                              [ci[k][1, 0] - point[k][0]]], fmt="o",
@@ -321,8 +327,8 @@ def plot_aggregate(norm: dict, path: Path) -> None:
     a0.set_xlabel("IQM normalised score (never = 0, causal bound = 1)")
     a0.set_title(f"{len(tasks)} tasks, 95 % stratified bootstrap CI", fontsize=9)
     plot_utils.plot_performance_profiles(prof, taus, performance_profile_cis=prof_ci, ax=a1,
-                                         xlabel="normalised score $\\tau$")
-    a1.legend(names, fontsize=7)
+                                         colors=colors, xlabel="normalised score $\\tau$")
+    a1.legend([plt.Line2D([], [], color=colors[k]) for k in names], names, fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
