@@ -292,7 +292,9 @@ def test_bench_parallel_runs_smoke(tmp_path):
 # ------------------------------------------------------------------ docs/rl.md
 def _docs_section() -> str:
     text = (Path(__file__).resolve().parents[1] / "docs" / "rl.md").read_text()
-    return text[text.index("## Many runs: worker processes and a Ray cluster"):]
+    text = text[text.index("## Many runs: worker processes and a Ray cluster"):]
+    end = text.find("\n## ", 1)  # up to the next section
+    return text if end < 0 else text[:end]
 
 
 def test_docs_cluster_commands_parse():
