@@ -42,8 +42,9 @@ HEADROOM_COLUMNS = ("scenario", "bound", "continuation", "reference_kind", "refe
 
 def best_scripted(rows: Sequence[dict], kind: str | None = None,
                   deterministic: bool = False) -> dict:
-    """The scripted row of highest mean reward (of ``kind``, :data:`KINDS`, if given;
-    ``deterministic``: not a point of a family that draws random bits,
+    """The scripted row of highest mean reward (of ``kind``, one of
+    :data:`~netsense.benchmark.kinds.KINDS`, if given; ``deterministic``: not a point of a
+    family that draws random bits,
     :data:`~netsense.benchmark.kinds.RANDOM_FAMILIES`)."""
     pick = [r for r in rows if r["kind"] in ("decentralised", "centralised")
             and (kind is None or r["kind"] == kind)

@@ -18,12 +18,12 @@ two futures:
     process state already holds randomness about the next step (the next link states of
     Markov link failures, the rest of a random jointly connected window, the next channel
     state of a Gilbert-Elliott sampler), it is redrawn from its law given what was seen
-    (:meth:`GraphProcess.redraw_state <netsense.graphs.processes.GraphProcess.
-    redraw_state>`, :meth:`ArrivalSampler.redraw <netsense.sensing.arrivals.ArrivalSampler.
-    redraw>`). The Markov states at ``k`` themselves (link states of ``G[k]``, positions of
-    mobile agents, a Gilbert-Elliott channel's state at ``k``) count as known: forks serve
-    full-information references. ``known_ahead = a`` keeps the realised graphs of steps
-    ``k + 1 .. k + a`` (a scenario that announces them) and redraws from ``k + a`` on.
+    (:meth:`~netsense.graphs.processes.GraphProcess.redraw_state`,
+    :meth:`~netsense.sensing.arrivals.ArrivalSampler.redraw`). The Markov states at ``k``
+    themselves (link states of ``G[k]``, positions of mobile agents, a Gilbert-Elliott
+    channel's state at ``k``) count as known: forks serve full-information references.
+    ``known_ahead = a`` keeps the realised graphs of steps ``k + 1 .. k + a`` (a scenario
+    that announces them) and redraws from ``k + a`` on.
     Lanes with the same member and seed get the same future (common random numbers).
 
 A resampled fork needs the generators at step ``k``: ``core`` must be built with

@@ -7,7 +7,7 @@ already hold randomness about ``G[k+1]`` and later graphs: the link states of th
 A simulation that forks a run at step ``k`` and must not know ``G[k+1]`` (the causal
 bound of :mod:`netsense.benchmark.bounds`, through :mod:`netsense.engine.fork`) needs a
 state drawn from the process's law *given what was shown up to* ``k``:
-:meth:`GraphProcess.redraw_state <netsense.graphs.processes.GraphProcess.redraw_state>`.
+:meth:`~netsense.graphs.processes.GraphProcess.redraw_state`.
 
 This module holds the one non-trivial case, the rest of a random jointly connected window.
 The window of :class:`RandomJointlyConnected` (``N`` nodes, period ``T``, extra-edge
