@@ -46,6 +46,7 @@ gap).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import math
@@ -200,13 +201,28 @@ def evaluate_all(tasks: dict[str, dict], folders: dict, episodes: int) -> list[d
 
 
 # %% aggregates (rliable)
+@contextlib.contextmanager
+def _seeded_global_rng(seed: int = 0):
+    """rliable's stratified bootstrap draws its resamples from NumPy's global generator
+    (``np.random.choice`` in ``StratifiedBootstrap.update_indices``; its ``random_state``
+    only seeds arch's own generator), so the intervals are reproducible only with the
+    global generator seeded; its state is restored afterwards."""
+    state = np.random.get_state()  # noqa: NPY002 (the legacy global generator is the point)
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        yield
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
+
+
 def _iqm_ci(matrix: np.ndarray, reps: int = 2000) -> tuple[float, float, float]:
     """IQM of ``matrix (runs, tasks)`` with rliable's stratified bootstrap 95 % CI."""
     from rliable import library as rly
     from rliable import metrics
 
-    point, ci = rly.get_interval_estimates({"x": matrix}, lambda s: np.array(
-        [metrics.aggregate_iqm(s)]), reps=reps, random_state=np.random.RandomState(0))
+    with _seeded_global_rng():
+        point, ci = rly.get_interval_estimates({"x": matrix}, lambda s: np.array(
+            [metrics.aggregate_iqm(s)]), reps=reps, random_state=np.random.RandomState(0))
     return float(point["x"][0]), float(ci["x"][0, 0]), float(ci["x"][1, 0])
 
 
@@ -309,11 +325,12 @@ def plot_aggregate(norm: dict, path: Path) -> None:
         return
     scores = {k: np.stack([d[t] for t in tasks], 1) for k, d in norm.items()
               if all(t in d for t in tasks)}
-    point, ci = rly.get_interval_estimates(
-        scores, lambda s: np.array([metrics.aggregate_iqm(s), metrics.aggregate_mean(s)]),
-        reps=2000, random_state=np.random.RandomState(0))
-    taus = np.linspace(-0.5, 1.5, 81)
-    prof, prof_ci = rly.create_performance_profile(scores, taus)
+    with _seeded_global_rng():
+        point, ci = rly.get_interval_estimates(
+            scores, lambda s: np.array([metrics.aggregate_iqm(s), metrics.aggregate_mean(s)]),
+            reps=2000, random_state=np.random.RandomState(0))
+        taus = np.linspace(-0.5, 1.5, 81)
+        prof, prof_ci = rly.create_performance_profile(scores, taus)
     fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 3.8))
     names = list(scores)
     colors = {k: f"C{i}" for i, k in enumerate(names)}
