@@ -34,8 +34,20 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+#: the extra that installs a missing top-level module (what a user should install)
+EXTRA_OF = {"torch": "torchrl", "torchrl": "torchrl", "tensordict": "torchrl",
+            "stable_baselines3": "rl", "sb3_contrib": "rl", "supersuit": "rl",
+            "ray": "rllib", "rliable": "analysis", "opendssdirect": "grid"}
+
+
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split()) or type(exc).__name__
+    name = (getattr(exc, "name", None) or "").split(".")[0]
+    if isinstance(exc, ModuleNotFoundError) and name in EXTRA_OF:
+        extra = EXTRA_OF[name]
+        torch = "pip install torch==2.13.0 && " if extra in ("torchrl", "rl", "rllib") else ""
+        return (f"this needs {name!r}, which is not installed: {torch}pip install -e "
+                f"\".[{extra}]\"")
     return text if isinstance(exc, ValueError) else f"{type(exc).__name__}: {text}"
 
 

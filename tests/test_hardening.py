@@ -682,6 +682,8 @@ CLI = [
 
 @pytest.mark.parametrize("argv, text", [c[1:] for c in CLI], ids=[c[0] for c in CLI])
 def test_cli_exits_2_with_one_line(tmp_path, capsys, argv, text):
+    if "torchrl" in argv or argv[0] == "policy":  # (these checks run on torch's side)
+        pytest.importorskip("torch")
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     try:
         rc = main(argv)
@@ -1485,3 +1487,24 @@ def test_cli_torchrl_training_with_a_control_override_runs(tmp_path, capsys):
     assert policy_control(read_policy(tmp_path / "seed_0" / "policy.pt"))["mode"] == \
         "transmit"
 
+
+
+def test_cli_names_the_extra_of_a_missing_stack(monkeypatch, capsys):
+    """Without torch, a command that needs it says which extra to install, in one line."""
+    import builtins
+
+    real = builtins.__import__
+
+    def no_torch(name, *args, **kwargs):
+        if name.split(".")[0] == "torch":
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return real(name, *args, **kwargs)
+
+    from netsense.cli import _one_line
+
+    monkeypatch.setattr(builtins, "__import__", no_torch)
+    try:
+        import torch  # noqa: F401
+    except ModuleNotFoundError as exc:
+        line = _one_line(exc)
+    assert "'torch'" in line and '".[torchrl]"' in line and "pip install torch==2.13.0" in line
