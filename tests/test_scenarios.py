@@ -145,3 +145,23 @@ def test_message_cost_v1_makes_messages_matter():
     # v0 is unchanged (the RL engineer's scenario): cost 0.05, half-shared team error
     v0 = load("message_cost-v0")
     assert (v0.reward.message_cost, v0.reward.team_weight, v0.horizon) == (0.05, 0.5, 100)
+
+
+def test_comm_schedule_v1_is_the_schedule_on_the_message_cost_plant():
+    """comm_schedule-v1's description: the link schedule of comm_schedule-v0 on the plant of
+    message_cost-v1 (no process noise), transmit-only control with acks, cost 0.1."""
+    v1, sched, mc = make("comm_schedule-v1"), make("comm_schedule-v0"), make("message_cost-v1")
+    np.testing.assert_array_equal(v1.model.plant.A, mc.model.plant.A)
+    for a, b in zip(v1.model.plant.C, mc.model.plant.C, strict=True):
+        np.testing.assert_array_equal(a, b)
+    g1, g0 = v1.model.graphs.graphs, sched.model.graphs.graphs
+    assert len(g1) == len(g0) == 12
+    for a, b in zip(g1, g0, strict=True):
+        np.testing.assert_array_equal(a, b)
+    sc = load("comm_schedule-v1")
+    assert sc.control == {"mode": "transmit", "fusion": "freshness", "feedback": True}
+    assert sc.reward.message_cost == 0.1 and sc.reward.error_clip == 1.0
+    assert "process" not in sc.noise and type(v1.model.plant.process_noise).__name__ == "NoNoise"
+    # no out-neighbour at 61 % of agent-steps, as the description says
+    out_deg = np.array([(np.asarray(g) != 0).sum(0) - np.diag(np.asarray(g) != 0) for g in g1])
+    assert round(float((out_deg == 0).mean()), 2) == 0.61

@@ -41,7 +41,7 @@ from netsense.benchmark.headroom import headroom, markdown_headroom
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "rl" / "comm_bounds"
 TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
          "message_cost-v0", "message_cost-v1", "comm_announced-v0", "comm_fading-v0",
-         "comm_schedule-v0")
+         "comm_schedule-v0", "comm_schedule-v1")
 _D = BoundConfig()
 #: (kind, h, F, z, rounds) points of the trade-off study around the defaults (the
 #: clairvoyant bound has one future, so F and z do not apply to it)

@@ -58,16 +58,16 @@ ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "experiments/results/rl/comm_tasks"
 OLD_TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
              "message_cost-v0", "message_cost-v1")
-NEW_TASKS = ("comm_announced-v0", "comm_fading-v0", "comm_schedule-v0")
+NEW_TASKS = ("comm_announced-v0", "comm_fading-v0", "comm_schedule-v0", "comm_schedule-v1")
 #: Families of the frontier before these tasks (the others were added with them).
 OLD_FAMILIES = ("always", "never", "periodic", "bernoulli", "sources", "event")
 #: Base rules the informed and privileged rules gate.
-BASES = ("always", "sources:0", "event:1", "event:2", "event:3", "event:4")
+BASES = ("always", "sources:0", "event:1", "event:2", "event:3", "event:4", "until:40")
 #: Steps after which ``acked`` probes a channel it believes bad.
 PROBE = 6
 #: Informed (decentralised) rule of each new task; ``oracle`` rules run on all of them.
 INFORMED = {"comm_announced-v0": "gated", "comm_fading-v0": "acked",
-            "comm_schedule-v0": "phased"}
+            "comm_schedule-v0": "phased", "comm_schedule-v1": "phased"}
 
 
 # %% rules that use a task's extra information

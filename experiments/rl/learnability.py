@@ -68,7 +68,7 @@ RESULTS = Path(__file__).resolve().parents[1] / "results" / "rl" / "learnability
 FRONTIER = RESULTS.parent / "comm_bounds" / "frontier.csv"
 TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
          "message_cost-v0", "message_cost-v1", "comm_announced-v0", "comm_fading-v0",
-         "comm_schedule-v0")
+         "comm_schedule-v0", "comm_schedule-v1")
 #: Observations stacked in the features of (b).
 HISTORY = 4
 #: First training seed: below the protocol's TRAIN_SEED_LIMIT, so never an evaluation seed.
