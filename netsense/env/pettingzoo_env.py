@@ -200,7 +200,8 @@ Version History
   its realisations.
 * ``[control] announce`` and ``feedback`` (observation fields ``next_out``, ``acks``),
   per-sender arrival channels (``scope = "sender"``) and a plant noise input ``W``, first
-  used by ``comm_announced-v0``, ``comm_fading-v0`` and ``comm_schedule-v0``; off by
+  used by ``comm_announced-v0``, ``comm_fading-v0`` and ``comm_schedule-v0`` (and
+  ``comm_schedule-v1``); off by
   default, every existing scenario keeps its spaces and realisations.
 """
 
