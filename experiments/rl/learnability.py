@@ -41,7 +41,7 @@ that reads only one agent's observation could reproduce. Per communication task:
 
 Writes into ``experiments/results/rl/learnability/``: ``learnability.csv`` (one row per
 task, :data:`COLUMNS`), ``learnability.md`` (the table) and ``learnability.png`` (balanced
-accuracy and headroom recovered per task). Run (27 min at the defaults, measured on one
+accuracy and headroom recovered per task). Run (23 min at the defaults, measured on one
 core while two other jobs shared the two-core machine; ``--smoke`` for a seconds-long
 check on a 12-step horizon)::
 
@@ -76,7 +76,7 @@ TRAIN_SEED0 = 900_000
 #: Episodes the bound runs at once (the frontier's bound_episodes, whose cost is measured).
 BATCH = pr.DEFAULT_BOUND_EPISODES
 #: Training episodes per task by default: the causal bound costs about 70 s per episode of
-#: all eight tasks together on one core of the two-core machine (comm_substates-v0 and
+#: all nine tasks together on one core of the two-core machine (comm_substates-v0 and
 #: comm_announced-v0 most), so with the classifiers and the clones about 30 min.
 EPISODES = 20
 MODELS = ("logistic", "hgb")
