@@ -1,9 +1,9 @@
 """The communication tasks' scripted frontier with every decentralised family, and what the
 new tasks' extra information is worth.
 
-``python experiments/rl/comm_tasks.py`` (all tasks, 100 protocol episodes; 10
-minutes measured on one core with the other busy; ``--scenarios``/``--episodes`` shrink it) writes into
-``experiments/results/rl/comm_tasks/``:
+``python experiments/rl/comm_tasks.py`` (all tasks, 100 protocol episodes; 10 minutes
+measured on one core with the other busy; ``--scenarios``/``--episodes`` shrink it) writes
+into ``experiments/results/rl/comm_tasks/``:
 
 1. **Frontier** of each scenario (:func:`netsense.benchmark.protocol.run_frontier`: every
    family of :data:`netsense.benchmark.protocol.FAMILIES` at each knob, ``always`` and
