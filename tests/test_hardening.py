@@ -887,6 +887,11 @@ PPO_CONFIG = [
      "PPOConfig.overrides['control'] must be a table"),
     ("control-unknown", {"control": "tx"}, "PPOConfig.control must be one of"),
     ("control-dict-bad-mode", {"control": {"mode": "broadcast"}}, "control.mode"),
+    ("clock-period-1", {"clock": (1, 5)}, "PPOConfig.clock[0] must be an integer in [2,"),
+    ("clock-repeated", {"clock": [5, 5]}, "PPOConfig.clock must not repeat a value"),
+    ("clock-str", {"clock": "5"}, "PPOConfig.clock must be a tuple of integers"),
+    ("clock-obs-norm", {"clock": (5,), "obs_norm": True}, "not available with obs_norm=True"),
+    ("clock-set-network", {"clock": (5,), "network": "set"}, "network='set'"),
 ]
 
 

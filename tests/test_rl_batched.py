@@ -194,6 +194,44 @@ def test_training_smoke(tmp_path, algo, network, control, reward):
         o, m = out.obs, out.action_mask
 
 
+def test_clock_features_are_the_step_phase_for_each_period():
+    """The clock reads k from the time entry k / H and appends sin, cos of 2 pi k / p: equal
+    at k and k + lcm of the periods, different between the p phases."""
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import ClockActor
+
+    core = make_core("comm_channel_k2-v0", 1)
+    H, t = core.horizon, core.layout.time.start
+    clock = ClockActor(torch.nn.Identity(), t, H, (2, 5))
+    obs = torch.zeros(H + 1, core.layout.size)
+    obs[:, t] = torch.arange(H + 1, dtype=torch.float32) / H  # float32, as the core writes
+    feat = clock(obs)[:, core.layout.size:]
+    k = np.arange(H + 1)[:, None]
+    want = np.concatenate([np.sin(2 * np.pi * k / [2, 5]), np.cos(2 * np.pi * k / [2, 5])], 1)
+    np.testing.assert_allclose(feat.numpy(), want, atol=1e-5)
+    np.testing.assert_allclose(feat[10:], feat[:-10], atol=1e-5)  # lcm(2, 5)
+    phases = {tuple(np.round(f, 4)) for f in feat[:10, [1, 3]].numpy()}  # the p = 5 pair
+    assert len(phases) == 5
+
+
+def test_clock_policy_trains_saves_and_loads(tmp_path):
+    """A policy with a clock (and memory) round-trips through its file: loading rebuilds the
+    clock, whose inputs the weights expect."""
+    from netsense.rl.checkpoint import load_policy
+    from netsense.rl.envs import make_core
+    from netsense.rl.ppo import train_ppo
+
+    res = train_ppo(_small("mappo", "mlp", control="transmit", clock=(2, 5), memory=8),
+                    tmp_path)
+    assert res.mask_violations == 0 and np.isfinite(res.rows[-1]["eval_return"])
+    core = make_core(SCEN, 2, control="transmit", **SHORT)
+    pol = load_policy(tmp_path / "policy.pt", core)
+    o, m = core.reset(3)
+    for _ in range(6):
+        out = core.step(pol.act(o, m))
+        o, m = out.obs, out.action_mask
+
+
 def test_set_network_runs_at_any_size_with_the_same_parameters():
     from netsense.rl.envs import make_core
     from netsense.rl.set_network import SetPolicyNet

@@ -82,6 +82,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tr.add_argument("--memory", type=nonnegative_int, default=None, metavar="M",
                     help="GRU state size of the actor over the agent's own history (default: "
                          "0, a feed-forward actor)")
+    tr.add_argument("--clock", type=positive_int, nargs="+", default=None, metavar="P",
+                    help="MLP actor: also read sin and cos of 2 pi k / P for each period P "
+                         "(steps, >= 2), k the step read from the observation's time entry "
+                         "(default: none)")
     tr.add_argument("--epochs", type=positive_int, default=None,
                     help="PPO epochs per iteration (default: 4)")
     tr.add_argument("--eval-interval", type=positive_int, default=None,
@@ -121,8 +125,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: Options of the torchrl backend only (``None`` in the parser, so that an option given with
 #: ``--backend sb3`` is refused instead of ignored; what is not given takes
 #: :class:`netsense.rl.config.PPOConfig`'s default).
-TORCHRL_ONLY = ("network", "control", "reward", "critic", "memory", "epochs", "eval_interval",
-                "eval_envs", "bc", "device", "seeds")
+TORCHRL_ONLY = ("network", "control", "reward", "critic", "memory", "clock", "epochs",
+                "eval_interval", "eval_envs", "bc", "device", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).
 SHARED = {"steps": ("steps", "steps"), "num_envs": ("num_envs", "num_vec_envs"),

@@ -94,6 +94,13 @@ class PPOConfig:
     agent_features : bool
         The MLP actors also read a one-hot of the substate the agent owns
         (:class:`netsense.rl.policy.OwnSubstateActor`).
+    clock : tuple of int
+        Periods ``p`` (steps) of a clock the MLP actors also read: ``sin`` and ``cos`` of
+        ``2 pi k / p`` for each, ``k`` the step index recovered from the observation's
+        time entry ``k / H`` (:class:`netsense.rl.policy.ClockActor`). The same information
+        as that entry, in a form a small network can use for periodic rules: a
+        time-division slot ``k mod 5`` is 40 periods of ``k / H`` over a 200-step episode.
+        Empty (default): no clock. Not with ``obs_norm`` or the set network.
     value_norm : bool
         Critic trained on standardised value targets (TorchRL's ``RunningValueNorm``;
         :mod:`netsense.rl.advantage`).
@@ -173,6 +180,7 @@ class PPOConfig:
     activation: str = "relu"
     stagger: bool = True
     agent_features: bool = True
+    clock: tuple[int, ...] = ()
     value_norm: bool = True
     reward_scale: bool = False
     obs_norm: bool = False
@@ -210,6 +218,11 @@ class PPOConfig:
             if kind not in ("cpu", "cuda"):
                 raise ValueError(f"PPOConfig.device must be 'auto', 'cpu', 'cuda' or "
                                  f"'cuda:<index>', got {self.device!r}")
+        if self.clock and (self.obs_norm or self.network == "set"):
+            raise ValueError(f"PPOConfig.clock: the clock reads the raw time entry of the MLP "
+                             f"actor's observation; it is not available with obs_norm=True "
+                             f"or network='set' (got obs_norm={self.obs_norm}, network="
+                             f"{self.network!r})")
         if self.bc and self.memory:
             raise ValueError("PPOConfig.bc: behaviour cloning trains a feed-forward actor "
                              "step by step; it is not available with memory > 0")
@@ -253,6 +266,7 @@ def device_of(name: str) -> torch.device:
 #: high]``), ``"int?"`` (the same or ``None``), ``"float"`` (a finite real number, not a
 #: bool or string; ``low`` / ``high`` as ``(value, open)`` pairs, ``None`` for no bound),
 #: ``"widths"`` (a non-empty tuple or list of ``int`` layer widths in ``[low, high]``),
+#: ``"ints"`` (a tuple or list, possibly empty, of distinct ``int`` in ``[low, high]``),
 #: ``"choice"`` / ``"choice?"`` (one of ``low``, compared by type and value; ``?``: or
 #: ``None``), ``"str"``, ``"dict"``. A new field adds its row here.
 CONFIG_CHECKS: dict[str, tuple] = {
@@ -281,6 +295,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "activation": ("choice", tuple(ACTIVATIONS), None),
     "stagger": ("choice", (True, False), None),
     "agent_features": ("choice", (True, False), None),
+    "clock": ("ints", 2, checks.MAX_STEPS),
     "value_norm": ("choice", (True, False), None),
     "reward_scale": ("choice", (True, False), None),
     "obs_norm": ("choice", (True, False), None),
@@ -324,6 +339,14 @@ def check_field(owner: str, name: str, value, kind: str, low=None, high=None):
                              f"{value!r}")
         return tuple(checks.integer(f"{where}[{i}]", w, low, high)
                      for i, w in enumerate(value))
+    if kind == "ints":
+        if not isinstance(value, (tuple, list)):
+            raise ValueError(f"{where} must be a tuple of integers, got {value!r}")
+        out = tuple(checks.integer(f"{where}[{i}]", v, low, high)
+                    for i, v in enumerate(value))
+        if len(set(out)) != len(out):
+            raise ValueError(f"{where} must not repeat a value, got {value!r}")
+        return out
     if kind == "str":
         if not isinstance(value, str):
             raise ValueError(f"{where} must be a string, got {value!r} "

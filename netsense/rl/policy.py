@@ -24,8 +24,8 @@ from netsense.rl.memory import RecurrentActor, is_recurrent, unroll
 from netsense.rl.networks import activation_class, critic_net, mlp_actor_net
 from netsense.rl.set_network import SetPolicyNet
 
-__all__ = ["ObsNormActor", "OwnSubstateActor", "SequenceLogits", "actor_net", "build_actor",
-           "critic_module"]
+__all__ = ["ClockActor", "ObsNormActor", "OwnSubstateActor", "SequenceLogits", "actor_net",
+           "build_actor", "critic_module"]
 
 
 class ObsNormActor(nn.Module):
@@ -73,15 +73,43 @@ class OwnSubstateActor(nn.Module):
         return self.body(torch.cat([obs, feat], -1), *h)
 
 
+class ClockActor(nn.Module):
+    """An actor that also reads a clock (``clock``): ``sin`` and ``cos`` of ``2 pi k / p``
+    for each period ``p``, appended to every observation, with the step ``k`` recovered
+    from the observation's time entry ``k / H`` (rounded, as the scripted policies read
+    it: :meth:`netsense.env.policies.CommPolicy.steps`).
+
+    The time entry alone already determines every periodic rule, but a rule such as a
+    time-division slot (``k mod 5``) is a function with 40 periods over a 200-step
+    episode, which a small ReLU network does not represent; on the circle of period ``p``
+    the ``p`` phases are separable by one layer."""
+
+    def __init__(self, net: nn.Module, time_index: int, horizon: int,
+                 periods: tuple[int, ...]) -> None:
+        super().__init__()
+        self.time_index = int(time_index)
+        self.horizon = int(horizon)
+        self.register_buffer("periods", torch.as_tensor([float(p) for p in periods]))
+        self.body = net
+        self.memory = int(getattr(net, "memory", 0) or 0)
+
+    def forward(self, obs: torch.Tensor, *h: torch.Tensor):
+        k = torch.round(obs[..., self.time_index:self.time_index + 1] * self.horizon)
+        periods = self.periods.to(obs.dtype)
+        phase = 2 * torch.pi * torch.remainder(k, periods) / periods  # exact k mod p
+        return self.body(torch.cat([obs, torch.sin(phase), torch.cos(phase)], -1), *h)
+
+
 def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     """The actor's logits network for ``core``'s layout and action layout: the set network,
     the recurrent MLP (``config.memory > 0``) or TorchRL's ``MultiAgentMLP``; the MLPs read
-    the own-substate one-hot when ``config.agent_features`` and sit behind a running
+    the own-substate one-hot when ``config.agent_features`` and the clock of
+    ``config.clock`` (:class:`ClockActor`), and sit behind a running
     observation normaliser when ``config.obs_norm``."""
     if config.network == "set":
         return SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden,
                             memory=config.memory).to(device)
-    extra = core.M + 1 if config.agent_features else 0
+    extra = (core.M + 1 if config.agent_features else 0) + 2 * len(config.clock)
     if config.memory:
         net = RecurrentActor(core.layout.size + extra, int(sum(core.nvec)), config.hidden,
                              config.memory, activation_class(config.activation), device=device)
@@ -90,6 +118,8 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
                             activation=config.activation, extra_inputs=extra, device=device)
     if config.agent_features:
         net = OwnSubstateActor(net, core.layout.own, core.M)
+    if config.clock:
+        net = ClockActor(net, core.layout.time.start, core.horizon, config.clock)
     return (ObsNormActor(net, core.layout.size) if config.obs_norm else net).to(device)
 
 
