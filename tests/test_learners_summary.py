@@ -93,3 +93,36 @@ def test_intervals_are_reproducible(learners):
     first = learners._iqm_ci(x)
     np.random.random(7)  # noqa: NPY002 (whatever the global generator did in between)
     assert learners._iqm_ci(x) == first
+
+
+def test_best_validated_checkpoint_is_the_highest_periodic_evaluation(learners, tmp_path):
+    """The kept checkpoint is the one whose validation return is highest (the later one on a
+    tie); iterations without an evaluation, or whose checkpoint is gone, are not chosen."""
+    rows = [("0", "", True), ("1", "-30.0", True), ("2", "-12.5", True), ("3", "", True),
+            ("4", "-12.5", True), ("5", "-20.0", True), ("6", "-5.0", False)]
+    lines = ["iteration,agent_steps,eval_return"]
+    for it, ret, keep in rows:
+        lines.append(f"{it},{100 * (int(it) + 1)},{ret}")
+        if keep:
+            (tmp_path / f"checkpoint_{int(it) + 1:05d}.pt").write_bytes(b"x")
+    (tmp_path / "log.csv").write_text("\n".join(lines) + "\n")
+    assert learners.best_validated(tmp_path) == tmp_path / "checkpoint_00005.pt"
+    (tmp_path / "log.csv").write_text("iteration,agent_steps,eval_return\n0,100,\n")
+    assert learners.best_validated(tmp_path) is None
+
+
+def test_validation_seeds_are_apart_from_training_and_test_seeds(learners):
+    """The periodic evaluation that picks the best-validated checkpoint never sees a
+    protocol test episode or a training episode."""
+    from netsense.benchmark.protocol import eval_seeds
+
+    pytest.importorskip("torch")
+    from netsense.rl.config import EVAL_SEED, training_seeds
+
+    cfg = learners.load_config()
+    val = set(range(EVAL_SEED, EVAL_SEED + cfg["defaults"]["eval_envs"]))
+    assert not val & set(eval_seeds(learners.EPISODES))
+    for task in cfg["tasks"]:
+        config = learners.ppo_config(task, max(cfg["defaults"]["seeds"]), learners._fields(
+            cfg["defaults"], cfg["tasks"][task]))
+        assert not val & set(training_seeds(config))

@@ -15,10 +15,14 @@ counts the runs.
 
 **results** writes into ``experiments/results/rl/learners/``:
 
-* ``runs/<task>/<learner>/seed_<s>/``: ``policy.pt`` (actor only), ``log.csv``,
+* ``runs/<task>/<learner>/seed_<s>/``: ``policy.pt`` (the final actor), ``policy_best.pt``
+  (the checkpoint with the best greedy return in the periodic evaluation during training,
+  whose episodes are seeded from 10^9: a validation set apart from the training and the
+  protocol's seeds; runs trained before this option have none), ``log.csv``,
   ``config.json``, ``summary.json``, ``training_curve.png``;
 * ``episodes.csv``: every final policy on the protocol's 100 evaluation episodes (seeds
   ``10^6 .. 10^6 + 99``, disjoint from every training seed; checked), greedy and sampled,
+  and the best-validated checkpoint greedy (evaluation ``best-validated``) where a run has one,
   beside the task's references on the same episodes: ``never``, the best decentralised
   scripted point of the frontier (by mean return) and the causal and clairvoyant bounds
   (read from the bounds experiment's ``episodes.csv``, fewer episodes);
@@ -70,6 +74,8 @@ NONE = "none"  # TOML has no null: "none" in the config means None
 #: the best decentralised scripted policy's row in the aggregate plot
 SCRIPTED = "best decentralised scripted"
 EPISODES = 100
+#: a run's best-validated checkpoint (actor only), kept beside its final ``policy.pt``
+BEST = "policy_best.pt"
 
 
 def load_config(path: Path = CONFIG) -> dict:
@@ -103,11 +109,28 @@ def _train_one(task: str, seed: int, fields: dict, folder: Path) -> Path:
     if folder.exists():
         shutil.rmtree(folder)
     train_ppo(ppo_config(task, seed, fields), folder)
+    best = best_validated(folder)
+    if best is not None:
+        shutil.copyfile(best, folder / BEST)
+        strip_critic(folder / BEST)
     for ck in folder.glob("checkpoint_*.pt"):
         ck.unlink()
     shutil.rmtree(folder / "tb", ignore_errors=True)
     strip_critic(folder / "policy.pt")  # the committed file holds the actor only
     return folder
+
+
+def best_validated(folder: Path) -> Path | None:
+    """The run's checkpoint with the highest greedy return in the periodic evaluation
+    during training (its own episodes, seeds from ``EVAL_SEED`` = 10^9 on: a validation
+    set, disjoint from the training seeds and from the protocol's test seeds); the later
+    one on a tie. ``None`` where the run kept no evaluated checkpoint."""
+    best, path = -math.inf, None
+    for r in read_log(folder):
+        ck = folder / f"checkpoint_{int(r['iteration']) + 1:05d}.pt"
+        if r.get("eval_return") and ck.exists() and float(r["eval_return"]) >= best:
+            best, path = float(r["eval_return"]), ck
+    return path
 
 
 def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
@@ -192,8 +215,12 @@ def evaluate_all(tasks: dict[str, dict], folders: dict, episodes: int) -> list[d
         for (t, learner, seed), folder in folders.items():
             if t != task:
                 continue
-            for kind, prefix in (("greedy", "learned"), ("sampled", "learned_sampled")):
-                m = evaluate(task, f"{prefix}:{folder / 'policy.pt'}", seeds)
+            kinds = [("greedy", "learned", "policy.pt"),
+                     ("sampled", "learned_sampled", "policy.pt")]
+            if (folder / BEST).exists():
+                kinds.append(("best-validated", "learned", BEST))
+            for kind, prefix, file in kinds:
+                m = evaluate(task, f"{prefix}:{folder / file}", seeds)
                 rows += [{"task": task, "policy": learner, "spec": learner, "seed": seed,
                           "evaluation": kind, "episode": e, "reward": float(v)}
                          for e, v in enumerate(m["reward"])]
@@ -241,7 +268,7 @@ def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
         best = ref["best_decentralised"]
         causal = ref["bound:causal"]
         for learner in learners:
-            for kind in ("greedy", "sampled"):
+            for kind in ("greedy", "sampled", "best-validated"):
                 seeds = sorted({r["seed"] for r in rs if r["policy"] == learner
                                 and r["evaluation"] == kind})
                 if not seeds:
