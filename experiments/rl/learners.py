@@ -6,6 +6,7 @@ Two commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py ablation    # the recipe, one change at a time
     python experiments/rl/learners.py results     # every task x learner x seed, evaluated
     python experiments/rl/learners.py diagnose    # one decision's signal against the noise
+    python experiments/rl/learners.py channel     # how the learners use the collision channel
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
 again where a run's ``policy.pt`` exists (by default an existing run is evaluated as it is,
@@ -39,6 +40,11 @@ counts the runs.
 **diagnose** writes ``diagnosis.csv`` / ``diagnosis.md``: per agent, the effect of one
 transmission on the discounted team return under a random policy, against the return's
 spread (how much signal a policy gradient gets per decision).
+
+**channel** writes ``channel.csv`` / ``channel.md``: on ``comm_channel_k2-v0``, every final
+policy under ``--out`` (all its results folders) beside ``tdma:1`` and the best ALOHA point
+on the protocol's episodes: senders per step, the share of steps whose messages collided,
+messages delivered per step, silent steps, and the send rates of sources and relays.
 
 **ablation** writes ``ablation/runs/...``, ``ablation.csv``, ``ablation.md`` and
 ``ablation.png`` (final greedy and sampled evaluation return per variant, mean and range
@@ -615,9 +621,96 @@ def cmd_diagnose(args, cfg: dict) -> None:
     print("\n".join(lines))
 
 
+CHANNEL_TASK = "comm_channel_k2-v0"
+
+
+def best_of_family(task: str, family: str) -> str:
+    """The spec of the best point (mean return) of one frontier family on ``task``."""
+    with FRONTIER.open() as fh:
+        rows = [r for r in csv.DictReader(fh) if r["scenario"] == task
+                and r["policy"].partition(":")[0] == family]
+    return max(rows, key=lambda r: float(r["reward_mean"]))["policy"]
+
+
+def channel_use(spec: str, core, seeds: list[int]) -> dict:
+    """How a policy uses the collision channel of ``core`` on the episodes ``seeds``: mean
+    return, senders per step, share of steps whose messages collided, messages delivered
+    per step (senders of steps without a collision), share of silent steps, and the send
+    rate of sources and of relays (agents that measure nothing)."""
+    from netsense.benchmark.protocol import _scripted
+    from netsense.rl.checkpoint import load_policy
+
+    name, _, path = spec.partition(":")
+    act = (load_policy(path, core, deterministic=True).act if name == "learned"
+           else _scripted(spec, core, seeds).act)
+    obs, mask = core.reset(seeds)
+    ret = np.zeros(core.B)
+    senders, collided = [], []
+    sent = np.zeros(core.N)
+    for _ in range(core.horizon):
+        out = core.step(act(obs, mask))
+        obs, mask = out.obs, out.action_mask
+        ret += np.asarray(out.reward).reshape(core.B, -1).mean(1)
+        senders.append(core.transmit.sum(1))
+        collided.append(core.collided.copy())
+        sent += core.transmit.sum(0)
+    s, c = np.array(senders), np.array(collided)
+    rate = sent / (core.horizon * core.B)
+    src = np.bincount(core.block_of, minlength=core.N) > 0
+    return {"return": float(ret.mean()), "senders_per_step": float(s.mean()),
+            "collided_steps": float(c.mean()), "delivered_per_step": float((s * ~c).mean()),
+            "silent_steps": float((s == 0).mean()), "source_rate": float(rate[src].mean()),
+            "relay_rate": float(rate[~src].mean()) if (~src).any() else math.nan}
+
+
+def cmd_channel(args, cfg: dict) -> None:
+    """Why the learners stay below time division on the collision channel: every final
+    policy of the task under ``--out`` (all its results folders) beside ``tdma:1`` and the
+    best ALOHA point, on the protocol's evaluation episodes (``--episodes``)."""
+    from netsense.benchmark.protocol import eval_seeds
+    from netsense.engine.core import BatchedCore
+    from netsense.env.vector import load_model
+
+    seeds = eval_seeds(args.episodes)
+    model, _ = load_model(CHANNEL_TASK)
+    specs = [("tdma:1", "scripted"), (best_of_family(CHANNEL_TASK, "aloha"), "scripted")]
+    for pol in sorted(args.out.glob(f"**/runs/{CHANNEL_TASK}/*/seed_*/policy.pt")):
+        steps = json.loads((pol.parent / "summary.json").read_text())["agent_steps"]
+        specs.append((f"learned:{pol}", f"{pol.parent.parent.name}, "
+                      f"{round(steps / 1e6)}M agent-steps"))
+    rows = []
+    for spec, label in specs:
+        core = BatchedCore(model, len(seeds))
+        rows.append({"policy": spec if label == "scripted" else label,
+                     "run": spec.partition(":")[2] if label != "scripted" else "",
+                     **channel_use(spec, core, seeds)})
+    write_csv(args.out / "channel.csv", rows)
+    keys = ("return", "senders_per_step", "collided_steps", "delivered_per_step",
+            "silent_steps", "source_rate", "relay_rate")
+    groups = {}
+    for r in rows:
+        groups.setdefault(r["policy"], []).append(r)
+    lines = ["| policy (runs: mean over seeds [min, max]) | return | senders per step | steps "
+             "with a collision | delivered per step | silent steps | source send rate | relay "
+             "send rate |", "|---|---|---|---|---|---|---|---|"]
+    for name, rs in groups.items():
+        cells = []
+        for k in keys:
+            v = np.array([r[k] for r in rs]) * (100 if k.endswith("steps") and k !=
+                                                 "senders_per_step" else 1)
+            d = 1 if k == "return" or k.endswith("steps") and k != "senders_per_step" else 2
+            cell = f"{v.mean():.{d}f}" + (f" [{v.min():.{d}f}, {v.max():.{d}f}]"
+                                         if len(v) > 1 else "")
+            cells.append(cell + (" %" if k in ("collided_steps", "silent_steps") else ""))
+        label = name if len(rs) == 1 and not rs[0]["run"] else f"{name} ({len(rs)} seed{'s' * (len(rs) > 1)})"
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    (args.out / "channel.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("command", choices=("results", "ablation", "diagnose"))
+    p.add_argument("command", choices=("results", "ablation", "diagnose", "channel"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -635,8 +728,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     cfg = load_config(args.config)
-    {"results": cmd_results, "ablation": cmd_ablation, "diagnose": cmd_diagnose}[
-        args.command](args, cfg)
+    {"results": cmd_results, "ablation": cmd_ablation, "diagnose": cmd_diagnose,
+     "channel": cmd_channel}[args.command](args, cfg)
     return 0
 
 
