@@ -232,6 +232,8 @@ def test_cli_seeds_train_what_launch_trains(reference, tmp_path, capsys):
     (["--backend", "torchrl", "--cpus-per-run", "2"], "need --ray ADDRESS"),
     (["--backend", "torchrl", "--gpus-per-run", "0.5"], "need --ray ADDRESS"),
     (["--seeds", "0", "1"], "--seeds belongs to --backend torchrl"),
+    (["--clock", "5"], "--clock belongs to --backend torchrl"),
+    (["--backend", "torchrl", "--clock", "1"], "PPOConfig.clock[0] must be an integer in [2,"),
     (["--workers", "2"], "--backend sb3 trains one"),
     (["--backend", "torchrl", "--workers", "0"], "argument --workers: must be >= 1"),
 ])
