@@ -81,8 +81,8 @@ class ClockActor(nn.Module):
 
     The time entry alone already determines every periodic rule, but a rule such as a
     time-division slot (``k mod 5``) is a function with 40 periods over a 200-step
-    episode, which a small ReLU network does not represent; on the circle of period ``p``
-    the ``p`` phases are separable by one layer."""
+    episode, which a small ReLU network can only build from many breakpoints; on the circle
+    of period ``p`` the ``p`` phases are separable by one layer."""
 
     def __init__(self, net: nn.Module, time_index: int, horizon: int,
                  periods: tuple[int, ...]) -> None:
