@@ -702,7 +702,8 @@ def cmd_channel(args, cfg: dict) -> None:
             cell = f"{v.mean():.{d}f}" + (f" [{v.min():.{d}f}, {v.max():.{d}f}]"
                                          if len(v) > 1 else "")
             cells.append(cell + (" %" if k in ("collided_steps", "silent_steps") else ""))
-        label = name if len(rs) == 1 and not rs[0]["run"] else f"{name} ({len(rs)} seed{'s' * (len(rs) > 1)})"
+        seeds = f"{len(rs)} seed" + "s" * (len(rs) > 1)
+        label = name if len(rs) == 1 and not rs[0]["run"] else f"{name} ({seeds})"
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     (args.out / "channel.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
