@@ -48,6 +48,22 @@ def test_protocol_metrics_equal_the_benchmark_metrics():
     np.testing.assert_array_equal(vals["load_per_agent_step"], vals["msgs_per_agent_step"])
 
 
+def test_on_step_sees_every_step_of_every_live_member():
+    """The hook runs once per step with the members still in their episode; what it records
+    adds up to the protocol's own metric (messages per agent-step)."""
+    seeds = [pr.EVAL_SEED0 + i for i in range(3)]
+    sent, lives = [], []
+
+    def record(core, live):
+        sent.append(core.transmit.sum(1) / core.N)
+        lives.append(live)
+
+    vals = pr.evaluate("comm_channel_k2-v0", "tdma:1", seeds, {"horizon": 25},
+                       on_step=record)
+    assert len(sent) == 25 and all(lv.all() for lv in lives)
+    np.testing.assert_allclose(np.mean(sent, 0), vals["msgs_per_agent_step"], rtol=1e-12)
+
+
 def test_benchmark_summary_has_intervals():
     _, rows = bm.run_benchmark(["comm_channel_k2-v0"], ["bernoulli:0.2"], range(6),
                                overrides={"horizon": 10}, progress=False)

@@ -175,16 +175,19 @@ def read_log(folder: Path) -> list[dict]:
 def best_decentralised(task: str) -> str:
     """The spec of the task's best decentralised scripted point (mean return) in the
     frontier the bounds experiment wrote."""
-    best, spec = -math.inf, None
+    return best_frontier_point(task, "decentralised", lambda r: r.get(
+        "kind", "decentralised") == "decentralised")
+
+
+def best_frontier_point(task: str, what: str, keep) -> str:
+    """The spec of the best point (mean return) of ``task`` among the frontier rows that
+    ``keep`` accepts; ``ValueError`` naming ``what`` when there is none."""
     with FRONTIER.open() as fh:
-        for r in csv.DictReader(fh):
-            if (r["scenario"] == task and r.get("kind", "decentralised") == "decentralised"
-                    and float(r["reward_mean"]) > best):
-                best, spec = float(r["reward_mean"]), r["policy"]
-    if spec is None:
-        raise ValueError(f"no decentralised frontier point for {task} in {FRONTIER}; run "
+        rows = [r for r in csv.DictReader(fh) if r["scenario"] == task and keep(r)]
+    if not rows:
+        raise ValueError(f"no {what} frontier point for {task} in {FRONTIER}; run "
                          "experiments/rl/comm_bounds.py first")
-    return spec
+    return max(rows, key=lambda r: float(r["reward_mean"]))["policy"]
 
 
 def bound_episodes(task: str) -> dict[str, np.ndarray]:
@@ -624,39 +627,26 @@ def cmd_diagnose(args, cfg: dict) -> None:
 CHANNEL_TASK = "comm_channel_k2-v0"
 
 
-def best_of_family(task: str, family: str) -> str:
-    """The spec of the best point (mean return) of one frontier family on ``task``."""
-    with FRONTIER.open() as fh:
-        rows = [r for r in csv.DictReader(fh) if r["scenario"] == task
-                and r["policy"].partition(":")[0] == family]
-    return max(rows, key=lambda r: float(r["reward_mean"]))["policy"]
+def channel_use(spec: str, seeds: list[int]) -> dict:
+    """How a policy uses the collision channel of :data:`CHANNEL_TASK` on the episodes
+    ``seeds`` (the protocol's rollout, with its checks of learned policies): mean return,
+    senders per step, share of steps whose messages collided, messages delivered per step
+    (senders of steps without a collision), share of silent steps, and the send rate of
+    sources and of relays (agents that measure nothing)."""
+    from netsense.benchmark.protocol import evaluate
 
+    senders, collided, sent, source = [], [], [], []
 
-def channel_use(spec: str, core, seeds: list[int]) -> dict:
-    """How a policy uses the collision channel of ``core`` on the episodes ``seeds``: mean
-    return, senders per step, share of steps whose messages collided, messages delivered
-    per step (senders of steps without a collision), share of silent steps, and the send
-    rate of sources and of relays (agents that measure nothing)."""
-    from netsense.benchmark.protocol import _scripted
-    from netsense.rl.checkpoint import load_policy
+    def record(core, live):
+        senders.append(core.transmit.sum(1)[live])
+        collided.append(core.collided[live])
+        sent.append(core.transmit[live])
+        if not source:
+            source.append(np.bincount(core.block_of, minlength=core.N) > 0)
 
-    name, _, path = spec.partition(":")
-    act = (load_policy(path, core, deterministic=True).act if name == "learned"
-           else _scripted(spec, core, seeds).act)
-    obs, mask = core.reset(seeds)
-    ret = np.zeros(core.B)
-    senders, collided = [], []
-    sent = np.zeros(core.N)
-    for _ in range(core.horizon):
-        out = core.step(act(obs, mask))
-        obs, mask = out.obs, out.action_mask
-        ret += np.asarray(out.reward).reshape(core.B, -1).mean(1)
-        senders.append(core.transmit.sum(1))
-        collided.append(core.collided.copy())
-        sent += core.transmit.sum(0)
-    s, c = np.array(senders), np.array(collided)
-    rate = sent / (core.horizon * core.B)
-    src = np.bincount(core.block_of, minlength=core.N) > 0
+    ret = evaluate(CHANNEL_TASK, spec, seeds, on_step=record)["reward"]
+    s, c = np.concatenate(senders), np.concatenate(collided)
+    rate, src = np.concatenate(sent).mean(0), source[0]
     return {"return": float(ret.mean()), "senders_per_step": float(s.mean()),
             "collided_steps": float(c.mean()), "delivered_per_step": float((s * ~c).mean()),
             "silent_steps": float((s == 0).mean()), "source_rate": float(rate[src].mean()),
@@ -668,22 +658,19 @@ def cmd_channel(args, cfg: dict) -> None:
     policy of the task under ``--out`` (all its results folders) beside ``tdma:1`` and the
     best ALOHA point, on the protocol's evaluation episodes (``--episodes``)."""
     from netsense.benchmark.protocol import eval_seeds
-    from netsense.engine.core import BatchedCore
-    from netsense.env.vector import load_model
 
     seeds = eval_seeds(args.episodes)
-    model, _ = load_model(CHANNEL_TASK)
-    specs = [("tdma:1", "scripted"), (best_of_family(CHANNEL_TASK, "aloha"), "scripted")]
+    aloha = best_frontier_point(CHANNEL_TASK, "ALOHA", lambda r: r["family"] == "aloha")
+    specs = [("tdma:1", "scripted"), (aloha, "scripted")]
     for pol in sorted(args.out.glob(f"**/runs/{CHANNEL_TASK}/*/seed_*/policy.pt")):
         steps = json.loads((pol.parent / "summary.json").read_text())["agent_steps"]
         specs.append((f"learned:{pol}", f"{pol.parent.parent.name}, "
                       f"{round(steps / 1e6)}M agent-steps"))
     rows = []
     for spec, label in specs:
-        core = BatchedCore(model, len(seeds))
         rows.append({"policy": spec if label == "scripted" else label,
                      "run": spec.partition(":")[2] if label != "scripted" else "",
-                     **channel_use(spec, core, seeds)})
+                     **channel_use(spec, seeds)})
     write_csv(args.out / "channel.csv", rows)
     keys = ("return", "senders_per_step", "collided_steps", "delivered_per_step",
             "silent_steps", "source_rate", "relay_rate")

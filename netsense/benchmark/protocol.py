@@ -186,7 +186,7 @@ def _learned_actor(path: str, deterministic: bool, seed: int, core=None):
 
 
 def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None = None,
-             *, actor=None, bound=None) -> dict[str, np.ndarray]:
+             *, actor=None, bound=None, on_step=None) -> dict[str, np.ndarray]:
     """Per-episode :data:`PROTOCOL_METRICS` of ``policy`` on ``seeds``, as one batched run.
 
     ``policy``: a communication baseline spec (``periodic:4``, ...), a scripted policy name
@@ -199,12 +199,15 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
     ``actor``: a callable ``(core, seeds) -> act`` that builds the acting function on the
     evaluated :class:`~netsense.engine.core.BatchedCore` instead (``policy`` is then only
     its label): a rule that is no registered policy, scored exactly like one.
+    ``on_step``: a callable ``(core, live)`` run after every step, with the members still in
+    their episode (``live``, before this step's ends), to record what the metrics do not
+    (the channel's collisions, say).
     """
-    return _evaluate(scenario, policy, seeds, overrides, bound, actor)[0]
+    return _evaluate(scenario, policy, seeds, overrides, bound, actor, on_step)[0]
 
 
 def _evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None,
-              bound=None, actor=None) -> tuple[dict[str, np.ndarray], dict]:
+              bound=None, actor=None, on_step=None) -> tuple[dict[str, np.ndarray], dict]:
     """:func:`evaluate` and the run's cost: ``seconds`` and, for a bound, its
     :meth:`~netsense.benchmark.bounds.LookaheadBound.cost`."""
     import time
@@ -260,6 +263,8 @@ def _evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict 
         load[live] += sent[live] / N
         rew[live] += out.reward.mean(1)[live]
         steps[live] += 1
+        if on_step is not None:
+            on_step(core, live.copy())
         live &= ~(out.terminated | out.truncated)
     values = {"mean_rel_error": err / steps, "final_rel_error": final,
               "msgs_per_agent_step": msgs / steps, "load_per_agent_step": load / steps,
