@@ -126,3 +126,22 @@ def test_validation_seeds_are_apart_from_training_and_test_seeds(learners):
         config = learners.ppo_config(task, max(cfg["defaults"]["seeds"]), learners._fields(
             cfg["defaults"], cfg["tasks"][task]))
         assert not val & set(training_seeds(config))
+
+
+def test_learning_curve_bands_are_reproducible(learners, tmp_path):
+    """The curves' bootstrap bands do not depend on what the global generator did before
+    (the same seeding as the summary's intervals)."""
+    rng = np.random.default_rng(2)
+    folders = {}
+    for s in range(5):
+        d = tmp_path / f"seed_{s}"
+        d.mkdir()
+        lines = ["iteration,agent_steps,eval_return"]
+        lines += [f"{i},{1000 * (i + 1)},{-50 + i + rng.normal():.6f}" for i in range(6)]
+        (d / "log.csv").write_text("\n".join(lines) + "\n")
+        folders["t", "mlp", s] = d
+    first = learners.learning_curves(folders, ["mlp"])["t"]["mlp"]
+    np.random.random(11)  # noqa: NPY002 (whatever the global generator did in between)
+    again = learners.learning_curves(folders, ["mlp"])["t"]["mlp"]
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -405,10 +405,11 @@ def learning_curves(folders: dict, learners: list[str]) -> dict:
             n = min(len(e) for e in ev)
             x = np.array([p[0] for p in ev[0][:n]])
             y = np.array([[p[1] for p in e[:n]] for e in ev])  # (seeds, points)
-            point, ci = rly.get_interval_estimates(
-                {"y": y}, lambda s: np.array([metrics.aggregate_iqm(s[:, [j]])
-                                              for j in range(s.shape[1])]),
-                reps=500, random_state=np.random.RandomState(0))
+            with _seeded_global_rng():
+                point, ci = rly.get_interval_estimates(
+                    {"y": y}, lambda s: np.array([metrics.aggregate_iqm(s[:, [j]])
+                                                  for j in range(s.shape[1])]),
+                    reps=500, random_state=np.random.RandomState(0))
             out.setdefault(task, {})[learner] = (x, point["y"], ci["y"][0], ci["y"][1])
     return out
 
