@@ -145,3 +145,17 @@ def test_learning_curve_bands_are_reproducible(learners, tmp_path):
     again = learners.learning_curves(folders, ["mlp"])["t"]["mlp"]
     for a, b in zip(first, again, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_substate_use_pairs_each_choice_with_the_news_it_saw(learners):
+    """``event:1`` sends a substate exactly when its news is at least one step: measured
+    on the choices paired with their observations, the send probabilities must come out 0
+    without news and 1 with it; off by a step, they would not. ``never`` sends nothing."""
+    seeds = [10**6, 10**6 + 1]
+    event = learners.substate_use("event:1", seeds)
+    assert event["send_without_news"] == 0.0
+    assert event["send_own_news"] == 1.0 and event["send_others_news"] == 1.0
+    assert 0.0 < event["sent_rate"] < 1.0
+    never = learners.substate_use("never", seeds)
+    assert never["sent_rate"] == 0.0 and never["send_others_news"] == 0.0
+    assert never["return"] < event["return"]

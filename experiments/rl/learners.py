@@ -1,12 +1,13 @@
 """From-scratch multi-agent PPO on every communication task, against the scripted frontier
 and the bounds, with rliable's aggregates; and the ablation of the training recipe.
 
-Two commands (``experiments/rl/configs/learners.toml`` holds every setting)::
+The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
 
     python experiments/rl/learners.py ablation    # the recipe, one change at a time
     python experiments/rl/learners.py results     # every task x learner x seed, evaluated
     python experiments/rl/learners.py diagnose    # one decision's signal against the noise
     python experiments/rl/learners.py channel     # how the learners use the collision channel
+    python experiments/rl/learners.py substates   # which substates the learners send
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
 again where a run's ``policy.pt`` exists (by default an existing run is evaluated as it is,
@@ -45,6 +46,11 @@ spread (how much signal a policy gradient gets per decision).
 policy under ``--out`` (all its results folders) beside ``tdma:1`` and the best ALOHA point
 on the protocol's episodes: senders per step, the share of steps whose messages collided,
 messages delivered per step, silent steps, and the send rates of sources and relays.
+
+**substates** writes ``substates.csv`` / ``substates.md``: on ``comm_substates-v0``, every
+final policy under ``--out`` beside ``event:1`` on the protocol's episodes: how often a
+substate is sent without news, on news of the agent's own substate and on news of another
+agent's substate.
 
 **ablation** writes ``ablation/runs/...``, ``ablation.csv``, ``ablation.md`` and
 ``ablation.png`` (final greedy and sampled evaluation return per variant, mean and range
@@ -654,16 +660,85 @@ def channel_use(spec: str, seeds: list[int]) -> dict:
             "relay_rate": float(rate[~src].mean()) if (~src).any() else math.nan}
 
 
+#: Columns of the channel table: (key, header, scale, decimals, unit).
+CHANNEL_COLUMNS = (("return", "return", 1, 1, ""),
+                   ("senders_per_step", "senders per step", 1, 2, ""),
+                   ("collided_steps", "steps with a collision", 100, 1, " %"),
+                   ("delivered_per_step", "delivered per step", 1, 2, ""),
+                   ("silent_steps", "silent steps", 100, 1, " %"),
+                   ("source_rate", "source send rate", 1, 2, ""),
+                   ("relay_rate", "relay send rate", 1, 2, ""))
+
+
 def cmd_channel(args, cfg: dict) -> None:
     """Why the learners stay below time division on the collision channel: every final
     policy of the task under ``--out`` (all its results folders) beside ``tdma:1`` and the
     best ALOHA point, on the protocol's evaluation episodes (``--episodes``)."""
+    aloha = best_frontier_point(CHANNEL_TASK, "ALOHA", lambda r: r["family"] == "aloha")
+    policy_use(args, CHANNEL_TASK, channel_use, ["tdma:1", aloha], CHANNEL_COLUMNS,
+               "channel")
+
+
+SUBSTATES_TASK = "comm_substates-v0"
+
+
+def substate_use(spec: str, seeds: list[int]) -> dict:
+    """Which substates a policy sends on :data:`SUBSTATES_TASK`, against the observation's
+    ``news`` (steps by which the next message of a substate would be fresher than the last
+    one sent, ``round(news * H)``), on the episodes ``seeds``: mean return, substates sent
+    per agent-step and substate, and the probability of sending a substate without news,
+    with news of the agent's own substate and with news of another agent's substate. Each
+    step's choice is paired with the observation it was made on, from the second step on
+    (the protocol's rollout; the observation is the core's own, read after every step)."""
+    from netsense.benchmark.protocol import evaluate
+
+    news_seen, own, pairs = [], [], []
+
+    def record(core, live):
+        if news_seen:
+            pairs.append((news_seen[-1][live], core.comm.sent[live]))
+        else:
+            own.append(core.layout.own[:, None] == np.arange(core.M)[None, :])
+        obs, _ = core.observe()
+        news_seen.append(np.rint(obs[..., core.layout.news] * core.horizon))
+
+    ret = evaluate(SUBSTATES_TASK, spec, seeds, on_step=record)["reward"]
+    news = np.concatenate([n for n, _ in pairs]) >= 1
+    sent = np.concatenate([a for _, a in pairs])
+    mine = np.broadcast_to(own[0], news.shape)
+    return {"return": float(ret.mean()), "sent_rate": float(sent.mean()),
+            "send_without_news": float(sent[~news].mean()),
+            "send_own_news": float(sent[news & mine].mean()),
+            "send_others_news": float(sent[news & ~mine].mean())}
+
+
+#: Columns of the substates table: (key, header, scale, decimals, unit).
+SUBSTATES_COLUMNS = (("return", "return", 1, 1, ""),
+                     ("sent_rate", "substates sent per agent-step and substate", 1, 3, ""),
+                     ("send_without_news", "P(send) without news", 1, 2, ""),
+                     ("send_own_news", "P(send) on news of its own substate", 1, 2, ""),
+                     ("send_others_news", "P(send) on news of another's substate", 1, 2,
+                      ""))
+
+
+def cmd_substates(args, cfg: dict) -> None:
+    """Why the learners stay below ``event:1`` on the per-substate task: every final
+    policy of the task under ``--out`` beside ``event:1`` (send a substate iff it is news),
+    on the protocol's evaluation episodes (``--episodes``)."""
+    policy_use(args, SUBSTATES_TASK, substate_use, ["event:1"], SUBSTATES_COLUMNS,
+               "substates")
+
+
+def policy_use(args, task: str, measure, scripted: list[str], columns, name: str) -> None:
+    """``measure(spec, seeds)`` for the ``scripted`` specs and every final policy of
+    ``task`` under ``--out`` (all its results folders), on the protocol's evaluation
+    episodes; writes ``name.csv`` (one row per policy) and ``name.md`` (learned runs
+    grouped by learner and budget: mean over the seeds [min, max])."""
     from netsense.benchmark.protocol import eval_seeds
 
     seeds = eval_seeds(args.episodes)
-    aloha = best_frontier_point(CHANNEL_TASK, "ALOHA", lambda r: r["family"] == "aloha")
-    specs = [("tdma:1", "scripted"), (aloha, "scripted")]
-    for pol in sorted(args.out.glob(f"**/runs/{CHANNEL_TASK}/*/seed_*/policy.pt")):
+    specs = [(spec, "scripted") for spec in scripted]
+    for pol in sorted(args.out.glob(f"**/runs/{task}/*/seed_*/policy.pt")):
         steps = json.loads((pol.parent / "summary.json").read_text())["agent_steps"]
         specs.append((f"learned:{pol}", f"{pol.parent.parent.name}, "
                       f"{round(steps / 1e6)}M agent-steps"))
@@ -671,35 +746,29 @@ def cmd_channel(args, cfg: dict) -> None:
     for spec, label in specs:
         rows.append({"policy": spec if label == "scripted" else label,
                      "run": spec.partition(":")[2] if label != "scripted" else "",
-                     **channel_use(spec, seeds)})
-    write_csv(args.out / "channel.csv", rows)
-    keys = ("return", "senders_per_step", "collided_steps", "delivered_per_step",
-            "silent_steps", "source_rate", "relay_rate")
+                     **measure(spec, seeds)})
+    write_csv(args.out / f"{name}.csv", rows)
     groups = {}
     for r in rows:
         groups.setdefault(r["policy"], []).append(r)
-    lines = ["| policy (runs: mean over seeds [min, max]) | return | senders per step | steps "
-             "with a collision | delivered per step | silent steps | source send rate | relay "
-             "send rate |", "|---|---|---|---|---|---|---|---|"]
-    for name, rs in groups.items():
+    lines = ["| policy (runs: mean over seeds [min, max]) | "
+             + " | ".join(c[1] for c in columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    for label, rs in groups.items():
         cells = []
-        for k in keys:
-            v = np.array([r[k] for r in rs]) * (100 if k.endswith("steps") and k !=
-                                                 "senders_per_step" else 1)
-            d = 1 if k == "return" or k.endswith("steps") and k != "senders_per_step" else 2
-            cell = f"{v.mean():.{d}f}" + (f" [{v.min():.{d}f}, {v.max():.{d}f}]"
-                                         if len(v) > 1 else "")
-            cells.append(cell + (" %" if k in ("collided_steps", "silent_steps") else ""))
-        seeds = f"{len(rs)} seed" + "s" * (len(rs) > 1)
-        label = name if len(rs) == 1 and not rs[0]["run"] else f"{name} ({seeds})"
+        for key, _, scale, d, unit in columns:
+            v = np.array([r[key] for r in rs]) * scale
+            cells.append(f"{v.mean():.{d}f}" + (f" [{v.min():.{d}f}, {v.max():.{d}f}]"
+                                               if len(v) > 1 else "") + unit)
+        if rs[0]["run"]:
+            label += f" ({len(rs)} seed" + "s" * (len(rs) > 1) + ")"
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    (args.out / "channel.md").write_text("\n".join(lines) + "\n")
+    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("command", choices=("results", "ablation", "diagnose", "channel"))
+    p.add_argument("command", choices=("results", "ablation", "diagnose", "channel", "substates"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -718,7 +787,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     cfg = load_config(args.config)
     {"results": cmd_results, "ablation": cmd_ablation, "diagnose": cmd_diagnose,
-     "channel": cmd_channel}[args.command](args, cfg)
+     "channel": cmd_channel, "substates": cmd_substates}[args.command](args, cfg)
     return 0
 
 
