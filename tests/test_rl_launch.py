@@ -195,11 +195,11 @@ def test_worker_processes_start_with_the_thread_variables(monkeypatch):
     import os
     from concurrent.futures import ProcessPoolExecutor
 
-    from netsense.rl.launch import THREAD_VARS, _environment, thread_env
+    from netsense.rl.launch import THREAD_VARS, spawn_environment, thread_env
 
     for k in THREAD_VARS:
         monkeypatch.delenv(k, raising=False)
-    with _environment(thread_env(1)), ProcessPoolExecutor(
+    with spawn_environment(thread_env(1)), ProcessPoolExecutor(
             1, mp_context=mp.get_context("spawn")) as pool:
         seen = list(pool.map(os.getenv, THREAD_VARS))
     assert seen == ["1"] * len(THREAD_VARS)

@@ -149,11 +149,14 @@ def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
                progress: bool = True, workers: int = 1) -> list[Path]:
     """Train every ``(task, name, seed, fields)`` into ``out/runs/<task>/<name>/seed_<s>``
     unless its ``policy.pt`` exists (``workers`` > 1: that many spawned processes, one
-    torch and one numba thread each); returns the run folders."""
+    torch and one numba thread each, their thread pools sized to one thread before they
+    import anything: :func:`netsense.rl.launch.thread_env`); returns the run folders."""
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from multiprocessing import get_context
 
     from tqdm.auto import tqdm
+
+    from netsense.rl.launch import spawn_environment, thread_env
 
     folders = [out / "runs" / t / n / f"seed_{s}" for t, n, s, _ in runs]
     todo = [(t, s, f, d) for (t, _, s, f), d in zip(runs, folders, strict=True)
@@ -164,7 +167,8 @@ def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
             _train_one(t, s, f, d)
             bar.update()
     else:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        with spawn_environment(thread_env(1)), ProcessPoolExecutor(
+                workers, mp_context=get_context("spawn")) as pool:
             for fut in as_completed([pool.submit(_train_one, *job) for job in todo]):
                 fut.result()
                 bar.update()

@@ -41,7 +41,8 @@ from pathlib import Path
 from netsense.rl.config import PPOConfig
 from netsense.rl.ppo import train_ppo
 
-__all__ = ["FINAL_COLUMNS", "THREAD_VARS", "Run", "launch", "make_runs", "thread_env"]
+__all__ = ["FINAL_COLUMNS", "THREAD_VARS", "Run", "launch", "make_runs", "spawn_environment",
+           "thread_env"]
 
 #: Environment variables that size a process's thread pools when their library loads
 #: (BLAS, OpenMP (torch's intra-op pool too), numba, netsense's compiled passes). Worker
@@ -155,7 +156,7 @@ def thread_env(threads: int | None) -> dict[str, str]:
 
 
 @contextmanager
-def _environment(env: dict[str, str]) -> Iterator[None]:
+def spawn_environment(env: dict[str, str]) -> Iterator[None]:
     """``env`` in ``os.environ`` while worker processes are spawned (they copy it when
     they start, before they import anything), then restored."""
     old = {k: os.environ.get(k) for k in env}
@@ -290,7 +291,7 @@ def _in_processes(runs: list[Run], out: Path, workers: int, threads: int | None,
     pool = ProcessPoolExecutor(max_workers=min(workers, len(runs)), mp_context=ctx)
     try:
         # the pool spawns its processes on submit (spawn context), inside the environment
-        with _environment(thread_env(threads)):
+        with spawn_environment(thread_env(threads)):
             futs = {pool.submit(_train_one, r, str(out / r.folder)): i
                     for i, r in enumerate(runs)}
         for fut in as_completed(futs):
