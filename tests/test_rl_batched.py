@@ -274,6 +274,46 @@ def test_set_network_is_equivariant_to_slot_order():
     np.testing.assert_allclose(b[..., -2:], a[..., -2:], atol=1e-5)  # transmit unchanged
 
 
+def test_set_network_without_slots_reads_no_slot_and_keeps_the_parameters():
+    """``slots=False``: the same parameters as the slot-pooling net; its substate
+    embeddings are ``sub_mix`` on ``[u, 0, 0, agent]`` (checked against that formula), the
+    logits do not move when only the pair tokens' fields change (the agent token keeps the
+    share of arrived slots), the slot-pooling net's do, and
+    full control, which scores adopt logits from slots, is refused by name."""
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+    from netsense.rl.set_network import SetPolicyNet
+
+    core = make_core("comm_substates-v0", 2)
+    obs, _ = core.reset(3)
+    L = core.layout
+    torch.manual_seed(0)
+    full = SetPolicyNet(L, core.nvec, hidden=16)
+    lite = SetPolicyNet(L, core.nvec, hidden=16, slots=False)
+    lite.load_state_dict(full.state_dict())  # same parameters
+    x = torch.as_tensor(obs)
+    g, u, _, _ = full.tokens(x)
+    ge, ue = full.agent_enc(g), full.sub_enc(u)
+    zero = torch.zeros_like(ue)
+    s = full.sub_mix(torch.cat([ue, zero, zero, ge.unsqueeze(-2).expand_as(ue)], -1))
+    want = full.send_head(torch.cat([s, ge.unsqueeze(-2).expand_as(s)], -1)).flatten(-2)
+    np.testing.assert_allclose(lite(x).detach(), want.detach(), atol=1e-5)
+    moved = obs.copy()
+    for f in (L.slot_omega, L.slot_age):
+        moved[..., f] = np.random.default_rng(0).random(moved[..., f].shape)
+    np.testing.assert_array_equal(lite(torch.as_tensor(moved)).detach(), lite(x).detach())
+    assert not torch.equal(full(torch.as_tensor(moved)), full(x))
+    news = obs.copy()
+    news[..., L.news] = 1.0 - news[..., L.news]
+    assert not torch.equal(lite(torch.as_tensor(news)), lite(x))
+    with pytest.raises(ValueError, match="full control"):
+        SetPolicyNet(make_core(SCEN, 1).layout, make_core(SCEN, 1).nvec, slots=False)
+    with pytest.raises(ValueError, match="set_slots=False"):
+        PPOConfig("comm_substates-v0", set_slots=False)  # the MLP has no slots to leave
+    with pytest.raises(ValueError, match="set_slots=False"):
+        PPOConfig(SCEN, network="set", control="full", set_slots=False)
+
+
 def test_behaviour_cloning_learns_the_freshness_choices(capsys):
     from netsense.rl.cloning import behaviour_clone
     from netsense.rl.config import PPOConfig

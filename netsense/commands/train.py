@@ -70,6 +70,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tr = parser.add_argument_group("torchrl backend (refused with --backend sb3)")
     tr.add_argument("--network", choices=("mlp", "set"), default=None,
                     help="actor: shared MLP (default) or the set network over message slots")
+    tr.add_argument("--set-slots", action=argparse.BooleanOptionalAction, default=None,
+                    help="set network: pool the message-slot tokens (default) or, with "
+                         "--no-set-slots, read the substate and agent tokens only (control "
+                         "modes transmit and substates; much cheaper)")
     tr.add_argument("--control", choices=("full", "transmit", "substates"), default=None,
                     help="control mode (default: the scenario's): full, or communication "
                          "only with one bit (transmit) or one bit per substate (substates); "
@@ -125,7 +129,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: Options of the torchrl backend only (``None`` in the parser, so that an option given with
 #: ``--backend sb3`` is refused instead of ignored; what is not given takes
 #: :class:`netsense.rl.config.PPOConfig`'s default).
-TORCHRL_ONLY = ("network", "control", "reward", "critic", "memory", "clock", "epochs",
+TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock", "epochs",
                 "eval_interval", "eval_envs", "bc", "device", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).

@@ -78,6 +78,10 @@ class PPOConfig:
         Hidden layers of the MLP actor (the set network uses ``set_hidden``).
     critic_hidden : tuple of int
     set_hidden : int
+    set_slots : bool
+        The set network pools its (message slot, substate) pair tokens (default); ``False``:
+        substate and agent tokens only, in the communication-only control modes, where the
+        pair grid's cost is not needed (:class:`netsense.rl.set_network.SetPolicyNet`, ``slots``).
     activation : {"tanh", "relu"}
         Hidden-layer activation of the MLP actor and the critics. ReLU by default: the
         ablation finds the same returns as tanh, and training runs 1.2x faster with it on
@@ -176,6 +180,7 @@ class PPOConfig:
     hidden: tuple[int, ...] = (64, 64)
     critic_hidden: tuple[int, ...] = (128, 128)
     set_hidden: int = 32
+    set_slots: bool = True
     memory: int = 0
     activation: str = "relu"
     stagger: bool = True
@@ -223,6 +228,10 @@ class PPOConfig:
                              f"actor's observation; it is not available with obs_norm=True "
                              f"or network='set' (got obs_norm={self.obs_norm}, network="
                              f"{self.network!r})")
+        if not self.set_slots and (self.network != "set" or self.control == "full"):
+            raise ValueError(f"PPOConfig.set_slots=False leaves the message slots out of the "
+                             f"set network in a communication-only mode; got network="
+                             f"{self.network!r}, control={self.control!r}")
         if self.bc and self.memory:
             raise ValueError("PPOConfig.bc: behaviour cloning trains a feed-forward actor "
                              "step by step; it is not available with memory > 0")
@@ -291,6 +300,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "hidden": ("widths", 1, MAX_WIDTH),
     "critic_hidden": ("widths", 1, MAX_WIDTH),
     "set_hidden": ("int", 1, MAX_WIDTH),
+    "set_slots": ("choice", (True, False), None),
     "memory": ("int", 0, MAX_WIDTH),
     "activation": ("choice", tuple(ACTIVATIONS), None),
     "stagger": ("choice", (True, False), None),

@@ -108,7 +108,7 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     observation normaliser when ``config.obs_norm``."""
     if config.network == "set":
         return SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden,
-                            memory=config.memory).to(device)
+                            memory=config.memory, slots=config.set_slots).to(device)
     extra = (core.M + 1 if config.agent_features else 0) + 2 * len(config.clock)
     if config.memory:
         net = RecurrentActor(core.layout.size + extra, int(sum(core.nvec)), config.hidden,

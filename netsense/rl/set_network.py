@@ -40,6 +40,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from netsense.engine.model import ObsLayout
@@ -81,13 +82,23 @@ class SetPolicyNet(nn.Module):
         The core's action layout (``"full"`` or ``"transmit"``, :func:`action_layout`).
     hidden : int
         Width of every embedding.
+    memory : int
+        GRU state size over the agent's history (0: none).
+    slots : bool
+        Pool the (slot, substate) pair tokens (default). ``False``: the substate
+        embeddings come from the substate and agent tokens alone (the pools are zero), in
+        the communication-only layouts only (``"transmit"`` and ``"substates"``, where the
+        fusion rule adopts and no adopt logit is scored). The pair grid, ``D`` times the
+        substate tokens, dominates the network's cost. The parameters are the same either
+        way.
     """
 
     def __init__(self, layout: ObsLayout, nvec: Sequence[int], *, hidden: int = 32,
-                 memory: int = 0) -> None:
+                 memory: int = 0, slots: bool = True) -> None:
         super().__init__()
         h = int(hidden)
         self.hidden = h
+        self.slots = bool(slots)
         #: whether the observation carries the communication-only fields (fixes the
         #: token sizes, so it is part of what the parameters mean)
         self.comm = layout.news is not None
@@ -125,7 +136,12 @@ class SetPolicyNet(nn.Module):
         if nvec is None:
             nvec = {"full": [layout.D + 2] * layout.M + [2], "transmit": [2],
                     "substates": [2] * layout.M}[self.mode]
-        self.mode = action_layout(nvec, layout)
+        mode = action_layout(nvec, layout)
+        if not self.slots and mode == "full":
+            raise ValueError("SetPolicyNet(slots=False) scores no adopt logits: it runs in "
+                             "the communication-only layouts ('transmit', 'substates'), not "
+                             "in full control (nvec [D + 2] * M + [2])")
+        self.mode = mode
         self.layout = layout
         own = torch.zeros(layout.N, layout.M)
         src = np.flatnonzero(layout.own >= 0)
@@ -135,7 +151,8 @@ class SetPolicyNet(nn.Module):
         return self
 
     def tokens(self, obs: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """``(g (..., N, 6), u (..., N, M, 3), v (..., N, D, M, 5), arrived (..., N, D))``."""
+        """``(g (..., N, 6), u (..., N, M, 3), v (..., N, D, M, 5), arrived (..., N, D))``;
+        ``v`` is ``None`` without ``slots``."""
         L = self.layout
         D, M = L.D, L.M
         lead = obs.shape[:-1]
@@ -156,6 +173,8 @@ class SetPolicyNet(nn.Module):
             u.append(news)
         g = torch.cat(g, -1)
         u = torch.stack(u, -1)
+        if not self.slots:
+            return g, u, None, arrived
         arr = arrived.unsqueeze(-1).expand(*lead, D, M)
         oo, oa = own_omega.unsqueeze(-2), own_age.unsqueeze(-2)
         fresher = arr * (1 - s_omega) * torch.clamp(oo + (s_age < oa).float(), max=1.0)
@@ -179,6 +198,14 @@ class SetPolicyNet(nn.Module):
 
     def _heads(self, ge, u, v, arrived) -> torch.Tensor:
         ue = self.sub_enc(u)  # (..., N, M, h)
+        if not self.slots:
+            # substate and agent tokens only: sub_mix on [u, 0, 0, agent], its first layer
+            # split so that the agent's part is computed once per agent, not per substate
+            h = self.hidden
+            first, act, second = self.sub_mix
+            pre = (F.linear(ue, first.weight[:, :h], first.bias)
+                   + F.linear(ge, first.weight[:, 3 * h:]).unsqueeze(-2))
+            return self._comm_heads(ge, second(act(pre)))
         pe = torch.tanh(self.pair_in(v) + self.pair_sub(ue).unsqueeze(-3))  # (..., N, D, M, h)
         pad = arrived.unsqueeze(-1).unsqueeze(-1)  # (..., N, D, 1, 1): padding mask
         count = pad.sum(-3).clamp(min=1.0)
@@ -187,13 +214,21 @@ class SetPolicyNet(nn.Module):
             else torch.zeros_like(ue)
         mx = torch.where(pad.sum(-3) > 0, mx, torch.zeros_like(mx))
         s = self.sub_mix(torch.cat([ue, mean, mx, ge.unsqueeze(-2).expand_as(ue)], -1))
-        if self.mode == "substates":  # (..., N, M, 2) -> [send j] * M
-            send = self.send_head(torch.cat([s, ge.unsqueeze(-2).expand_as(s)], -1))
-            return send.flatten(-2)
+        if self.mode != "full":
+            return self._comm_heads(ge, s)
         tx = self.tx_head(torch.cat([ge, s.mean(-2), s.amax(-2)], -1))  # (..., N, 2)
-        if self.mode == "transmit":
-            return tx
         hid = torch.tanh(self.pair_a(pe) + self.pair_b(s).unsqueeze(-3))
         pair = self.pair_out(hid)[..., 0]  # (..., N, D, M)
         blocks = torch.cat([self.keep_head(s), pair.transpose(-1, -2), self.avg_head(s)], -1)
         return torch.cat([blocks.flatten(-2), tx], -1)  # [keep, slots, avg] * M, transmit
+
+    def _comm_heads(self, ge, s) -> torch.Tensor:
+        """Logits of the communication-only layouts from the agent embedding ``ge`` and
+        the substate embeddings ``s``."""
+        if self.mode == "substates":  # (..., N, M, 2) -> [send j] * M: send_head on
+            # [s, agent], the agent's part of its first layer once per agent
+            first, act, second = self.send_head
+            pre = (F.linear(s, first.weight[:, :self.hidden], first.bias)
+                   + F.linear(ge, first.weight[:, self.hidden:]).unsqueeze(-2))
+            return second(act(pre)).flatten(-2)
+        return self.tx_head(torch.cat([ge, s.mean(-2), s.amax(-2)], -1))  # (..., N, 2)
