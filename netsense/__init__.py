@@ -23,7 +23,17 @@ below are loaded on first use, so ``import netsense`` stays cheap and a deep imp
 from __future__ import annotations
 
 import importlib
+import os
 from typing import TYPE_CHECKING, Any
+
+# OpenMP's workers spin after each threaded call by default: on a core another process
+# uses, every call then waits for the spinning worker's time slice (steps up to 29x slower
+# measured, docs/threads.md). Passive workers sleep at once. libgomp reads the policy once,
+# when it loads: at numba's first threaded call, or earlier when torch is imported (the
+# training stack). So it is set here, at the package's import and before any of its
+# modules imports torch, unless the user chose a policy.
+if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
+    os.environ["OMP_WAIT_POLICY"] = "passive"
 
 __version__ = "0.1.0"
 

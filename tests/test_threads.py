@@ -319,3 +319,23 @@ def test_busy_core_benchmark_smoke(tmp_path):
     assert {r["condition"] for r in rows} == {"idle", "busy"}
     assert (tmp_path / "bench_busy_cores.png").stat().st_size > 0
     assert "busy / idle" in (tmp_path / "bench_busy_cores.txt").read_text()
+
+
+@pytest.mark.parametrize("given", [None, "active"])
+def test_the_openmp_wait_policy_is_set_when_the_package_loads(given):
+    """``import netsense`` alone (its ``__init__`` imports no module that loads torch or
+    numba's pool) sets ``OMP_WAIT_POLICY=passive``, so libgomp reads it whenever the
+    training stack loads it later; a policy the user set is kept."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY",
+                                                            "GOMP_SPINCOUNT")}
+    if given:
+        env["OMP_WAIT_POLICY"] = given
+    code = ("import os, sys; import netsense; "
+            "print(os.environ.get('OMP_WAIT_POLICY'), 'torch' in sys.modules, "
+            "'numba' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == [given or "passive", "False", "False"]

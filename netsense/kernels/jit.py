@@ -87,13 +87,8 @@ _PARALLEL_LOCK = threading.Lock()
 
 
 # ----------------------------------------------------------------------------- threads
-# OpenMP's workers spin after each threaded call by default: on a core another process
-# uses, every call then waits for the spinning worker's time slice (steps up to 29x slower
-# measured, docs/threads.md). Passive workers sleep at once. libgomp reads this when
-# numba's pool loads it (the first threaded call), so setting it here, unless the user
-# chose a policy, is in time; every OpenMP runtime the process loads later reads it too.
-if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
-    os.environ["OMP_WAIT_POLICY"] = "passive"
+# OpenMP's wait policy (passive unless the user chose one) is set by the package's
+# __init__, before torch or numba's pool can load libgomp: docs/threads.md.
 
 #: Environment variable read at import: the most threads a batched call uses (``0`` or
 #: ``1``: every call serial; default numba's pool, ``NUMBA_NUM_THREADS``).
