@@ -201,3 +201,28 @@ def test_log_has_no_nan_and_no_stale_rows(tmp_path):
     assert len({r["train_return"] for r in rows if r["train_return"]}) == 2
     assert (tmp_path / "training_curve.png").stat().st_size > 0
     assert res.mask_violations == 0
+
+
+def test_evaluation_scores_the_scenario_reward_whatever_the_training_reward():
+    # The periodic evaluation must read on the scripted policies' scale: a run trained on a
+    # shaped reward (here the counterfactual sender credit) is scored with the scenario's
+    # reward, which is also what the team reward's mean over agents is.
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+    from netsense.rl.evaluation import evaluate, evaluate_scripted
+    from netsense.rl.policy import actor_net
+
+    scen = SCEN
+    torch.manual_seed(0)
+    base = PPOConfig(scen, eval_envs=3, overrides={"horizon": 30})
+    net = actor_net(base, make_core(scen, 1, horizon=30))
+    got = {r: evaluate(net, PPOConfig(scen, reward=r, eval_envs=3,
+                                       overrides={"horizon": 30}), deterministic=False)
+           for r in ("scenario", "team", "agent", "counterfactual")}
+    for r in ("team", "agent", "counterfactual"):
+        assert got[r]["return"] == pytest.approx(got["scenario"]["return"], rel=1e-5), r
+    scripted = {r: evaluate_scripted("event:1", PPOConfig(scen, reward=r, eval_envs=3,
+                                                          overrides={"horizon": 30}))
+                for r in ("scenario", "counterfactual")}
+    assert scripted["counterfactual"]["return"] == pytest.approx(
+        scripted["scenario"]["return"], rel=1e-5)

@@ -4,6 +4,11 @@
 :data:`netsense.rl.config.EVAL_SEED`, one horizon each; monitoring only — the protocol of
 :mod:`netsense.benchmark.protocol` evaluates on its own seeds), :func:`evaluate_scripted`
 a scripted policy on the same episodes, :func:`mask_violations` counts masked actions.
+Both score the scenario's reward whatever reward option the run trains on
+(``PPOConfig.reward``), so that a curve of a run trained on a shaped reward
+(``agent``, ``counterfactual``) reads on the same scale as the scripted policies and the
+protocol; with the ``team`` reward the two are the same (the mean over agents of the team
+mean is the mean of the scenario's rewards).
 
 Imports: torch and the stages below (config, envs, rollout, scripted).
 """
@@ -46,11 +51,12 @@ def evaluate(net: torch.nn.Module, config: PPOConfig, *, episodes: int | None = 
              deterministic: bool = True) -> dict:
     """Return per agent, mean error and messages per agent-step of the actor network
     ``net`` on ``episodes`` fresh episodes (seeds :data:`EVAL_SEED` + b), one horizon each,
-    with the most likely allowed actions (``deterministic``) or sampled ones. Torch's
-    random state is restored afterwards, so evaluating does not change a training run."""
+    with the most likely allowed actions (``deterministic``) or sampled ones, scored with
+    the scenario's reward (not ``config.reward``). Torch's random state is restored
+    afterwards, so evaluating does not change a training run."""
     core = _core(config, episodes)
     dev = next(net.parameters()).device
-    env = NetSenseBatchedEnv(core, reward=config.reward, seed=EVAL_SEED)
+    env = NetSenseBatchedEnv(core, reward="scenario", seed=EVAL_SEED)
     with torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
         torch.manual_seed(EVAL_SEED)
         ro = Collector(env, net, core.horizon, device=dev).collect(
@@ -59,9 +65,9 @@ def evaluate(net: torch.nn.Module, config: PPOConfig, *, episodes: int | None = 
 
 
 def evaluate_scripted(name: str, config: PPOConfig, *, episodes: int | None = None) -> dict:
-    """:func:`evaluate` for a scripted policy (same seeds, same reward option)."""
+    """:func:`evaluate` for a scripted policy (same seeds, the scenario's reward)."""
     core = _core(config, episodes)
-    env = NetSenseBatchedEnv(core, reward=config.reward, seed=EVAL_SEED)
+    env = NetSenseBatchedEnv(core, reward="scenario", seed=EVAL_SEED)
     act = scripted_actions(name, core)
     obs, mask = env.restart()
     cols: list[list[np.ndarray]] = [[], [], [], []]

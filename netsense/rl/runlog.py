@@ -58,8 +58,8 @@ def plot_curve(rows: list[dict], path: Path, title: str,
                references: dict[str, float] | None = None) -> Path:
     """``training_curve.png``: the returns of the episodes that ended in each iteration
     (training, sampled actions, the run's reward option) and the periodic evaluations
-    (most likely and sampled actions) against agent-steps; ``references`` draws scripted
-    returns on the same evaluation as dashed lines."""
+    (most likely and sampled actions, the scenario's reward) against agent-steps;
+    ``references`` draws scripted returns on the same evaluation as dashed lines."""
     import matplotlib
 
     matplotlib.use("Agg")
