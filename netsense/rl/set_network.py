@@ -79,7 +79,8 @@ class SetPolicyNet(nn.Module):
         Observation layout of the environment the net runs on (only buffers and slices
         depend on it; :meth:`bind` switches to another layout).
     nvec : sequence of int
-        The core's action layout (``"full"`` or ``"transmit"``, :func:`action_layout`).
+        The core's action layout (``"full"``, ``"transmit"`` or ``"substates"``,
+        :func:`action_layout`).
     hidden : int
         Width of every embedding.
     memory : int
