@@ -21,7 +21,8 @@ counts the runs.
   (the checkpoint with the best greedy return in the periodic evaluation during training,
   whose episodes are seeded from 10^9: a validation set apart from the training and the
   protocol's seeds; runs trained before this option have none), ``log.csv``,
-  ``config.json``, ``summary.json``, ``training_curve.png``;
+  ``config.json``, ``summary.json``, ``training_curve.png``; ``runs/<task>/summary.json``
+  lists the runs of the task's last launch (:func:`netsense.rl.launch.launch`);
 * ``episodes.csv``: every final policy on the protocol's 100 evaluation episodes (seeds
   ``10^6 .. 10^6 + 99``, disjoint from every training seed; checked), greedy and sampled,
   and the best-validated checkpoint greedy (evaluation ``best-validated``) where a run has one,
@@ -114,13 +115,11 @@ def ppo_config(task: str, seed: int, fields: dict):
 
 
 # %% training
-def _train_one(task: str, seed: int, fields: dict, folder: Path) -> Path:
+def _finish(folder: Path) -> Path:
+    """A trained run's committed files: the best-validated checkpoint copied to
+    :data:`BEST`, checkpoints and TensorBoard events removed, the critic stripped."""
     from netsense.rl.checkpoint import strip_critic
-    from netsense.rl.ppo import train_ppo
 
-    if folder.exists():
-        shutil.rmtree(folder)
-    train_ppo(ppo_config(task, seed, fields), folder)
     best = best_validated(folder)
     if best is not None:
         shutil.copyfile(best, folder / BEST)
@@ -148,31 +147,24 @@ def best_validated(folder: Path) -> Path | None:
 def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
                progress: bool = True, workers: int = 1) -> list[Path]:
     """Train every ``(task, name, seed, fields)`` into ``out/runs/<task>/<name>/seed_<s>``
-    unless its ``policy.pt`` exists (``workers`` > 1: that many spawned processes, one
-    torch and one numba thread each, their thread pools sized to one thread before they
-    import anything: :func:`netsense.rl.launch.thread_env`); returns the run folders."""
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from multiprocessing import get_context
-
-    from tqdm.auto import tqdm
-
-    from netsense.rl.launch import spawn_environment, thread_env
+    unless its ``policy.pt`` exists, through :func:`netsense.rl.launch.launch` (``workers``
+    > 1: that many spawned processes with one-thread pools), one launch per task; returns
+    the run folders. A failed run raises once the task's other runs have finished."""
+    from netsense.rl.launch import Run, launch
 
     folders = [out / "runs" / t / n / f"seed_{s}" for t, n, s, _ in runs]
-    todo = [(t, s, f, d) for (t, _, s, f), d in zip(runs, folders, strict=True)
-            if retrain or not (d / "policy.pt").exists()]
-    bar = tqdm(total=len(todo), desc="runs", unit="run", disable=not progress)
-    if workers <= 1:
-        for t, s, f, d in todo:
-            _train_one(t, s, f, d)
-            bar.update()
-    else:
-        with spawn_environment(thread_env(1)), ProcessPoolExecutor(
-                workers, mp_context=get_context("spawn")) as pool:
-            for fut in as_completed([pool.submit(_train_one, *job) for job in todo]):
-                fut.result()
-                bar.update()
-    bar.close()
+    by_task: dict[str, list] = {}
+    for (t, n, s, f), d in zip(runs, folders, strict=True):
+        if retrain or not (d / "policy.pt").exists():
+            shutil.rmtree(d, ignore_errors=True)
+            by_task.setdefault(t, []).append(Run(ppo_config(t, s, f), n))
+    for task, todo in by_task.items():
+        entries = launch(todo, out / "runs" / task, workers=workers, progress=progress)
+        failed = [f"{e['folder']}: {e['error']}" for e in entries if e["status"] != "ok"]
+        if failed:
+            raise RuntimeError(f"{task}: runs failed: {'; '.join(failed)}")
+        for e in entries:
+            _finish(out / "runs" / task / e["folder"])
     return folders
 
 
