@@ -159,3 +159,20 @@ def test_substate_use_pairs_each_choice_with_the_news_it_saw(learners):
     never = learners.substate_use("never", seeds)
     assert never["sent_rate"] == 0.0 and never["send_others_news"] == 0.0
     assert never["return"] < event["return"]
+
+
+def test_thinned_relays_keep_own_news_and_thin_only_the_relays(learners):
+    """``p = 1`` is ``event:1`` to the last digit; ``p = 0`` sends own news always and
+    another agent's news never; ``p = 0.5`` relays about half of it (measured by the same
+    pairing of choices and news as the learners' table)."""
+    from netsense.benchmark.protocol import evaluate
+
+    seeds = [10**6, 10**6 + 1]
+    event = evaluate(learners.SUBSTATES_TASK, "event:1", seeds)["reward"]
+    full = evaluate(learners.SUBSTATES_TASK, "p=1", seeds,
+                    actor=learners.thinned_relays(1.0))["reward"]
+    np.testing.assert_array_equal(full, event)
+    for p, lo, hi in ((0.0, 0.0, 0.0), (0.5, 0.4, 0.6)):
+        use = learners.substate_use("thinned", seeds, actor=learners.thinned_relays(p))
+        assert use["send_own_news"] == 1.0 and use["send_without_news"] == 0.0
+        assert lo <= use["send_others_news"] <= hi, (p, use)

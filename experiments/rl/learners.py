@@ -51,7 +51,9 @@ messages delivered per step, silent steps, and the send rates of sources and rel
 **substates** writes ``substates.csv`` / ``substates.md``: on ``comm_substates-v0``, every
 final policy under ``--out`` beside ``event:1`` on the protocol's episodes: how often a
 substate is sent without news, on news of the agent's own substate and on news of another
-agent's substate.
+agent's substate; and ``substates_relay.csv`` / ``substates_relay.md``: the return of
+``event:1`` with its relays thinned (another agent's news sent with probability ``p``, the
+agent's own news always), the landscape a learner that does not relay stands on.
 
 **ablation** writes ``ablation/runs/...``, ``ablation.csv``, ``ablation.md`` and
 ``ablation.png`` (final greedy and sampled evaluation return per variant, mean and range
@@ -678,14 +680,16 @@ def cmd_channel(args, cfg: dict) -> None:
 SUBSTATES_TASK = "comm_substates-v0"
 
 
-def substate_use(spec: str, seeds: list[int]) -> dict:
+def substate_use(spec: str, seeds: list[int], actor=None) -> dict:
     """Which substates a policy sends on :data:`SUBSTATES_TASK`, against the observation's
     ``news`` (steps by which the next message of a substate would be fresher than the last
     one sent, ``round(news * H)``), on the episodes ``seeds``: mean return, substates sent
     per agent-step and substate, and the probability of sending a substate without news,
     with news of the agent's own substate and with news of another agent's substate. Each
     step's choice is paired with the observation it was made on, from the second step on
-    (the protocol's rollout; the observation is the core's own, read after every step)."""
+    (the protocol's rollout; the observation is the core's own, read after every step).
+    ``actor``: a rule that is no registered policy (``spec`` is then its label), as
+    :func:`netsense.benchmark.protocol.evaluate` takes it."""
     from netsense.benchmark.protocol import evaluate
 
     news_seen, own, pairs = [], [], []
@@ -698,7 +702,7 @@ def substate_use(spec: str, seeds: list[int]) -> dict:
         obs, _ = core.observe()
         news_seen.append(np.rint(obs[..., core.layout.news] * core.horizon))
 
-    ret = evaluate(SUBSTATES_TASK, spec, seeds, on_step=record)["reward"]
+    ret = evaluate(SUBSTATES_TASK, spec, seeds, on_step=record, actor=actor)["reward"]
     news = np.concatenate([n for n, _ in pairs]) >= 1
     sent = np.concatenate([a for _, a in pairs])
     mine = np.broadcast_to(own[0], news.shape)
@@ -723,6 +727,58 @@ def cmd_substates(args, cfg: dict) -> None:
     on the protocol's evaluation episodes (``--episodes``)."""
     policy_use(args, SUBSTATES_TASK, substate_use, ["event:1"], SUBSTATES_COLUMNS,
                "substates")
+    relay_landscape(args)
+
+
+#: Relay probabilities of :func:`relay_landscape`.
+RELAY_PROBS = (0.0, 0.05, 0.1, 0.2, 0.5, 1.0)
+
+
+def thinned_relays(p: float, seed: int = 0):
+    """An ``actor`` for :func:`netsense.benchmark.protocol.evaluate`: ``event:1``'s choice
+    (send a substate iff it is news), with each send of a substate the agent does not own
+    kept with probability ``p`` (independently per agent, substate and step; ``p = 1`` is
+    ``event:1``)."""
+    from netsense.rl.scripted import scripted_actions
+
+    def actor(core, seeds):
+        event = scripted_actions("event:1", core)
+        foreign = ~(core.layout.own[:, None] == np.arange(core.M)[None, :])  # (N, M)
+        rng = np.random.default_rng(seed)
+
+        def act(obs, mask):
+            a = np.asarray(event(obs, mask)).copy()
+            drop = foreign & (rng.random(a.shape) >= p)
+            a[drop] = 0
+            return a
+
+        return act
+
+    return actor
+
+
+def relay_landscape(args) -> None:
+    """``substates_relay.{csv,md}``: the return of :func:`thinned_relays` for every
+    :data:`RELAY_PROBS` on the protocol's evaluation episodes (mean and 95 % bootstrap CI),
+    with the substates sent per agent-step and substate."""
+    from netsense.benchmark.intervals import bootstrap_ci
+    from netsense.benchmark.protocol import eval_seeds, evaluate
+
+    seeds = eval_seeds(args.episodes)
+    rows = []
+    for p in RELAY_PROBS:
+        m = evaluate(SUBSTATES_TASK, f"event:1, relays kept with p = {p}", seeds,
+                     actor=thinned_relays(p))
+        mean, lo, hi = bootstrap_ci(m["reward"])
+        rows.append({"p": p, "return": mean, "ci_low": lo, "ci_high": hi,
+                     "sent_rate": float(m["load_per_agent_step"].mean())})
+    write_csv(args.out / "substates_relay.csv", rows)
+    lines = ["| p (another agent's news sent with probability p; own news always) | return "
+             "[95 % CI] | substates sent per agent-step and substate |", "|---|---|---|"]
+    lines += [f"| {r['p']:g} | {r['return']:.1f} [{r['ci_low']:.1f}, {r['ci_high']:.1f}] | "
+              f"{r['sent_rate']:.3f} |" for r in rows]
+    (args.out / "substates_relay.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
 
 
 def policy_use(args, task: str, measure, scripted: list[str], columns, name: str) -> None:
