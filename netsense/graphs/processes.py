@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -347,13 +348,23 @@ class RandomJointlyConnected(GraphProcess):
             raise ValueError(f"extra_edge_prob must be in [0, 1], got {self.extra_edge_prob}")
 
     def _window(self, rng: np.random.Generator) -> np.ndarray:
+        # called once per window and member: the index arrays are built once per process
+        # (the draws, and so the stream, are the same as building them here)
         N, T = self.num_nodes, self.period
+        nxt, off, steps = self._index
         union = rng.random((N, N)) < self.extra_edge_prob
         perm = rng.permutation(N)
-        union[perm[(np.arange(N) + 1) % N], perm] = True  # perm[m] -> perm[m+1]
-        np.fill_diagonal(union, False)
+        union[perm[nxt], perm] = True  # perm[m] -> perm[m+1]
+        union &= off  # no self-loops
         when = rng.integers(0, T, size=(N, N))
-        return union[None] & (when[None] == np.arange(T)[:, None, None])
+        return union & (when == steps)
+
+    @cached_property
+    def _index(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(m + 1) mod N``, the off-diagonal mask, the window's steps ``(T, 1, 1)``."""
+        N = self.num_nodes
+        return ((np.arange(N) + 1) % N, ~np.eye(N, dtype=bool),
+                np.arange(self.period)[:, None, None])
 
     def initial_state(self, rng):
         return (0, None)
