@@ -759,8 +759,9 @@ def thinned_relays(p: float, seed: int = 0):
 
 def relay_landscape(args) -> None:
     """``substates_relay.{csv,md}``: the return of :func:`thinned_relays` for every
-    :data:`RELAY_PROBS` on the protocol's evaluation episodes (mean and 95 % bootstrap CI),
-    with the substates sent per agent-step and substate."""
+    :data:`RELAY_PROBS` on the protocol's evaluation episodes (mean and 95 % bootstrap CI,
+    standard deviation between episodes), with the substates sent per agent-step and
+    substate."""
     from netsense.benchmark.intervals import bootstrap_ci
     from netsense.benchmark.protocol import eval_seeds, evaluate
 
@@ -771,12 +772,14 @@ def relay_landscape(args) -> None:
                      actor=thinned_relays(p))
         mean, lo, hi = bootstrap_ci(m["reward"])
         rows.append({"p": p, "return": mean, "ci_low": lo, "ci_high": hi,
+                     "return_sd": float(m["reward"].std()),
                      "sent_rate": float(m["load_per_agent_step"].mean())})
     write_csv(args.out / "substates_relay.csv", rows)
     lines = ["| p (another agent's news sent with probability p; own news always) | return "
-             "[95 % CI] | substates sent per agent-step and substate |", "|---|---|---|"]
+             "[95 % CI] | standard deviation between episodes | substates sent per agent-step "
+             "and substate |", "|---|---|---|---|"]
     lines += [f"| {r['p']:g} | {r['return']:.1f} [{r['ci_low']:.1f}, {r['ci_high']:.1f}] | "
-              f"{r['sent_rate']:.3f} |" for r in rows]
+              f"{r['return_sd']:.1f} | {r['sent_rate']:.3f} |" for r in rows]
     (args.out / "substates_relay.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
