@@ -15,6 +15,9 @@ path                       what runs
                            (epochs and everything else as the defaults)
 ``torchrl-tanh-tx``        the defaults with tanh hidden layers instead of ReLU (what the
                            activation costs on this CPU)
+``torchrl-threads-tx``     the defaults with every core for torch and numba
+                           (``torch_threads = numba_threads = os.cpu_count()``): what the
+                           one-thread default leaves on an idle machine
 ``sb3-supersuit-tx``       ``netsense train`` with its default backend: MaskablePPO through
                            SuperSuit (:func:`netsense.rl.sb3.train`, ``TrainConfig``
                            defaults), same scenario
@@ -35,7 +38,7 @@ The summary gives medians and the ratios the project tracks: defaults / tuned (t
 ``bench_train_throughput.csv`` (one row per round and measurement),
 ``bench_train_throughput.txt`` and ``bench_train_throughput.png`` into ``--out``::
 
-    python experiments/bench/train_throughput.py                   # about 15 minutes
+    python experiments/bench/train_throughput.py                   # about 23 minutes
     python experiments/bench/train_throughput.py --rounds 1 --iters 1 --sb3-steps 2000 \\
         --grid 8:16 --defaults-envs 8 --out /tmp/x --tag smoke       # smoke size
 """
@@ -54,7 +57,8 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
-PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "sb3-supersuit-tx",
+PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "torchrl-threads-tx",
+         "sb3-supersuit-tx",
          "torchrl-defaults-full", "torchrl-tuned-full", "sb3-supersuit-full")
 
 
@@ -109,6 +113,10 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     if "tanh" in path:
         return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
                          args.iters, activation="tanh", **dev)]
+    if "threads" in path:
+        cores = os.cpu_count() or 1
+        return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
+                         args.iters, torch_threads=cores, numba_threads=cores, **dev)]
     return [_torchrl(scenario, control, b, m, args.iters, **dev) for b, m in _grid(args.grid)]
 
 
@@ -228,7 +236,10 @@ def _report(rows: list[dict], args, path: Path) -> None:
               f"{_ratio(s, 'torchrl-defaults-tx', 'sb3-supersuit-tx')}; full control: "
               f"{_ratio(s, 'torchrl-defaults-full', 'sb3-supersuit-full')}",
               f"ratio defaults (ReLU) / tanh layers, communication only: "
-              f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tanh-tx')}"]
+              f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tanh-tx')}",
+              f"ratio every core / defaults (one torch and one numba thread), communication "
+              f"only: {_ratio(s, 'torchrl-threads-tx', 'torchrl-defaults-tx')}; every core / "
+              f"SB3 + SuperSuit: {_ratio(s, 'torchrl-threads-tx', 'sb3-supersuit-tx')}"]
     path.write_text("\n".join(lines) + "\n")
 
 
