@@ -163,8 +163,9 @@ def test_substate_use_pairs_each_choice_with_the_news_it_saw(learners):
 
 def test_thinned_relays_keep_own_news_and_thin_only_the_relays(learners):
     """``p = 1`` is ``event:1`` to the last digit; ``p = 0`` sends own news always and
-    another agent's news never; ``p = 0.5`` relays about half of it (measured by the same
-    pairing of choices and news as the learners' table)."""
+    another agent's news never; ``p = 0.5`` relays about half of it; ``q = 0.4`` adds sends
+    without news at about that rate (measured by the same pairing of choices and news as
+    the learners' table)."""
     from netsense.benchmark.protocol import evaluate
 
     seeds = [10**6, 10**6 + 1]
@@ -176,3 +177,8 @@ def test_thinned_relays_keep_own_news_and_thin_only_the_relays(learners):
         use = learners.substate_use("thinned", seeds, actor=learners.thinned_relays(p))
         assert use["send_own_news"] == 1.0 and use["send_without_news"] == 0.0
         assert lo <= use["send_others_news"] <= hi, (p, use)
+    # q sends substates without news (where the mask lets the agent send them at all),
+    # and leaves the choices on news alone
+    noisy = learners.substate_use("noisy", seeds, actor=learners.thinned_relays(1.0, 0.4))
+    assert noisy["send_own_news"] == 1.0 and noisy["send_others_news"] == 1.0
+    assert 0.25 <= noisy["send_without_news"] <= 0.45, noisy

@@ -53,7 +53,9 @@ final policy under ``--out`` beside ``event:1`` on the protocol's episodes: how 
 substate is sent without news, on news of the agent's own substate and on news of another
 agent's substate; and ``substates_relay.csv`` / ``substates_relay.md``: the return of
 ``event:1`` with its relays thinned (another agent's news sent with probability ``p``, the
-agent's own news always), the landscape a learner that does not relay stands on.
+agent's own news always) and with substates without news sent anyway (probability ``q``,
+as a policy that still explores does), the landscape a learner that does not relay stands
+on.
 
 **ablation** writes ``ablation/runs/...``, ``ablation.csv``, ``ablation.md`` and
 ``ablation.png`` (final greedy and sampled evaluation return per variant, mean and range
@@ -732,13 +734,18 @@ def cmd_substates(args, cfg: dict) -> None:
 
 #: Relay probabilities of :func:`relay_landscape`.
 RELAY_PROBS = (0.0, 0.05, 0.1, 0.2, 0.5, 1.0)
+#: Probabilities of :func:`relay_landscape` with which a substate without news is sent
+#: anyway: none (``event:1``'s rule), a little, and about the 20M MLP's rate (0.42 in the
+#: substates table), as a policy still exploring sends.
+RELAY_NOISE = (0.0, 0.1, 0.4)
 
 
-def thinned_relays(p: float, seed: int = 0):
+def thinned_relays(p: float, q: float = 0.0, seed: int = 0):
     """An ``actor`` for :func:`netsense.benchmark.protocol.evaluate`: ``event:1``'s choice
     (send a substate iff it is news), with each send of a substate the agent does not own
-    kept with probability ``p`` (independently per agent, substate and step; ``p = 1`` is
-    ``event:1``)."""
+    kept with probability ``p``, and each substate ``event:1`` does not send (no news) sent
+    anyway with probability ``q`` where the mask allows (independently per agent, substate
+    and step; ``p = 1, q = 0`` is ``event:1``)."""
     from netsense.rl.scripted import scripted_actions
 
     def actor(core, seeds):
@@ -747,9 +754,12 @@ def thinned_relays(p: float, seed: int = 0):
         rng = np.random.default_rng(seed)
 
         def act(obs, mask):
-            a = np.asarray(event(obs, mask)).copy()
-            drop = foreign & (rng.random(a.shape) >= p)
-            a[drop] = 0
+            base = np.asarray(event(obs, mask))
+            a = base.copy()
+            a[foreign & (rng.random(a.shape) >= p)] = 0
+            if q > 0:  # the substates layout: head j's "send" is flat entry 2 j + 1
+                allowed = np.asarray(mask, bool).reshape(*a.shape, 2)[..., 1]
+                a[(base == 0) & allowed & (rng.random(a.shape) < q)] = 1
             return a
 
         return act
@@ -759,27 +769,30 @@ def thinned_relays(p: float, seed: int = 0):
 
 def relay_landscape(args) -> None:
     """``substates_relay.{csv,md}``: the return of :func:`thinned_relays` for every
-    :data:`RELAY_PROBS` on the protocol's evaluation episodes (mean and 95 % bootstrap CI,
-    standard deviation between episodes), with the substates sent per agent-step and
-    substate."""
+    :data:`RELAY_NOISE` x :data:`RELAY_PROBS` on the protocol's evaluation episodes (mean
+    and 95 % bootstrap CI, standard deviation between episodes), with the substates sent
+    per agent-step and substate."""
     from netsense.benchmark.intervals import bootstrap_ci
     from netsense.benchmark.protocol import eval_seeds, evaluate
 
     seeds = eval_seeds(args.episodes)
     rows = []
-    for p in RELAY_PROBS:
-        m = evaluate(SUBSTATES_TASK, f"event:1, relays kept with p = {p}", seeds,
-                     actor=thinned_relays(p))
-        mean, lo, hi = bootstrap_ci(m["reward"])
-        rows.append({"p": p, "return": mean, "ci_low": lo, "ci_high": hi,
-                     "return_sd": float(m["reward"].std()),
-                     "sent_rate": float(m["load_per_agent_step"].mean())})
+    for q in RELAY_NOISE:
+        for p in RELAY_PROBS:
+            m = evaluate(SUBSTATES_TASK, f"event:1, relays kept with p = {p}, sends without "
+                         f"news with q = {q}", seeds, actor=thinned_relays(p, q))
+            mean, lo, hi = bootstrap_ci(m["reward"])
+            rows.append({"q": q, "p": p, "return": mean, "ci_low": lo, "ci_high": hi,
+                         "return_sd": float(m["reward"].std()),
+                         "sent_rate": float(m["load_per_agent_step"].mean())})
     write_csv(args.out / "substates_relay.csv", rows)
-    lines = ["| p (another agent's news sent with probability p; own news always) | return "
-             "[95 % CI] | standard deviation between episodes | substates sent per agent-step "
-             "and substate |", "|---|---|---|---|"]
-    lines += [f"| {r['p']:g} | {r['return']:.1f} [{r['ci_low']:.1f}, {r['ci_high']:.1f}] | "
-              f"{r['return_sd']:.1f} | {r['sent_rate']:.3f} |" for r in rows]
+    lines = ["| q (a substate without news sent with probability q) | p (another agent's news "
+             "sent with probability p; own news always) | return [95 % CI] | standard "
+             "deviation between episodes | substates sent per agent-step and substate |",
+             "|---|---|---|---|---|"]
+    lines += [f"| {r['q']:g} | {r['p']:g} | {r['return']:.1f} [{r['ci_low']:.1f}, "
+              f"{r['ci_high']:.1f}] | {r['return_sd']:.1f} | {r['sent_rate']:.3f} |"
+              for r in rows]
     (args.out / "substates_relay.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
