@@ -33,7 +33,7 @@ evaluate`, which the defaults run every 10 iterations). Writes ``profile.txt`` (
 seconds and share per stage, plus the unprofiled wall time of the same run length measured
 first, and the evaluation's cost) and ``profile.png`` into ``--out``::
 
-    python experiments/bench/train_profile.py          # about 2 minutes
+    python experiments/bench/train_profile.py          # about 1 minute
 """
 
 # %%
