@@ -107,17 +107,15 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     if warm:
         return [_torchrl(scenario, control, 4, 16, 1, device=args.device)]
     dev = {"device": args.device}
-    if "defaults" in path:
-        return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
-                         args.iters, **dev)]
-    if "tanh" in path:
-        return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
-                         args.iters, activation="tanh", **dev)]
-    if "threads" in path:
-        cores = os.cpu_count() or 1
-        return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
-                         args.iters, torch_threads=cores, numba_threads=cores, **dev)]
-    return [_torchrl(scenario, control, b, m, args.iters, **dev) for b, m in _grid(args.grid)]
+    if "tuned" in path:
+        return [_torchrl(scenario, control, b, m, args.iters, **dev)
+                for b, m in _grid(args.grid)]
+    # the defaults and their one-field variants, at the defaults' batch
+    cores = os.cpu_count() or 1
+    variant = {"defaults": {}, "tanh": {"activation": "tanh"},
+               "threads": {"torch_threads": cores, "numba_threads": cores}}[path.split("-")[1]]
+    return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
+                     args.iters, **variant, **dev)]
 
 
 # %%
