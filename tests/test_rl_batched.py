@@ -490,3 +490,81 @@ def test_ppo_config_names_bad_fields(kw, match):
 
     with pytest.raises(ValueError, match=match):
         PPOConfig(SCEN, **kw)
+
+
+@pytest.mark.parametrize(("scenario", "control"), [("comm_substates-v0", None),
+                                                   ("comm_process_noise-v0", "transmit")])
+def test_news_gate_that_always_sends_is_event_1(scenario, control):
+    """Behind the news gate, a network that prefers every send is ``event:1`` (send what is
+    news) action for action over an episode; a network without preference sends nothing
+    without news and half of the news."""
+    from netsense.rl.distributions import MaskedMultiCategorical
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import NewsGateActor
+    from netsense.rl.scripted import scripted_actions
+
+    class Prefers(torch.nn.Module):
+        def __init__(self, send: float):
+            super().__init__()
+            self.send = send
+
+        def forward(self, obs):
+            n = len(core.nvec)
+            return torch.tensor([0.0, self.send]).repeat(n).expand(*obs.shape[:-1], 2 * n)
+
+    core = make_core(scenario, 4, control=control)
+    event = scripted_actions("event:1", core)
+    eager = NewsGateActor(Prefers(10.0), core.layout.news, core.control.mode)
+    even = NewsGateActor(Prefers(0.0), core.layout.news, core.control.mode)
+    obs, mask = core.reset(0)
+    sent_any = withheld = 0
+    for _ in range(core.horizon):
+        o, m = torch.as_tensor(obs), torch.as_tensor(mask.view(np.bool_))
+        a = MaskedMultiCategorical(eager(o), m, core.nvec).deterministic_sample.numpy()
+        np.testing.assert_array_equal(a, event(obs, mask))
+        p_send = MaskedMultiCategorical(even(o), m, core.nvec).base_dist.probs[..., 1]
+        fresh = o[..., core.layout.news] > 0
+        if core.control.mode == "transmit":
+            fresh = fresh.any(-1, keepdim=True)
+        assert torch.all(p_send[~fresh] == 0)
+        allowed = fresh & m.unflatten(-1, (-1, 2))[..., 1]
+        assert torch.allclose(p_send[allowed], torch.tensor(0.5))
+        sent_any += int(a.sum())
+        withheld += int((~fresh).sum())
+        out = core.step(a)
+        obs, mask = out.obs, out.action_mask
+    assert sent_any > 0 and withheld > 0  # both branches were exercised
+
+
+def test_news_gate_needs_a_communication_only_mode():
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import actor_net
+
+    core = make_core(SCEN, 2, control="full")
+    with pytest.raises(ValueError, match="news_gate.*communication-only"):
+        actor_net(PPOConfig(scenario=SCEN, news_gate=True), core)
+
+
+@pytest.mark.parametrize("network,memory", [("set", 8), ("mlp", 0)])
+def test_news_gate_policy_trains_saves_and_loads(tmp_path, network, memory):
+    """A gated policy (set network with memory, MLP) round-trips through its file, and the
+    loaded policy, sampling, sends no substate without news."""
+    from netsense.rl.checkpoint import load_policy
+    from netsense.rl.envs import make_core
+    from netsense.rl.ppo import train_ppo
+
+    res = train_ppo(_small("mappo", network, control="substates", news_gate=True,
+                           memory=memory), tmp_path)
+    assert res.mask_violations == 0 and np.isfinite(res.rows[-1]["eval_return"])
+    core = make_core(SCEN, 3, control="substates", **SHORT)
+    pol = load_policy(tmp_path / "policy.pt", core, deterministic=False)
+    o, m = core.reset(5)
+    sent = 0
+    for _ in range(core.horizon - 1):
+        a = pol.act(o, m)
+        assert not np.any(a.astype(bool) & (o[..., core.layout.news] <= 0))
+        sent += int(a.sum())
+        out = core.step(a)
+        o, m = out.obs, out.action_mask
+    assert sent > 0

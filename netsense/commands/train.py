@@ -90,6 +90,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help="MLP actor: also read sin and cos of 2 pi k / P for each period P "
                          "(steps, >= 2), k the step read from the observation's time entry "
                          "(default: none)")
+    tr.add_argument("--news-gate", action="store_const", const=True, default=None,
+                    help="send only what is news: in control modes transmit and substates, "
+                         "the choice to send a substate (or to transmit) is closed where the "
+                         "agent's observation holds no news for it (default: off)")
     tr.add_argument("--epochs", type=positive_int, default=None,
                     help="PPO epochs per iteration (default: 4)")
     tr.add_argument("--eval-interval", type=positive_int, default=None,
@@ -129,8 +133,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: Options of the torchrl backend only (``None`` in the parser, so that an option given with
 #: ``--backend sb3`` is refused instead of ignored; what is not given takes
 #: :class:`netsense.rl.config.PPOConfig`'s default).
-TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock", "epochs",
-                "eval_interval", "eval_envs", "bc", "device", "seeds")
+TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock",
+                "news_gate", "epochs", "eval_interval", "eval_envs", "bc", "device", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).
 SHARED = {"steps": ("steps", "steps"), "num_envs": ("num_envs", "num_vec_envs"),

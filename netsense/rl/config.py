@@ -105,6 +105,12 @@ class PPOConfig:
         as that entry, in a form a small network can use for periodic rules: a
         time-division slot ``k mod 5`` is 40 periods of ``k / H`` over a 200-step episode.
         Empty (default): no clock. Not with ``obs_norm`` or the set network.
+    news_gate : bool
+        Send only what is news (:class:`netsense.rl.policy.NewsGateActor`): in the
+        communication-only control modes, the choice to send a substate (``"substates"``)
+        or to transmit (``"transmit"``) is closed where the agent's observation holds no
+        news for it; a restriction of the policy class, with either network. Default
+        ``False``.
     value_norm : bool
         Critic trained on standardised value targets (TorchRL's ``RunningValueNorm``;
         :mod:`netsense.rl.advantage`).
@@ -186,6 +192,7 @@ class PPOConfig:
     stagger: bool = True
     agent_features: bool = True
     clock: tuple[int, ...] = ()
+    news_gate: bool = False
     value_norm: bool = True
     reward_scale: bool = False
     obs_norm: bool = False
@@ -232,6 +239,11 @@ class PPOConfig:
             raise ValueError(f"PPOConfig.set_slots=False leaves the message slots out of the "
                              f"set network in a communication-only mode; got network="
                              f"{self.network!r}, control={self.control!r}")
+        if self.news_gate and (self.control == "full" or (
+                isinstance(self.control, dict) and self.control.get("mode") == "full")):
+            raise ValueError("PPOConfig.news_gate gates the send choices of the "
+                             "communication-only control modes ('transmit', 'substates'); "
+                             "got control 'full'")
         if self.bc and self.memory:
             raise ValueError("PPOConfig.bc: behaviour cloning trains a feed-forward actor "
                              "step by step; it is not available with memory > 0")
@@ -306,6 +318,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "stagger": ("choice", (True, False), None),
     "agent_features": ("choice", (True, False), None),
     "clock": ("ints", 2, checks.MAX_STEPS),
+    "news_gate": ("choice", (True, False), None),
     "value_norm": ("choice", (True, False), None),
     "reward_scale": ("choice", (True, False), None),
     "obs_norm": ("choice", (True, False), None),

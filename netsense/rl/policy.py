@@ -24,8 +24,12 @@ from netsense.rl.memory import RecurrentActor, is_recurrent, unroll
 from netsense.rl.networks import activation_class, critic_net, mlp_actor_net
 from netsense.rl.set_network import SetPolicyNet
 
-__all__ = ["ClockActor", "ObsNormActor", "OwnSubstateActor", "SequenceLogits", "actor_net",
-           "build_actor", "critic_module"]
+__all__ = ["ClockActor", "NewsGateActor", "ObsNormActor", "OwnSubstateActor", "SequenceLogits",
+           "actor_net", "build_actor", "critic_module"]
+
+#: Logit given to a send choice the news gate closes: its probability is exactly 0 in
+#: float32 and its log-probability finite, so the entropy stays finite (``0 * -1e9``).
+GATED_LOGIT = -1e9
 
 
 class ObsNormActor(nn.Module):
@@ -100,6 +104,47 @@ class ClockActor(nn.Module):
         return self.body(torch.cat([obs, torch.sin(phase), torch.cos(phase)], -1), *h)
 
 
+class NewsGateActor(nn.Module):
+    """An actor that sends only what is news (``news_gate``): the choice "send substate
+    ``j``" (control mode ``"substates"``) is closed where the observation's ``news[j]`` is
+    0, "transmit" (``"transmit"``) where no substate is news; everything else is the
+    network's. A restriction of the policy class, not of the task: the environment's action
+    space and mask are unchanged, and the gate reads only the agent's own observation
+    (:class:`netsense.engine.control.CommControl`, ``news``: 0 where the agent already sent
+    what it holds now). Closed choices get the logit :data:`GATED_LOGIT` (probability 0,
+    no gradient, no entropy).
+
+    ``event:1`` is the gated policy that sends every open choice; what the gated learner
+    learns is which news to send (on ``comm_substates-v0``: whether to relay another
+    agent's news, docs/rl.md)."""
+
+    def __init__(self, net: nn.Module, news: slice, mode: str) -> None:
+        super().__init__()
+        if mode not in ("transmit", "substates"):
+            raise ValueError(f"PPOConfig.news_gate gates the send choices of the "
+                             f"communication-only control modes 'transmit' and 'substates'; "
+                             f"the core runs in {mode!r}")
+        self.body = net
+        self.news = (int(news.start), int(news.stop))
+        self.per_substate = mode == "substates"
+        self.memory = int(getattr(net, "memory", 0) or 0)
+
+    def update(self, obs: torch.Tensor) -> None:
+        """Feed the body's observation normaliser (:class:`ObsNormActor`), if it has one."""
+        self.body.update(obs)
+
+    def forward(self, obs: torch.Tensor, *h: torch.Tensor):
+        out = self.body(obs, *h)
+        logits, rest = (out[0], out[1:]) if isinstance(out, tuple) else (out, None)
+        fresh = obs[..., self.news[0]:self.news[1]] > 0  # (..., M)
+        if not self.per_substate:
+            fresh = fresh.any(-1, keepdim=True)
+        send = logits[..., 1::2]  # the flat layout [no, yes] per choice
+        send = torch.where(fresh, send, torch.full_like(send, GATED_LOGIT))
+        logits = torch.stack([logits[..., 0::2], send], -1).flatten(-2)
+        return logits if rest is None else (logits, *rest)
+
+
 def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     """The actor's logits network for ``core``'s layout and action layout: the set network,
     the recurrent MLP (``config.memory > 0``) or TorchRL's ``MultiAgentMLP``; the MLPs read
@@ -107,8 +152,9 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     ``config.clock`` (:class:`ClockActor`), and sit behind a running
     observation normaliser when ``config.obs_norm``."""
     if config.network == "set":
-        return SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden,
-                            memory=config.memory, slots=config.set_slots).to(device)
+        net = SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden,
+                           memory=config.memory, slots=config.set_slots)
+        return _gated(config, core, net).to(device)
     extra = (core.M + 1 if config.agent_features else 0) + 2 * len(config.clock)
     if config.memory:
         net = RecurrentActor(core.layout.size + extra, int(sum(core.nvec)), config.hidden,
@@ -120,7 +166,19 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
         net = OwnSubstateActor(net, core.layout.own, core.M)
     if config.clock:
         net = ClockActor(net, core.layout.time.start, core.horizon, config.clock)
-    return (ObsNormActor(net, core.layout.size) if config.obs_norm else net).to(device)
+    net = ObsNormActor(net, core.layout.size) if config.obs_norm else net
+    return _gated(config, core, net).to(device)
+
+
+def _gated(config: PPOConfig, core, net: nn.Module) -> nn.Module:
+    """``net`` behind the news gate when ``config.news_gate`` (:class:`NewsGateActor`)."""
+    if not config.news_gate:
+        return net
+    if core.layout.news is None:
+        raise ValueError("PPOConfig.news_gate reads the observation's news, which only the "
+                         "communication-only control modes ('transmit', 'substates') have; "
+                         "this core runs in full control")
+    return NewsGateActor(net, core.layout.news, core.control.mode)
 
 
 class SequenceLogits(nn.Module):
