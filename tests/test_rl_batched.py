@@ -568,3 +568,27 @@ def test_news_gate_policy_trains_saves_and_loads(tmp_path, network, memory):
         out = core.step(a)
         o, m = out.obs, out.action_mask
     assert sent > 0
+
+
+def test_shifted_clock_is_each_agents_own_frame():
+    """With ``shift``, agent i reads at step k the common clock's features of step k - i;
+    on comm_channel_k2-v0 the rule "send at phase 0 or 1 of period 5", shared by every
+    agent, lets exactly two of the five sources send at every step (no collision) and every
+    source in turn."""
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import ClockActor
+
+    core = make_core("comm_channel_k2-v0", 1)
+    H, t, N, O = core.horizon, core.layout.time.start, core.N, core.layout.size
+    common = ClockActor(torch.nn.Identity(), t, H, (5,))
+    shifted = ClockActor(torch.nn.Identity(), t, H, (5,), shift=True)
+    obs = torch.zeros(H, N, O)
+    obs[..., t] = (torch.arange(H, dtype=torch.float32) / H)[:, None]
+    mine, ref = shifted(obs)[..., O:], common(obs)[..., O:]
+    for i in range(N):
+        np.testing.assert_allclose(mine[N:, i], ref[N - i:H - i, 0], atol=1e-5)
+    phase = torch.round(torch.atan2(mine[..., 0], mine[..., 1]) / (2 * np.pi) * 5) % 5
+    send = (phase <= 1).numpy()
+    sources = core.layout.own >= 0
+    assert np.all(send[:, sources].sum(1) == 2)
+    assert np.all(send[:, sources].any(0))

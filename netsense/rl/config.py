@@ -105,6 +105,10 @@ class PPOConfig:
         as that entry, in a form a small network can use for periodic rules: a
         time-division slot ``k mod 5`` is 40 periods of ``k / H`` over a 200-step episode.
         Empty (default): no clock. Not with ``obs_norm`` or the set network.
+    clock_shift : bool
+        Each agent reads ``clock`` in its own frame, the phases of ``k - i`` for agent
+        ``i``, so that one rule shared by the agents is a staggered schedule (default
+        ``False``: the common clock; needs ``clock``).
     news_gate : bool
         Send only what is news (:class:`netsense.rl.policy.NewsGateActor`): in the
         communication-only control modes, the choice to send a substate (``"substates"``)
@@ -192,6 +196,7 @@ class PPOConfig:
     stagger: bool = True
     agent_features: bool = True
     clock: tuple[int, ...] = ()
+    clock_shift: bool = False
     news_gate: bool = False
     value_norm: bool = True
     reward_scale: bool = False
@@ -235,6 +240,9 @@ class PPOConfig:
                              f"actor's observation; it is not available with obs_norm=True "
                              f"or network='set' (got obs_norm={self.obs_norm}, network="
                              f"{self.network!r})")
+        if self.clock_shift and not self.clock:
+            raise ValueError("PPOConfig.clock_shift shifts the clock's phases by the agent's "
+                             "index; give the periods in PPOConfig.clock")
         if not self.set_slots and (self.network != "set" or self.control == "full"):
             raise ValueError(f"PPOConfig.set_slots=False leaves the message slots out of the "
                              f"set network in a communication-only mode; got network="
@@ -318,6 +326,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "stagger": ("choice", (True, False), None),
     "agent_features": ("choice", (True, False), None),
     "clock": ("ints", 2, checks.MAX_STEPS),
+    "clock_shift": ("choice", (True, False), None),
     "news_gate": ("choice", (True, False), None),
     "value_norm": ("choice", (True, False), None),
     "reward_scale": ("choice", (True, False), None),

@@ -86,19 +86,29 @@ class ClockActor(nn.Module):
     The time entry alone already determines every periodic rule, but a rule such as a
     time-division slot (``k mod 5``) is a function with 40 periods over a 200-step
     episode, which a small ReLU network can only build from many breakpoints; on the circle
-    of period ``p`` the ``p`` phases are separable by one layer."""
+    of period ``p`` the ``p`` phases are separable by one layer.
+
+    ``shift``: each agent reads the clock in its own frame, the phases of ``k - i`` for
+    agent ``i`` (its index, which the observation's ``agent_id`` gives; observations
+    ``(..., N, O)``). One rule on the phase, shared by all agents, is then a staggered
+    schedule: "send at phase 0 of period 5" lets the agents with ``i mod 5 = k mod 5``
+    send, a different set at each step, where on the common clock it lets every agent
+    send at once and a schedule needs a different rule per agent."""
 
     def __init__(self, net: nn.Module, time_index: int, horizon: int,
-                 periods: tuple[int, ...]) -> None:
+                 periods: tuple[int, ...], shift: bool = False) -> None:
         super().__init__()
         self.time_index = int(time_index)
         self.horizon = int(horizon)
+        self.shift = bool(shift)
         self.register_buffer("periods", torch.as_tensor([float(p) for p in periods]))
         self.body = net
         self.memory = int(getattr(net, "memory", 0) or 0)
 
     def forward(self, obs: torch.Tensor, *h: torch.Tensor):
         k = torch.round(obs[..., self.time_index:self.time_index + 1] * self.horizon)
+        if self.shift:  # agent i's frame: k - i, i along the agents' axis (..., N, 1)
+            k = k - torch.arange(obs.shape[-2], dtype=obs.dtype, device=obs.device)[:, None]
         periods = self.periods.to(obs.dtype)
         phase = 2 * torch.pi * torch.remainder(k, periods) / periods  # exact k mod p
         return self.body(torch.cat([obs, torch.sin(phase), torch.cos(phase)], -1), *h)
@@ -165,7 +175,8 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     if config.agent_features:
         net = OwnSubstateActor(net, core.layout.own, core.M)
     if config.clock:
-        net = ClockActor(net, core.layout.time.start, core.horizon, config.clock)
+        net = ClockActor(net, core.layout.time.start, core.horizon, config.clock,
+                         shift=config.clock_shift)
     net = ObsNormActor(net, core.layout.size) if config.obs_norm else net
     return _gated(config, core, net).to(device)
 
