@@ -86,6 +86,20 @@ def test_evaluation_seeds_are_disjoint_from_every_training_seed(learners):
             assert not seeds & set(training_seeds(config))
 
 
+def test_every_learner_is_a_valid_config_on_every_task(learners):
+    """Each ``[learners.*]`` table of the config, on each task, is a ``PPOConfig`` its
+    checks accept (a learner's option that a task cannot take fails here, not an hour into
+    a run)."""
+    pytest.importorskip("torch")
+    cfg = learners.load_config()
+    for name, table in cfg["learners"].items():
+        for task in cfg["tasks"]:
+            config = learners.ppo_config(task, 0, learners._fields(
+                cfg["defaults"], table, cfg["tasks"][task]))
+            assert all(getattr(config, k) == (tuple(v) if isinstance(v, list) else v)
+                       for k, v in table.items()), name
+
+
 def test_intervals_are_reproducible(learners):
     """The same returns give the same interval in every run (rliable resamples from
     NumPy's global generator, which the script seeds around each call)."""
