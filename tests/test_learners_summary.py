@@ -44,8 +44,9 @@ def test_gap_closed_and_scores_on_known_returns(learners):
     best = -50 + rng.normal(0, 1, 100)
     causal = np.full(20, -30.0)
     never = np.full(100, -100.0)
-    # five seeds whose returns sit halfway between the best scripted mean and the bound
-    target = best.mean() + 0.5 * (-30.0 - best.mean())
+    # five seeds whose returns sit halfway between the best scripted IQM and the bound
+    b_iqm = float(np.mean(np.sort(best)[25:75]))  # 100 episodes: the middle 50
+    target = b_iqm + 0.5 * (-30.0 - b_iqm)
     learned = {s: np.full(100, target) for s in range(5)}
     summary, norm = learners.summarise(_rows(learned, best, causal, never), ["mlp"])
     (row,) = summary
@@ -57,6 +58,24 @@ def test_gap_closed_and_scores_on_known_returns(learners):
     np.testing.assert_allclose(norm["mlp (greedy)"]["t"], (target + 100) / 70)
     # the best scripted policy on the same scale, for the aggregate plot
     np.testing.assert_allclose(norm[learners.SCRIPTED]["t"], (best.mean() + 100) / 70)
+
+
+def test_a_copy_of_the_scripted_policy_closes_no_gap(learners):
+    """Returns with a long lower tail (as episodes have): a learner whose every seed scores
+    exactly the scripted policy's episodes reaches it and closes no gap, although its IQM
+    lies well above the scripted mean; the comparison is IQM against IQM."""
+    rng = np.random.default_rng(1)
+    best = -40 - rng.exponential(5.0, 100)
+    causal = -30 - rng.exponential(5.0, 20)
+    summary, _ = learners.summarise(_rows({s: best.copy() for s in range(5)}, best, causal,
+                                          np.full(100, -100.0)), ["mlp"])
+    (row,) = summary
+    assert row["iqm"] - best.mean() > 1.0  # the bias a mean reference would credit
+    assert row["iqm"] == pytest.approx(row["best_decentralised_iqm"])
+    assert row["gap_closed"] == pytest.approx(0.0, abs=1e-12)
+    assert row["reaches"] and row["p_improvement"] == pytest.approx(0.5)
+    assert row["best_decentralised"] == pytest.approx(best.mean())
+    assert row["causal_bound_iqm"] == pytest.approx(np.mean(np.sort(causal)[5:15]))
 
 
 def test_iqm_discards_the_outer_quartiles(learners):

@@ -5,6 +5,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
 
     python experiments/rl/learners.py ablation    # the recipe, one change at a time
     python experiments/rl/learners.py results     # every task x learner x seed, evaluated
+    python experiments/rl/learners.py summary     # the summaries again, from episodes.csv
     python experiments/rl/learners.py diagnose    # one decision's signal against the noise
     python experiments/rl/learners.py channel     # how the learners use the collision channel
     python experiments/rl/learners.py substates   # which substates the learners send
@@ -34,10 +35,15 @@ counts the runs.
   decentralised scripted return, the causal bound and ``never`` as lines;
 * ``summary.csv`` / ``summary.md``: per task and learner, the IQM of the return over seeds
   x evaluation episodes with its 95 % bootstrap interval (``rliable``), the probability of
-  improvement over the best decentralised scripted policy, the fraction of the gap between
-  that policy and the causal bound the learner closes; and ``aggregate.png``
+  improvement over the best decentralised scripted policy, whether the interval reaches
+  that policy's IQM on the same episodes, the fraction of the gap between that policy and
+  the causal bound the learner closes (every term an IQM: :func:`summarise`); and
+  ``aggregate.png``
   (normalised scores, ``never`` = 0 and causal bound = 1: IQM over tasks and the
   performance profile).
+
+**summary** rebuilds ``summary.{csv,md}``, ``curves.{csv,png}`` and ``aggregate.png`` of
+``--out`` from its ``episodes.csv`` and its runs' logs, without evaluating again.
 
 **diagnose** writes ``diagnosis.csv`` / ``diagnosis.md``: per agent, the effect of one
 transmission on the discounted team return under a random policy, against the return's
@@ -271,7 +277,15 @@ def _iqm_ci(matrix: np.ndarray, reps: int = 2000) -> tuple[float, float, float]:
 def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
     """Per task and learner: IQM [CI] over seeds x episodes, probability of improvement
     over the best decentralised scripted policy, fraction of the gap to the causal bound
-    closed; plus the normalised score matrices for the aggregate plot."""
+    closed; plus the normalised score matrices for the aggregate plot.
+
+    The learner's IQM is compared with the references' IQM over their own episodes (the
+    same 100 for the scripted policy, the bound's first ones), one statistic on both sides:
+    an episode's return has a long lower tail, so an IQM lies above the mean of the same
+    returns, and a learner's IQM against a reference's mean would credit it with gap it
+    did not close (a policy identical to the scripted one would close some). ``reaches``:
+    the learner's interval reaches the scripted IQM (its upper end at or above it); the
+    reference means are kept beside them."""
     from rliable import metrics
 
     tasks = list(dict.fromkeys(r["task"] for r in rows))
@@ -297,8 +311,10 @@ def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
                 b_mean = float(best.mean())
                 c_mean = float(causal.mean()) if causal.size else math.nan
                 n_mean = float(ref["never"].mean())
-                gap = c_mean - b_mean
-                closed = (iqm - b_mean) / gap if gap > 0 else math.nan
+                b_iqm = float(metrics.aggregate_iqm(best))
+                c_iqm = float(metrics.aggregate_iqm(causal)) if causal.size else math.nan
+                gap = c_iqm - b_iqm
+                closed = (iqm - b_iqm) / gap if gap > 0 else math.nan
                 out.append({"task": task, "learner": learner, "evaluation": kind,
                             "seeds": len(seeds), "episodes": int(flat.shape[0]),
                             "iqm": iqm, "iqm_ci_low": lo, "iqm_ci_high": hi,
@@ -307,8 +323,10 @@ def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
                             "best_decentralised_spec": next(r["spec"] for r in rs
                                                             if r["policy"] ==
                                                             "best_decentralised"),
-                            "causal_bound": c_mean, "never": n_mean,
-                            "p_improvement": p_imp, "gap_closed": closed})
+                            "best_decentralised_iqm": b_iqm,
+                            "causal_bound": c_mean, "causal_bound_iqm": c_iqm,
+                            "never": n_mean, "p_improvement": p_imp,
+                            "reaches": bool(hi >= b_iqm), "gap_closed": closed})
                 if math.isfinite(c_mean) and c_mean > n_mean:
                     norm.setdefault(f"{learner} ({kind})", {})[task] = np.array(
                         [(v.mean() - n_mean) / (c_mean - n_mean) for v in per_seed])
@@ -439,16 +457,18 @@ def _f(v: float, d: int = 1) -> str:
 
 def markdown_summary(rows: list[dict]) -> str:
     lines = ["| task | learner | agent-steps | evaluation | IQM return [95 % CI] | best "
-             "decentralised scripted | causal bound | never | P(learned > scripted) | "
-             "gap closed |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "decentralised scripted: IQM (mean) | causal bound: IQM (mean) | never | "
+             "reaches scripted | P(learned > scripted) | gap closed (IQMs) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
             f"| {r['task']} | {r['learner']} | {r.get('agent_steps', 0) / 1e6:.1f}M | "
             f"{r['evaluation']} | {_f(r['iqm'])} "
             f"[{_f(r['iqm_ci_low'])}, {_f(r['iqm_ci_high'])}] | "
-            f"{_f(r['best_decentralised'])} (`{r['best_decentralised_spec']}`) | "
-            f"{_f(r['causal_bound'])} | {_f(r['never'])} | {r['p_improvement']:.2f} | "
+            f"{_f(r['best_decentralised_iqm'])} ({_f(r['best_decentralised'])}, "
+            f"`{r['best_decentralised_spec']}`) | {_f(r['causal_bound_iqm'])} "
+            f"({_f(r['causal_bound'])}) | {_f(r['never'])} | "
+            f"{'yes' if r['reaches'] else 'no'} | {r['p_improvement']:.2f} | "
             f"{_f(100 * r['gap_closed'], 0)} % |")
     return "\n".join(lines) + "\n"
 
@@ -475,6 +495,28 @@ def cmd_results(args, cfg: dict) -> None:
     folders = {(t, ln, s): d for (t, ln, s, _), d in zip(runs, dirs, strict=True)}
     rows = evaluate_all(tasks, folders, args.episodes)
     write_csv(out / "episodes.csv", rows)
+    write_summaries(out, rows, folders, list(tasks), learners)
+
+
+def cmd_summary(args, cfg: dict) -> None:
+    """Rebuild ``--out``'s summaries, curves and aggregate from its ``episodes.csv`` and
+    its runs' logs, without evaluating a policy again (what :func:`cmd_results` writes
+    after its evaluation)."""
+    out = args.out
+    with (out / "episodes.csv").open() as fh:
+        rows = [dict(r, reward=float(r["reward"])) for r in csv.DictReader(fh)]
+    learned = [r for r in rows if r["evaluation"] in ("greedy", "sampled", "best-validated")]
+    tasks = list(dict.fromkeys(r["task"] for r in rows))
+    learners = list(dict.fromkeys(r["policy"] for r in learned))
+    folders = {(r["task"], r["policy"], int(r["seed"])):
+               out / "runs" / r["task"] / r["policy"] / f"seed_{r['seed']}" for r in learned}
+    write_summaries(out, rows, folders, tasks, learners)
+
+
+def write_summaries(out: Path, rows: list[dict], folders: dict, tasks: list[str],
+                    learners: list[str]) -> None:
+    """``summary.{csv,md}``, ``curves.{csv,png}`` and ``aggregate.png`` from the episode
+    rows of :func:`evaluate_all` and the runs' folders."""
     summary, norm = summarise(rows, learners)
     for r in summary:  # the training budget the row's runs had
         r["agent_steps"] = int(np.median([
@@ -836,7 +878,8 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("command", choices=("results", "ablation", "diagnose", "channel", "substates"))
+    p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
+                                       "substates"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -854,8 +897,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     cfg = load_config(args.config)
-    {"results": cmd_results, "ablation": cmd_ablation, "diagnose": cmd_diagnose,
-     "channel": cmd_channel, "substates": cmd_substates}[args.command](args, cfg)
+    commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
+                "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates}
+    commands[args.command](args, cfg)
     return 0
 
 
