@@ -160,7 +160,8 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     the recurrent MLP (``config.memory > 0``) or TorchRL's ``MultiAgentMLP``; the MLPs read
     the own-substate one-hot when ``config.agent_features`` and the clock of
     ``config.clock`` (:class:`ClockActor`), and sit behind a running
-    observation normaliser when ``config.obs_norm``."""
+    observation normaliser when ``config.obs_norm``; either network sits behind the news
+    gate when ``config.news_gate`` (:class:`NewsGateActor`)."""
     if config.network == "set":
         net = SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden,
                            memory=config.memory, slots=config.set_slots)
