@@ -186,11 +186,7 @@ def _gated(config: PPOConfig, core, net: nn.Module) -> nn.Module:
     """``net`` behind the news gate when ``config.news_gate`` (:class:`NewsGateActor`)."""
     if not config.news_gate:
         return net
-    if core.layout.news is None:
-        raise ValueError("PPOConfig.news_gate reads the observation's news, which only the "
-                         "communication-only control modes ('transmit', 'substates') have; "
-                         "this core runs in full control")
-    return NewsGateActor(net, core.layout.news, core.control.mode)
+    return NewsGateActor(net, core.layout.news, core.control.mode)  # refuses full control
 
 
 class SequenceLogits(nn.Module):
