@@ -215,3 +215,26 @@ def test_thinned_relays_keep_own_news_and_thin_only_the_relays(learners):
     noisy = learners.substate_use("noisy", seeds, actor=learners.thinned_relays(1.0, 0.4))
     assert noisy["send_own_news"] == 1.0 and noisy["send_others_news"] == 1.0
     assert 0.25 <= noisy["send_without_news"] <= 0.45, noisy
+
+
+def test_agent_frame_slots_are_a_collision_free_time_division(learners):
+    """Every phase pair puts exactly two sources (the channel's capacity) on the channel at
+    every step, never a relay, each source on two steps in five: no collision, two messages
+    delivered per step, like ``tdma:1``. Recorded per step: a rule that ignored the phase
+    set or read the common clock would put all five sources, or none, on some steps."""
+    from netsense.benchmark.protocol import evaluate
+
+    seeds = [10**6, 10**6 + 1]
+    for phases in learners.CHANNEL_RULES:
+        sent = []
+        evaluate(learners.CHANNEL_TASK, "slots", seeds, actor=learners.agent_frame_slots(
+            phases), on_step=lambda core, live: sent.append(core.transmit[live].copy()))
+        sent = np.stack(sent)  # (steps, B, N)
+        np.testing.assert_array_equal(sent.sum(-1), 2)
+        np.testing.assert_array_equal(sent[..., 1::2], 0)  # the relays: odd ids here
+        k = np.arange(len(sent))[:, None, None]
+        ids = np.arange(sent.shape[-1])[None, None]
+        on = np.isin((k + 1 - ids) % 5, phases) & (ids % 2 == 0)  # t = k + 1 (sends at k+1)
+        np.testing.assert_array_equal(sent.astype(bool), np.broadcast_to(on, sent.shape))
+    use = learners.channel_use("slots", seeds, actor=learners.agent_frame_slots((0, 1)))
+    assert use["collided_steps"] == 0.0 and use["delivered_per_step"] == 2.0

@@ -52,7 +52,11 @@ spread (how much signal a policy gradient gets per decision).
 **channel** writes ``channel.csv`` / ``channel.md``: on ``comm_channel_k2-v0``, every final
 policy under ``--out`` (all its results folders) beside ``tdma:1`` and the best ALOHA point
 on the protocol's episodes: senders per step, the share of steps whose messages collided,
-messages delivered per step, silent steps, and the send rates of sources and relays.
+messages delivered per step, silent steps, and the send rates of sources and relays; and
+``channel_rules.csv`` / ``channel_rules.md``: the exact schedules one rule shared by the
+agents can express with the clock in each agent's own frame (source ``i`` sends iff
+``(t - i) mod 5`` is in a pair of phases), beside ``tdma:1``, with their paired difference
+to it on the same episodes.
 
 **substates** writes ``substates.csv`` / ``substates.md``: on ``comm_substates-v0``, every
 final policy under ``--out`` beside ``event:1`` on the protocol's episodes: how often a
@@ -676,12 +680,20 @@ def cmd_diagnose(args, cfg: dict) -> None:
 CHANNEL_TASK = "comm_channel_k2-v0"
 
 
-def channel_use(spec: str, seeds: list[int]) -> dict:
+def channel_use(spec: str, seeds: list[int], actor=None, returns: bool = False) -> dict:
     """How a policy uses the collision channel of :data:`CHANNEL_TASK` on the episodes
     ``seeds`` (the protocol's rollout, with its checks of learned policies): mean return,
     senders per step, share of steps whose messages collided, messages delivered per step
     (senders of steps without a collision), share of silent steps, and the send rate of
-    sources and of relays (agents that measure nothing)."""
+    sources and of relays (agents that measure nothing). ``actor``: a rule that is no
+    registered policy (``spec`` is then its label), as
+    :func:`netsense.benchmark.protocol.evaluate` takes it. The return also as its 95 %
+    bootstrap interval (``return_ci_low``, ``return_ci_high``) and its IQM over the
+    episodes (``return_iqm``, rliable's); ``returns``: the episodes' returns too
+    (``returns``, an array)."""
+    from rliable import metrics
+
+    from netsense.benchmark.intervals import bootstrap_ci
     from netsense.benchmark.protocol import evaluate
 
     senders, collided, sent, source = [], [], [], []
@@ -693,13 +705,17 @@ def channel_use(spec: str, seeds: list[int]) -> dict:
         if not source:
             source.append(np.bincount(core.block_of, minlength=core.N) > 0)
 
-    ret = evaluate(CHANNEL_TASK, spec, seeds, on_step=record)["reward"]
+    ret = evaluate(CHANNEL_TASK, spec, seeds, on_step=record, actor=actor)["reward"]
     s, c = np.concatenate(senders), np.concatenate(collided)
     rate, src = np.concatenate(sent).mean(0), source[0]
-    return {"return": float(ret.mean()), "senders_per_step": float(s.mean()),
+    _, lo, hi = bootstrap_ci(ret)
+    return {"return": float(ret.mean()), "return_ci_low": lo, "return_ci_high": hi,
+            "return_iqm": float(metrics.aggregate_iqm(ret)),
+            "senders_per_step": float(s.mean()),
             "collided_steps": float(c.mean()), "delivered_per_step": float((s * ~c).mean()),
             "silent_steps": float((s == 0).mean()), "source_rate": float(rate[src].mean()),
-            "relay_rate": float(rate[~src].mean()) if (~src).any() else math.nan}
+            "relay_rate": float(rate[~src].mean()) if (~src).any() else math.nan,
+            **({"returns": ret} if returns else {})}
 
 
 #: Columns of the channel table: (key, header, scale, decimals, unit).
@@ -715,10 +731,77 @@ CHANNEL_COLUMNS = (("return", "return", 1, 1, ""),
 def cmd_channel(args, cfg: dict) -> None:
     """Why the learners stay below time division on the collision channel: every final
     policy of the task under ``--out`` (all its results folders) beside ``tdma:1`` and the
-    best ALOHA point, on the protocol's evaluation episodes (``--episodes``)."""
+    best ALOHA point, on the protocol's evaluation episodes (``--episodes``); and the
+    exact agent-frame slot rules (:func:`channel_rules`)."""
     aloha = best_frontier_point(CHANNEL_TASK, "ALOHA", lambda r: r["family"] == "aloha")
     policy_use(args, CHANNEL_TASK, channel_use, ["tdma:1", aloha], CHANNEL_COLUMNS,
                "channel")
+    channel_rules(args)
+
+
+def agent_frame_slots(phases: tuple[int, ...]):
+    """An ``actor`` for :func:`netsense.benchmark.protocol.evaluate`: source ``i`` (an agent
+    with a non-empty block of Lemma 1) sends the message of step ``t`` iff
+    ``(t - i) mod S`` is in ``phases``, ``S`` the number of sources; the others never send.
+
+    One rule shared by all agents, read in each agent's own frame of the clock: the rule a
+    learner with ``PPOConfig.clock_shift`` can express with one network. Where the sources'
+    ids are distinct modulo ``S`` (on :data:`CHANNEL_TASK` they are 0, 2, 4, 6, 8), exactly
+    ``len(phases)`` sources send at every step, each source ``len(phases)`` steps in ``S``:
+    a time division like ``tdma:1``'s in another order of the sources. It is ``tdma:1``'s
+    policy (its clock from the observation, its sources and its action layout) with the
+    slot rule replaced."""
+    from netsense.env.comm_policies import Tdma
+
+    class AgentFrameSlots(Tdma):
+        def act(self, obs, mask):
+            t = self.steps(np.asarray(obs)) + 1  # the step the bits are sent at
+            ids = np.arange(self.N)
+            return self._send(mask, np.isin((t[:, None] - ids[None]) % self.S, phases)
+                              & self.is_source[None])
+
+    def actor(core, seeds):
+        return AgentFrameSlots(core.layout, core.comm.width, core.horizon,
+                               is_source=np.bincount(core.block_of, minlength=core.N) > 0,
+                               capacity=core.capacity).act
+
+    return actor
+
+
+#: Phase sets of :func:`channel_rules`: every pair of phases up to a rotation (which only
+#: changes which source starts), for the channel's capacity of two.
+CHANNEL_RULES = ((0, 1), (0, 2), (0, 3), (0, 4))
+
+
+def channel_rules(args) -> None:
+    """``channel_rules.{csv,md}``: :func:`agent_frame_slots` for every phase set of
+    :data:`CHANNEL_RULES`, beside ``tdma:1``, on the protocol's evaluation episodes: the
+    return's mean with its 95 % bootstrap interval and its IQM (the statistic the learners'
+    summaries compare), its difference to ``tdma:1`` on the same episodes (mean of the
+    paired differences with its 95 % bootstrap interval), and the channel use of
+    :func:`channel_use`."""
+    from netsense.benchmark.intervals import bootstrap_ci
+    from netsense.benchmark.protocol import eval_seeds
+
+    seeds = eval_seeds(args.episodes)
+    rows = [{"policy": label, **channel_use(label, seeds, actor=actor, returns=True)}
+            for label, actor in [("tdma:1", None)] + [
+                (f"agent-frame slots (t - i) mod 5 in {{{', '.join(map(str, ph))}}}",
+                 agent_frame_slots(ph)) for ph in CHANNEL_RULES]]
+    tdma = rows[0]["returns"]
+    for r in rows:
+        r["vs_tdma"], r["vs_tdma_ci_low"], r["vs_tdma_ci_high"] = bootstrap_ci(
+            r.pop("returns") - tdma)
+    write_csv(args.out / "channel_rules.csv", rows)
+    lines = ["| policy | return [95 % CI] | return IQM | minus `tdma:1`, paired [95 % CI] | "
+             "steps with a collision | delivered per step |", "|---|---|---|---|---|---|"]
+    lines += [f"| {r['policy']} | {r['return']:.1f} [{r['return_ci_low']:.1f}, "
+              f"{r['return_ci_high']:.1f}] | {r['return_iqm']:.1f} | {r['vs_tdma']:+.2f} "
+              f"[{r['vs_tdma_ci_low']:+.2f}, {r['vs_tdma_ci_high']:+.2f}] | "
+              f"{100 * r['collided_steps']:.1f} % | "
+              f"{r['delivered_per_step']:.2f} |" for r in rows]
+    (args.out / "channel_rules.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
 
 
 SUBSTATES_TASK = "comm_substates-v0"
