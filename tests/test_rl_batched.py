@@ -312,6 +312,8 @@ def test_set_network_without_slots_reads_no_slot_and_keeps_the_parameters():
         PPOConfig("comm_substates-v0", set_slots=False)  # the MLP has no slots to leave
     with pytest.raises(ValueError, match="set_slots=False"):
         PPOConfig(SCEN, network="set", control="full", set_slots=False)
+    with pytest.raises(ValueError, match="set_slots=False"):  # the mode as a table too
+        PPOConfig(SCEN, network="set", control={"mode": "full"}, set_slots=False)
 
 
 def test_behaviour_cloning_learns_the_freshness_choices(capsys):

@@ -243,12 +243,13 @@ class PPOConfig:
         if self.clock_shift and not self.clock:
             raise ValueError("PPOConfig.clock_shift shifts the clock's phases by the agent's "
                              "index; give the periods in PPOConfig.clock")
-        if not self.set_slots and (self.network != "set" or self.control == "full"):
+        explicit_mode = (self.control.get("mode") if isinstance(self.control, dict)
+                         else self.control)
+        if not self.set_slots and (self.network != "set" or explicit_mode == "full"):
             raise ValueError(f"PPOConfig.set_slots=False leaves the message slots out of the "
                              f"set network in a communication-only mode; got network="
                              f"{self.network!r}, control={self.control!r}")
-        if self.news_gate and (self.control == "full" or (
-                isinstance(self.control, dict) and self.control.get("mode") == "full")):
+        if self.news_gate and explicit_mode == "full":
             raise ValueError("PPOConfig.news_gate gates the send choices of the "
                              "communication-only control modes ('transmit', 'substates'); "
                              "got control 'full'")
