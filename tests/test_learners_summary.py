@@ -226,10 +226,11 @@ def test_agent_frame_slots_are_a_collision_free_time_division(learners):
 
     seeds = [10**6, 10**6 + 1]
     for phases in learners.CHANNEL_RULES:
-        sent = []
+        steps = []
         evaluate(learners.CHANNEL_TASK, "slots", seeds, actor=learners.agent_frame_slots(
-            phases), on_step=lambda core, live: sent.append(core.transmit[live].copy()))
-        sent = np.stack(sent)  # (steps, B, N)
+            phases), on_step=lambda core, live, steps=steps: steps.append(
+                core.transmit[live].copy()))
+        sent = np.stack(steps)  # (steps, B, N)
         np.testing.assert_array_equal(sent.sum(-1), 2)
         np.testing.assert_array_equal(sent[..., 1::2], 0)  # the relays: odd ids here
         k = np.arange(len(sent))[:, None, None]
