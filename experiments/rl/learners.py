@@ -650,7 +650,7 @@ def cmd_diagnose(args, cfg: dict) -> None:
             a = rng.random((B, N, 1)) < 0.5
             r = env.advance(a.astype(np.int64))[2]  # the team reward, the same for all
             A[k], R[k] = a[..., 0], r[:, 0]
-        src = np.bincount(core.block_of, minlength=N) > 0
+        src = core.is_source
         for gamma in (0.95, 0.99):
             G = np.zeros((H, B))
             acc = np.zeros(B)
@@ -703,7 +703,7 @@ def channel_use(spec: str, seeds: list[int], actor=None, returns: bool = False) 
         collided.append(core.collided[live])
         sent.append(core.transmit[live])
         if not source:
-            source.append(np.bincount(core.block_of, minlength=core.N) > 0)
+            source.append(core.is_source)
 
     ret = evaluate(CHANNEL_TASK, spec, seeds, on_step=record, actor=actor)["reward"]
     s, c = np.concatenate(senders), np.concatenate(collided)
@@ -762,7 +762,7 @@ def agent_frame_slots(phases: tuple[int, ...]):
 
     def actor(core, seeds):
         return AgentFrameSlots(core.layout, core.comm.width, core.horizon,
-                               is_source=np.bincount(core.block_of, minlength=core.N) > 0,
+                               is_source=core.is_source,
                                capacity=core.capacity).act
 
     return actor

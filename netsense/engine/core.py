@@ -228,8 +228,9 @@ class BatchedCore:
         self._outputs_all_real = bool(np.all(self.output_mask))
         self.W = plant.W_effective
         self._W_T = np.ascontiguousarray(self.W.T)
-        sizes = np.bincount(self.block_of, minlength=self.N)
-        self.sources = (np.flatnonzero(sizes > 0) if model.substates == "sources"
+        #: ``(N,)`` whether the agent measures a block of Lemma 1's decomposition (a source)
+        self.is_source = np.bincount(self.block_of, minlength=self.N) > 0
+        self.sources = (np.flatnonzero(self.is_source) if model.substates == "sources"
                         else np.arange(self.N))
         self.M = int(self.sources.size)
         self.control = model.control
@@ -248,7 +249,7 @@ class BatchedCore:
         if self.control.comm_only:
             table = (tree_choice_table(model.graphs, self.D, self.sources)
                      if self.control.fusion == "tree" else None)
-            empty = np.bincount(self.block_of, minlength=self.N)[self.sources] == 0
+            empty = ~self.is_source[self.sources]
             self.comm = CommControl(self.control, self.B, self.N, self.M, self.D, self.own,
                                     self.horizon, table, empty)
             self.nvec = self.comm.nvec

@@ -251,7 +251,7 @@ def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) ->
                          "override with control={'mode': 'transmit'})")
     name, knob = parse_spec(spec)
     args = (core.layout, comm.width, core.horizon)
-    is_source = np.bincount(core.block_of, minlength=core.N) > 0
+    is_source = core.is_source
     if name == "always":
         return TransmitAll(*args)
     if name == "never":
