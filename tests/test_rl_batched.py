@@ -214,6 +214,31 @@ def test_clock_features_are_the_step_phase_for_each_period():
     assert len(phases) == 5
 
 
+def test_open_loop_actor_is_blind_to_the_state_and_not_to_the_step():
+    """``open_loop``: the body sees the time entry and the clock, every other observation
+    entry at 0: random observations with the same step give the same input, another step a
+    different one; an open-loop config needs a clock."""
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import ClockActor
+
+    core = make_core("comm_channel_k2-v0", 1)
+    H, t, N, O = core.horizon, core.layout.time.start, core.N, core.layout.size
+    blind = ClockActor(torch.nn.Identity(), t, H, (5,), shift=True, open_loop=True)
+    seeing = ClockActor(torch.nn.Identity(), t, H, (5,), shift=True)
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.rand(N, O, generator=g), torch.rand(N, O, generator=g)
+    a[:, t] = b[:, t] = 7 / H
+    assert torch.equal(blind(a), blind(b))
+    assert not torch.equal(seeing(a), seeing(b))
+    c = b.clone()
+    c[:, t] = 8 / H
+    assert not torch.equal(blind(c)[:, O:], blind(b)[:, O:])
+    np.testing.assert_array_equal(blind(c)[:, :O].count_nonzero(-1).numpy(), 1)
+    with pytest.raises(ValueError, match="open_loop"):
+        PPOConfig("comm_channel_k2-v0", open_loop=True)
+
+
 def test_clock_policy_trains_saves_and_loads(tmp_path):
     """A policy with a clock (and memory) round-trips through its file: loading rebuilds the
     clock, whose inputs the weights expect."""

@@ -93,6 +93,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tr.add_argument("--clock-shift", action="store_const", const=True, default=None,
                     help="with --clock: each agent reads the clock in its own frame, the "
                          "phases of k - i for agent i (default: the common clock)")
+    tr.add_argument("--open-loop", action="store_const", const=True, default=None,
+                    help="with --clock: the actor reads only the clock, the time entry and "
+                         "its own substate, a learned schedule blind to the state (default: "
+                         "the whole observation)")
     tr.add_argument("--news-gate", action="store_const", const=True, default=None,
                     help="send only what is news: in control modes transmit and substates, "
                          "the choice to send a substate (or to transmit) is closed where the "
@@ -137,8 +141,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: ``--backend sb3`` is refused instead of ignored; what is not given takes
 #: :class:`netsense.rl.config.PPOConfig`'s default).
 TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock",
-                "clock_shift", "news_gate", "epochs", "eval_interval", "eval_envs", "bc",
-                "device", "seeds")
+                "clock_shift", "open_loop", "news_gate", "epochs", "eval_interval",
+                "eval_envs", "bc", "device", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).
 SHARED = {"steps": ("steps", "steps"), "num_envs": ("num_envs", "num_vec_envs"),

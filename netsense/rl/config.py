@@ -109,6 +109,13 @@ class PPOConfig:
         Each agent reads ``clock`` in its own frame, the phases of ``k - i`` for agent
         ``i``, so that one rule shared by the agents is a staggered schedule (default
         ``False``: the common clock; needs ``clock``).
+    open_loop : bool
+        The MLP actor reads the clock, the time entry and its own-substate one-hot only,
+        every other observation entry held at 0 (:class:`netsense.rl.policy.ClockActor`):
+        the policy is then a learned schedule, a function of the step and the agent,
+        blind to the estimates, news and the channel's feedback. A restriction of the
+        policy class, not of the task (the environment and its observation are unchanged);
+        default ``False``; needs ``clock``.
     news_gate : bool
         Send only what is news (:class:`netsense.rl.policy.NewsGateActor`): in the
         communication-only control modes, the choice to send a substate (``"substates"``)
@@ -197,6 +204,7 @@ class PPOConfig:
     agent_features: bool = True
     clock: tuple[int, ...] = ()
     clock_shift: bool = False
+    open_loop: bool = False
     news_gate: bool = False
     value_norm: bool = True
     reward_scale: bool = False
@@ -243,6 +251,9 @@ class PPOConfig:
         if self.clock_shift and not self.clock:
             raise ValueError("PPOConfig.clock_shift shifts the clock's phases by the agent's "
                              "index; give the periods in PPOConfig.clock")
+        if self.open_loop and not self.clock:
+            raise ValueError("PPOConfig.open_loop: an open-loop actor reads only the clock "
+                             "and its own substate; give the periods in PPOConfig.clock")
         explicit_mode = (self.control.get("mode") if isinstance(self.control, dict)
                          else self.control)
         if not self.set_slots and (self.network != "set" or explicit_mode == "full"):
@@ -328,6 +339,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "agent_features": ("choice", (True, False), None),
     "clock": ("ints", 2, checks.MAX_STEPS),
     "clock_shift": ("choice", (True, False), None),
+    "open_loop": ("choice", (True, False), None),
     "news_gate": ("choice", (True, False), None),
     "value_norm": ("choice", (True, False), None),
     "reward_scale": ("choice", (True, False), None),
