@@ -239,3 +239,7 @@ def test_agent_frame_slots_are_a_collision_free_time_division(learners):
         np.testing.assert_array_equal(sent.astype(bool), np.broadcast_to(on, sent.shape))
     use = learners.channel_use("slots", seeds, actor=learners.agent_frame_slots((0, 1)))
     assert use["collided_steps"] == 0.0 and use["delivered_per_step"] == 2.0
+    # adjacent phases: runs of two sends (one where the episode cuts a run); apart: of one
+    assert 1.9 < use["send_run"] < 2.0
+    apart = learners.channel_use("slots", seeds, actor=learners.agent_frame_slots((0, 2)))
+    assert apart["send_run"] == 1.0

@@ -685,7 +685,9 @@ def channel_use(spec: str, seeds: list[int], actor=None, returns: bool = False) 
     ``seeds`` (the protocol's rollout, with its checks of learned policies): mean return,
     senders per step, share of steps whose messages collided, messages delivered per step
     (senders of steps without a collision), share of silent steps, and the send rate of
-    sources and of relays (agents that measure nothing). ``actor``: a rule that is no
+    sources and of relays (agents that measure nothing), and the mean length of a source's
+    runs of consecutive sends (a run still open at the episode's end counts as it stands;
+    a time division sends in runs of one slot). ``actor``: a rule that is no
     registered policy (``spec`` is then its label), as
     :func:`netsense.benchmark.protocol.evaluate` takes it. The return also as its 95 %
     bootstrap interval (``return_ci_low``, ``return_ci_high``) and its IQM over the
@@ -696,7 +698,7 @@ def channel_use(spec: str, seeds: list[int], actor=None, returns: bool = False) 
     from netsense.benchmark.intervals import bootstrap_ci
     from netsense.benchmark.protocol import evaluate
 
-    senders, collided, sent, source = [], [], [], []
+    senders, collided, sent, source, runs, run = [], [], [], [], [], []
 
     def record(core, live):
         senders.append(core.transmit.sum(1)[live])
@@ -704,10 +706,18 @@ def channel_use(spec: str, seeds: list[int], actor=None, returns: bool = False) 
         sent.append(core.transmit[live])
         if not source:
             source.append(core.is_source)
+            run.append(np.zeros(core.transmit.shape, dtype=np.int64))
+        tx, r = core.transmit & live[:, None], run[0]
+        ended = ~tx & (r > 0) & live[:, None]
+        runs.append(r[ended & source[0]])
+        r[ended] = 0
+        r[tx] += 1
 
     ret = evaluate(CHANNEL_TASK, spec, seeds, on_step=record, actor=actor)["reward"]
     s, c = np.concatenate(senders), np.concatenate(collided)
     rate, src = np.concatenate(sent).mean(0), source[0]
+    runs.append(run[0][(run[0] > 0) & src])  # the runs open at the episodes' ends
+    run_lengths = np.concatenate(runs)
     _, lo, hi = bootstrap_ci(ret)
     return {"return": float(ret.mean()), "return_ci_low": lo, "return_ci_high": hi,
             "return_iqm": float(metrics.aggregate_iqm(ret)),
@@ -715,6 +725,7 @@ def channel_use(spec: str, seeds: list[int], actor=None, returns: bool = False) 
             "collided_steps": float(c.mean()), "delivered_per_step": float((s * ~c).mean()),
             "silent_steps": float((s == 0).mean()), "source_rate": float(rate[src].mean()),
             "relay_rate": float(rate[~src].mean()) if (~src).any() else math.nan,
+            "send_run": float(run_lengths.mean()) if run_lengths.size else math.nan,
             **({"returns": ret} if returns else {})}
 
 
@@ -725,7 +736,8 @@ CHANNEL_COLUMNS = (("return", "return", 1, 1, ""),
                    ("delivered_per_step", "delivered per step", 1, 2, ""),
                    ("silent_steps", "silent steps", 100, 1, " %"),
                    ("source_rate", "source send rate", 1, 2, ""),
-                   ("relay_rate", "relay send rate", 1, 2, ""))
+                   ("relay_rate", "relay send rate", 1, 2, ""),
+                   ("send_run", "source's run of consecutive sends", 1, 2, ""))
 
 
 def cmd_channel(args, cfg: dict) -> None:
