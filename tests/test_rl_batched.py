@@ -257,6 +257,25 @@ def test_clock_policy_trains_saves_and_loads(tmp_path):
         o, m = out.obs, out.action_mask
 
 
+def test_open_loop_policy_loads_blind_to_the_state(tmp_path):
+    """The policy file records ``open_loop``: the loaded feed-forward policy gives the same
+    logits on two members whose observations differ but for the step."""
+    from netsense.rl.checkpoint import load_policy
+    from netsense.rl.envs import make_core
+    from netsense.rl.ppo import train_ppo
+
+    train_ppo(_small("mappo", "mlp", control="transmit", clock=(2, 5), open_loop=True),
+              tmp_path)
+    core = make_core(SCEN, 2, control="transmit", **SHORT)
+    o, m = core.reset(3)
+    for _ in range(3):
+        o, m = (x := core.step(np.ones((2, core.N, 1), dtype=np.int64))).obs, x.action_mask
+    assert not np.array_equal(o[0], o[1])
+    with torch.no_grad():
+        logits = load_policy(tmp_path / "policy.pt", core).net(torch.as_tensor(o))
+    np.testing.assert_array_equal(logits[0].numpy(), logits[1].numpy())
+
+
 def test_set_network_runs_at_any_size_with_the_same_parameters():
     from netsense.rl.envs import make_core
     from netsense.rl.set_network import SetPolicyNet
