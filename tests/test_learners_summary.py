@@ -243,3 +243,23 @@ def test_agent_frame_slots_are_a_collision_free_time_division(learners):
     assert 1.9 < use["send_run"] < 2.0
     apart = learners.channel_use("slots", seeds, actor=learners.agent_frame_slots((0, 2)))
     assert apart["send_run"] == 1.0
+
+
+def test_curve_reference_is_the_scripted_policy_on_the_curves_episodes(learners, tmp_path):
+    """The learning curves' scripted line is the policy's return on the episodes of the
+    periodic evaluation (seeds EVAL_SEED + b, the run's eval_envs), the same as the
+    protocol's rollout on those seeds, and not its return on the test episodes."""
+    pytest.importorskip("torch")
+    import dataclasses
+    import json
+
+    from netsense.benchmark.protocol import eval_seeds, evaluate
+    from netsense.rl.config import EVAL_SEED, PPOConfig
+
+    config = PPOConfig(learners.CHANNEL_TASK, eval_envs=4)
+    (tmp_path / "config.json").write_text(json.dumps(dataclasses.asdict(config)))
+    got = learners.validation_return("tdma:1", tmp_path)
+    same = evaluate(learners.CHANNEL_TASK, "tdma:1", range(EVAL_SEED, EVAL_SEED + 4))
+    test = evaluate(learners.CHANNEL_TASK, "tdma:1", eval_seeds(4))
+    assert got == pytest.approx(same["reward"].mean(), abs=1e-4)
+    assert abs(got - test["reward"].mean()) > 0.1

@@ -31,8 +31,10 @@ counts the runs.
   scripted point of the frontier (by mean return) and the causal and clairvoyant bounds
   (read from the bounds experiment's ``episodes.csv``, fewer episodes);
 * ``curves.png`` / ``curves.csv``: evaluation return against agent-steps, the interquartile
-  mean (IQM) over the training seeds with a 95 % stratified-bootstrap band, with the best
-  decentralised scripted return, the causal bound and ``never`` as lines;
+  mean (IQM) over the training seeds with a 95 % stratified-bootstrap band (the greedy
+  return of the periodic evaluation during training, on its own episodes), with the best
+  decentralised scripted return on those same episodes, and on the test episodes that
+  return (thin), the causal bound and ``never`` as lines (``curve_refs.csv``);
 * ``summary.csv`` / ``summary.md``: per task and learner, the IQM of the return over seeds
   x evaluation episodes with its 95 % bootstrap interval (``rliable``), the probability of
   improvement over the best decentralised scripted policy, whether the interval reaches
@@ -42,8 +44,9 @@ counts the runs.
   (normalised scores, ``never`` = 0 and causal bound = 1: IQM over tasks and the
   performance profile).
 
-**summary** rebuilds ``summary.{csv,md}``, ``curves.{csv,png}`` and ``aggregate.png`` of
-``--out`` from its ``episodes.csv`` and its runs' logs, without evaluating again.
+**summary** rebuilds ``summary.{csv,md}``, ``curves.{csv,png}``, ``curve_refs.csv`` and
+``aggregate.png`` of ``--out`` from its ``episodes.csv`` and its runs' logs, without
+evaluating a learned policy again (the curves' scripted reference is one rollout).
 
 **diagnose** writes ``diagnosis.csv`` / ``diagnosis.md``: per agent, the effect of one
 transmission on the discounted team return under a random policy, against the return's
@@ -340,9 +343,35 @@ def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
     return out, norm
 
 
+#: The reference lines of :func:`plot_curves`: ``refs`` key -> (colour, style, width, label).
+REFERENCE_LINES = {
+    "best_decentralised_validation": ("k", "--", 1.1, "best decentralised scripted"),
+    "best_decentralised": ("0.35", "--", 0.7,
+                           "best decentralised scripted, test episodes"),
+    "bound:causal": ("C3", ":", 1.1, "causal bound, test episodes"),
+    "never": ("0.5", "-.", 1.1, "never, test episodes")}
+
+
+def validation_return(spec: str, folder: Path) -> float:
+    """Return of the scripted policy ``spec`` on the episodes of the periodic evaluation
+    during training, which the learning curves plot (seeds ``EVAL_SEED`` + b, the run's
+    ``eval_envs``, the scenario's reward: :func:`netsense.rl.evaluation.evaluate_scripted`),
+    with the configuration of the run in ``folder``: the curves' reference on their own
+    episodes (the protocol's test episodes give other returns)."""
+    from netsense.rl.checkpoint import policy_config
+    from netsense.rl.evaluation import evaluate_scripted
+
+    config = policy_config({"config": json.loads((folder / "config.json").read_text())},
+                           folder / "config.json")
+    return float(evaluate_scripted(spec, config)["return"])
+
+
 # %% plots
 def plot_curves(curves: dict, refs: dict, path: Path) -> None:
-    """One panel per task: IQM over seeds with a 95 % bootstrap band per learner."""
+    """One panel per task: IQM over seeds with a 95 % bootstrap band per learner; the best
+    decentralised scripted policy on the curves' own episodes (the periodic evaluation's)
+    and, thin, on the protocol's test episodes, with the causal bound and ``never`` on
+    the test episodes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -356,13 +385,10 @@ def plot_curves(curves: dict, refs: dict, path: Path) -> None:
         for c, (learner, (x, iqm, lo, hi)) in enumerate(curves[task].items()):
             ax.plot(x, iqm, color=f"C{c}", lw=1.4, label=f"{learner} (IQM, greedy)")
             ax.fill_between(x, lo, hi, color=f"C{c}", alpha=0.2)
-        for name, style in (("best_decentralised", ("k", "--")), ("bound:causal", ("C3", ":")),
-                            ("never", ("0.5", "-."))):
+        for name, (color, ls, lw, label) in REFERENCE_LINES.items():
             v = refs[task].get(name)
             if v is not None and math.isfinite(v):
-                ax.axhline(v, color=style[0], ls=style[1], lw=1.1,
-                           label={"best_decentralised": "best decentralised scripted",
-                                  "bound:causal": "causal bound", "never": "never"}[name])
+                ax.axhline(v, color=color, ls=ls, lw=lw, label=label)
         ax.set_title(task, fontsize=9)
         ax.set_xlabel("agent-steps")
         ax.set_ylabel("return per agent")
@@ -504,8 +530,8 @@ def cmd_results(args, cfg: dict) -> None:
 
 def cmd_summary(args, cfg: dict) -> None:
     """Rebuild ``--out``'s summaries, curves and aggregate from its ``episodes.csv`` and
-    its runs' logs, without evaluating a policy again (what :func:`cmd_results` writes
-    after its evaluation)."""
+    its runs' logs, without evaluating a learned policy again (what :func:`cmd_results`
+    writes after its evaluation)."""
     out = args.out
     with (out / "episodes.csv").open() as fh:
         rows = [dict(r, reward=float(r["reward"])) for r in csv.DictReader(fh)]
@@ -519,8 +545,8 @@ def cmd_summary(args, cfg: dict) -> None:
 
 def write_summaries(out: Path, rows: list[dict], folders: dict, tasks: list[str],
                     learners: list[str]) -> None:
-    """``summary.{csv,md}``, ``curves.{csv,png}`` and ``aggregate.png`` from the episode
-    rows of :func:`evaluate_all` and the runs' folders."""
+    """``summary.{csv,md}``, ``curves.{csv,png}``, ``curve_refs.csv`` and ``aggregate.png``
+    from the episode rows of :func:`evaluate_all` and the runs' folders."""
     summary, norm = summarise(rows, learners)
     for r in summary:  # the training budget the row's runs had
         r["agent_steps"] = int(np.median([
@@ -533,6 +559,17 @@ def write_summaries(out: Path, rows: list[dict], folders: dict, tasks: list[str]
                                   and r["policy"] == p])) if any(
         r["task"] == t and r["policy"] == p for r in rows) else math.nan
         for p in ("never", "best_decentralised", "bound:causal")} for t in tasks}
+    lines = []
+    for t in curves:
+        spec = next(r["spec"] for r in rows if r["task"] == t
+                    and r["policy"] == "best_decentralised")
+        folder = next(d for (task, _, _), d in folders.items() if task == t)
+        refs[t]["best_decentralised_validation"] = validation_return(spec, folder)
+        lines += [{"task": t, "policy": p.removesuffix("_validation"),
+                   "spec": spec if p.startswith("best") else p,
+                   "episodes": "validation" if p.endswith("_validation") else "test",
+                   "return": refs[t][p]} for p in REFERENCE_LINES]
+    write_csv(out / "curve_refs.csv", lines)
     write_csv(out / "curves.csv", [{"task": t, "learner": ln, "agent_steps": int(x),
                                     "iqm": float(m), "ci_low": float(lo),
                                     "ci_high": float(hi)}
