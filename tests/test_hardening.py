@@ -893,7 +893,7 @@ PPO_CONFIG = [
     ("clock-obs-norm", {"clock": (5,), "obs_norm": True}, "not available with obs_norm=True"),
     ("clock-set-network", {"clock": (5,), "network": "set"}, "network='set'"),
     ("clock_shift-without-clock", {"clock_shift": True}, "give the periods in PPOConfig.clock"),
-    ("open_loop-without-clock", {"open_loop": True}, "give the periods in PPOConfig.clock"),
+    ("clock_only-without-clock", {"clock_only": True}, "give the periods in PPOConfig.clock"),
     ("news_gate-str", {"news_gate": "yes"}, "PPOConfig.news_gate must be one of"),
     ("news_gate-full", {"news_gate": True, "control": "full"},
      "PPOConfig.news_gate gates the send choices"),

@@ -214,17 +214,17 @@ def test_clock_features_are_the_step_phase_for_each_period():
     assert len(phases) == 5
 
 
-def test_open_loop_actor_is_blind_to_the_state_and_not_to_the_step():
-    """``open_loop``: the body sees the time entry and the clock, every other observation
+def test_clock_only_actor_is_blind_to_the_state_and_not_to_the_step():
+    """``clock_only``: the body sees the time entry and the clock, every other observation
     entry at 0: random observations with the same step give the same input, another step a
-    different one; an open-loop config needs a clock."""
+    different one; a clock-only config needs a clock."""
     from netsense.rl.config import PPOConfig
     from netsense.rl.envs import make_core
     from netsense.rl.policy import ClockActor
 
     core = make_core("comm_channel_k2-v0", 1)
     H, t, N, O = core.horizon, core.layout.time.start, core.N, core.layout.size
-    blind = ClockActor(torch.nn.Identity(), t, H, (5,), shift=True, open_loop=True)
+    blind = ClockActor(torch.nn.Identity(), t, H, (5,), shift=True, clock_only=True)
     seeing = ClockActor(torch.nn.Identity(), t, H, (5,), shift=True)
     g = torch.Generator().manual_seed(0)
     a, b = torch.rand(N, O, generator=g), torch.rand(N, O, generator=g)
@@ -235,8 +235,8 @@ def test_open_loop_actor_is_blind_to_the_state_and_not_to_the_step():
     c[:, t] = 8 / H
     assert not torch.equal(blind(c)[:, O:], blind(b)[:, O:])
     np.testing.assert_array_equal(blind(c)[:, :O].count_nonzero(-1).numpy(), 1)
-    with pytest.raises(ValueError, match="open_loop"):
-        PPOConfig("comm_channel_k2-v0", open_loop=True)
+    with pytest.raises(ValueError, match="clock_only"):
+        PPOConfig("comm_channel_k2-v0", clock_only=True)
 
 
 def test_clock_policy_trains_saves_and_loads(tmp_path):
@@ -257,14 +257,14 @@ def test_clock_policy_trains_saves_and_loads(tmp_path):
         o, m = out.obs, out.action_mask
 
 
-def test_open_loop_policy_loads_blind_to_the_state(tmp_path):
-    """The policy file records ``open_loop``: the loaded feed-forward policy gives the same
+def test_clock_only_policy_loads_blind_to_the_state(tmp_path):
+    """The policy file records ``clock_only``: the loaded feed-forward policy gives the same
     logits on two members whose observations differ but for the step."""
     from netsense.rl.checkpoint import load_policy
     from netsense.rl.envs import make_core
     from netsense.rl.ppo import train_ppo
 
-    train_ppo(_small("mappo", "mlp", control="transmit", clock=(2, 5), open_loop=True),
+    train_ppo(_small("mappo", "mlp", control="transmit", clock=(2, 5), clock_only=True),
               tmp_path)
     core = make_core(SCEN, 2, control="transmit", **SHORT)
     o, m = core.reset(3)

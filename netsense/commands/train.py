@@ -93,7 +93,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tr.add_argument("--clock-shift", action="store_const", const=True, default=None,
                     help="with --clock: each agent reads the clock in its own frame, the "
                          "phases of k - i for agent i (default: the common clock)")
-    tr.add_argument("--open-loop", action="store_const", const=True, default=None,
+    tr.add_argument("--clock-only", action="store_const", const=True, default=None,
                     help="with --clock: the actor reads only the clock, the time entry and "
                          "its own substate, a learned schedule blind to the state (default: "
                          "the whole observation)")
@@ -141,7 +141,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: ``--backend sb3`` is refused instead of ignored; what is not given takes
 #: :class:`netsense.rl.config.PPOConfig`'s default).
 TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock",
-                "clock_shift", "open_loop", "news_gate", "epochs", "eval_interval",
+                "clock_shift", "clock_only", "news_gate", "epochs", "eval_interval",
                 "eval_envs", "bc", "device", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).

@@ -109,7 +109,7 @@ class PPOConfig:
         Each agent reads ``clock`` in its own frame, the phases of ``k - i`` for agent
         ``i``, so that one rule shared by the agents is a staggered schedule (default
         ``False``: the common clock; needs ``clock``).
-    open_loop : bool
+    clock_only : bool
         The MLP actor reads the clock, the time entry and its own-substate one-hot only,
         every other observation entry held at 0 (:class:`netsense.rl.policy.ClockActor`):
         the policy is then a learned schedule, a function of the step and the agent,
@@ -204,7 +204,7 @@ class PPOConfig:
     agent_features: bool = True
     clock: tuple[int, ...] = ()
     clock_shift: bool = False
-    open_loop: bool = False
+    clock_only: bool = False
     news_gate: bool = False
     value_norm: bool = True
     reward_scale: bool = False
@@ -251,8 +251,8 @@ class PPOConfig:
         if self.clock_shift and not self.clock:
             raise ValueError("PPOConfig.clock_shift shifts the clock's phases by the agent's "
                              "index; give the periods in PPOConfig.clock")
-        if self.open_loop and not self.clock:
-            raise ValueError("PPOConfig.open_loop: an open-loop actor reads only the clock "
+        if self.clock_only and not self.clock:
+            raise ValueError("PPOConfig.clock_only: a clock-only actor reads only the clock "
                              "and its own substate; give the periods in PPOConfig.clock")
         explicit_mode = (self.control.get("mode") if isinstance(self.control, dict)
                          else self.control)
@@ -339,7 +339,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "agent_features": ("choice", (True, False), None),
     "clock": ("ints", 2, checks.MAX_STEPS),
     "clock_shift": ("choice", (True, False), None),
-    "open_loop": ("choice", (True, False), None),
+    "clock_only": ("choice", (True, False), None),
     "news_gate": ("choice", (True, False), None),
     "value_norm": ("choice", (True, False), None),
     "reward_scale": ("choice", (True, False), None),

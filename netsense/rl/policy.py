@@ -95,18 +95,18 @@ class ClockActor(nn.Module):
     send, a different set at each step, where on the common clock it lets every agent
     send at once and a schedule needs a different rule per agent.
 
-    ``open_loop``: the body sees the time entry and the clock only, every other entry of
+    ``clock_only``: the body sees the time entry and the clock only, every other entry of
     the observation held at 0 (the own-substate one-hot, appended after this module, stays):
     the policy is a schedule of the step and the agent, blind to the state."""
 
     def __init__(self, net: nn.Module, time_index: int, horizon: int,
                  periods: tuple[int, ...], shift: bool = False,
-                 open_loop: bool = False) -> None:
+                 clock_only: bool = False) -> None:
         super().__init__()
         self.time_index = int(time_index)
         self.horizon = int(horizon)
         self.shift = bool(shift)
-        self.open_loop = bool(open_loop)
+        self.clock_only = bool(clock_only)
         self.register_buffer("periods", torch.as_tensor([float(p) for p in periods]))
         self.body = net
         self.memory = int(getattr(net, "memory", 0) or 0)
@@ -117,7 +117,7 @@ class ClockActor(nn.Module):
             k = k - torch.arange(obs.shape[-2], dtype=obs.dtype, device=obs.device)[:, None]
         periods = self.periods.to(obs.dtype)
         phase = 2 * torch.pi * torch.remainder(k, periods) / periods  # exact k mod p
-        if self.open_loop:  # keep the time entry only
+        if self.clock_only:  # keep the time entry only
             keep = torch.zeros(obs.shape[-1], dtype=obs.dtype, device=obs.device)
             keep[self.time_index] = 1.0
             obs = obs * keep
@@ -187,7 +187,7 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
         net = OwnSubstateActor(net, core.layout.own, core.M)
     if config.clock:
         net = ClockActor(net, core.layout.time.start, core.horizon, config.clock,
-                         shift=config.clock_shift, open_loop=config.open_loop)
+                         shift=config.clock_shift, clock_only=config.clock_only)
     net = ObsNormActor(net, core.layout.size) if config.obs_norm else net
     return _gated(config, core, net).to(device)
 
