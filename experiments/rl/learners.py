@@ -356,8 +356,9 @@ def validation_return(spec: str, folder: Path) -> float:
     """Return of the scripted policy ``spec`` on the episodes of the periodic evaluation
     during training, which the learning curves plot (seeds ``EVAL_SEED`` + b, the run's
     ``eval_envs``, the scenario's reward: :func:`netsense.rl.evaluation.evaluate_scripted`),
-    with the configuration of the run in ``folder``: the curves' reference on their own
-    episodes (the protocol's test episodes give other returns)."""
+    with the configuration of the run in ``folder`` (the task's first run: the learners
+    share the evaluation's seeds and count): the curves' reference on their own episodes
+    (the protocol's test episodes give other returns)."""
     from netsense.rl.checkpoint import policy_config
     from netsense.rl.evaluation import evaluate_scripted
 
@@ -974,8 +975,9 @@ def relay_landscape(args) -> None:
 def policy_use(args, task: str, measure, scripted: list[str], columns, name: str) -> None:
     """``measure(spec, seeds)`` for the ``scripted`` specs and every final policy of
     ``task`` under ``--out`` (all its results folders), on the protocol's evaluation
-    episodes; writes ``name.csv`` (one row per policy) and ``name.md`` (learned runs
-    grouped by learner and budget: mean over the seeds [min, max])."""
+    episodes; writes ``name.csv`` (one row per policy, a learned one's ``run`` its file
+    relative to ``--out``) and ``name.md`` (learned runs grouped by learner and budget:
+    mean over the seeds [min, max])."""
     from netsense.benchmark.protocol import eval_seeds
 
     seeds = eval_seeds(args.episodes)
@@ -986,8 +988,8 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
                       f"{round(steps / 1e6)}M agent-steps"))
     rows = []
     for spec, label in specs:
-        rows.append({"policy": spec if label == "scripted" else label,
-                     "run": spec.partition(":")[2] if label != "scripted" else "",
+        run = Path(spec.partition(":")[2]).relative_to(args.out) if label != "scripted" else ""
+        rows.append({"policy": spec if label == "scripted" else label, "run": str(run),
                      **measure(spec, seeds)})
     write_csv(args.out / f"{name}.csv", rows)
     groups = {}

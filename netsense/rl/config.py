@@ -110,10 +110,11 @@ class PPOConfig:
         ``i``, so that one rule shared by the agents is a staggered schedule (default
         ``False``: the common clock; needs ``clock``).
     clock_only : bool
-        The MLP actor reads the clock, the time entry and its own-substate one-hot only,
-        every other observation entry held at 0 (:class:`netsense.rl.policy.ClockActor`):
-        the policy is then a learned schedule, a function of the step and the agent,
-        blind to the estimates, news and the channel's feedback. A restriction of the
+        The MLP actor reads the clock, the time entry and (with ``agent_features``) its
+        own-substate one-hot only, every other observation entry held at 0
+        (:class:`netsense.rl.policy.ClockActor`): the policy is then a learned schedule,
+        a function of the step and the agent, blind to the estimates, news and the
+        channel's feedback. A restriction of the
         policy class, not of the task (the environment and its observation are unchanged);
         default ``False``; needs ``clock``.
     news_gate : bool
