@@ -114,9 +114,9 @@ class PPOConfig:
         own-substate one-hot only, every other observation entry held at 0
         (:class:`netsense.rl.policy.ClockActor`): the policy is then a learned schedule,
         a function of the step and the agent, blind to the estimates, news and the
-        channel's feedback. A restriction of the
-        policy class, not of the task (the environment and its observation are unchanged);
-        default ``False``; needs ``clock``.
+        channel's feedback. A restriction of the policy class, not of the task (the
+        environment and its observation are unchanged); default ``False``; needs
+        ``clock``.
     news_gate : bool
         Send only what is news (:class:`netsense.rl.policy.NewsGateActor`): in the
         communication-only control modes, the choice to send a substate (``"substates"``)
