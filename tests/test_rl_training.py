@@ -131,6 +131,71 @@ def test_collector_restarts_members_and_zeroes_their_hidden_state(core_env):
     assert mask_violations(ro.mask, ro.action, core.nvec) == 0
 
 
+def test_minibatch_gather_equals_tensordict_indexing(core_env):
+    """The loss batch's minibatches: the rows of every entry, nested batch sizes kept."""
+    from netsense.rl.advantage import critic_values, estimate, loss_batch
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.policy import actor_net, critic_module
+    from netsense.rl.ppo import _gather
+    from netsense.rl.rollout import Collector
+
+    core, env = core_env
+    torch.manual_seed(1)
+    cfg = PPOConfig(SCEN, num_envs=3, critic="state", reward="agent")
+    net = actor_net(cfg, core, "cpu")
+    critic = critic_module(cfg, env, "cpu")
+    ro = Collector(env, net, 7, with_state=True).collect()
+    data = loss_batch(ro, estimate(critic_values(critic, ro, None), ro.reward, ro.done,
+                                   0.99, 0.95))
+    idx = torch.tensor([20, 3, 3, 0, 11])
+    got, want = _gather(data, idx), data[idx]
+    assert got.batch_size == want.batch_size == (5,)
+    assert got["agents"].batch_size == want["agents"].batch_size == (5, core.N)
+    keys = sorted(want.keys(True, True), key=str)
+    assert sorted(got.keys(True, True), key=str) == keys and ("agents", "observation") in keys
+    for k in keys:
+        assert got[k].dtype == want[k].dtype and torch.equal(got[k], want[k]), k
+
+
+def test_precision_auto_is_bf16_only_on_cpus_with_native_bf16(monkeypatch):
+    from netsense.rl.config import learner_precision
+
+    cpu, gpu = torch.device("cpu"), torch.device("cuda")
+    monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: True)
+    assert learner_precision("auto", cpu) == "bf16"
+    assert learner_precision("auto", gpu) == "fp32"  # not measured on a GPU
+    assert learner_precision("fp32", cpu) == "fp32"
+    monkeypatch.setattr(torch.cpu, "_is_avx512_bf16_supported", lambda: False)
+    assert learner_precision("auto", cpu) == "fp32"  # emulated bfloat16 is slower
+    assert learner_precision("bf16", cpu) == "bf16"  # asked for: given
+    monkeypatch.delattr(torch.cpu, "_is_avx512_bf16_supported")
+    assert learner_precision("auto", cpu) == "fp32"  # a torch without the probe
+
+
+def test_bf16_precision_changes_the_loss_arithmetic_only(tmp_path):
+    """The same run in bfloat16 mixed precision and in float32: the first rollout is the
+    same (collection is float32 either way), its losses differ by bfloat16's rounding, not
+    more; the run records the precision it used."""
+    import json
+
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.ppo import train_ppo
+
+    rows = {}
+    for prec in ("fp32", "bf16"):
+        cfg = PPOConfig(SCEN, num_envs=8, rollout=8, steps=8 * 8 * 10, epochs=2,
+                        minibatch=32, eval_interval=0, eval_envs=2, precision=prec,
+                        overrides={"horizon": 16})
+        rows[prec] = train_ppo(cfg, tmp_path / prec).rows[0]
+        summary = json.loads((tmp_path / prec / "summary.json").read_text())
+        assert summary["precision"] == prec
+    a, b = rows["fp32"], rows["bf16"]
+    assert a["step_reward"] == b["step_reward"]
+    for k in ("loss_critic", "loss_entropy", "entropy"):
+        assert a[k] != b[k], k  # the loss ran in another arithmetic
+        assert b[k] == pytest.approx(a[k], rel=0.02), k
+
+
 def test_stagger_spreads_the_episode_phases():
     from netsense.rl.envs import NetSenseBatchedEnv, make_core
     from netsense.rl.memory import RecurrentActor

@@ -115,6 +115,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     tr.add_argument("--device", default=None,
                     help="learner device: auto (default: CUDA when available), cpu, cuda or "
                          "cuda:<index>; checked before anything runs")
+    tr.add_argument("--precision", default=None, choices=("auto", "fp32", "bf16"),
+                    help="arithmetic of the PPO loss: bf16 (mixed precision, bfloat16 "
+                         "matrix products) or fp32; auto (default): bf16 on a CPU with "
+                         "native bfloat16 products (AVX512-BF16), fp32 elsewhere")
     many = parser.add_argument_group(
         "many runs (torchrl backend; the learning library is --backend's choice, these "
         "choose where the runs of --seeds train)")
@@ -142,7 +146,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: :class:`netsense.rl.config.PPOConfig`'s default).
 TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock",
                 "clock_shift", "clock_only", "news_gate", "epochs", "eval_interval",
-                "eval_envs", "bc", "device", "seeds")
+                "eval_envs", "bc", "device", "precision", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).
 SHARED = {"steps": ("steps", "steps"), "num_envs": ("num_envs", "num_vec_envs"),

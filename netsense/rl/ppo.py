@@ -37,7 +37,9 @@ entropy coefficient; ``eval_*`` columns (most likely actions) and ``eval_sampled
 ``tensorboard`` or ``tensorboardX`` is installed, ``checkpoint_<iter>.pt`` at every
 evaluation and ``policy.pt`` at the end (:func:`netsense.rl.checkpoint.load_policy` reads
 them), ``config.json``, ``summary.json``. The learner runs on CUDA when
-``torch.cuda.is_available()`` (``device="auto"``); the core always runs on the CPU.
+``torch.cuda.is_available()`` (``device="auto"``); the core always runs on the CPU. The
+loss runs in bfloat16 mixed precision on CPUs with native bfloat16 products
+(``precision="auto"``, :func:`netsense.rl.config.learner_precision`).
 """
 
 from __future__ import annotations
@@ -53,7 +55,7 @@ import torch
 from netsense.rl.advantage import critic_values, estimate, explained_variance, loss_batch
 from netsense.rl.checkpoint import save_checkpoint
 from netsense.rl.cloning import behaviour_clone
-from netsense.rl.config import PPOConfig, device_of
+from netsense.rl.config import PPOConfig, device_of, learner_precision
 from netsense.rl.envs import NetSenseBatchedEnv, make_core
 from netsense.rl.evaluation import evaluate, mask_violations
 from netsense.rl.memory import is_recurrent
@@ -98,6 +100,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     from tqdm.auto import tqdm
 
     device = device_of(config.device)
+    precision = learner_precision(config.precision, device)
     torch.manual_seed(config.seed)
     # subnormal floats take a slow path on x86 CPUs; flushing them to zero changes
     # nothing above 1e-38
@@ -162,7 +165,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
             value_norm.update(adv.target.reshape(-1, 1))
         data = loss_batch(ro, adv, value_norm, sequences=sequences)
         stats = _update(loss, opt, data, config, warm=it < config.critic_warmup,
-                        sequences=sequences, T=T)
+                        sequences=sequences, T=T, precision=precision)
         t_learned = time.perf_counter()
         collect_s += t_collected - t_start
         learn_s += t_learned - t_collected
@@ -207,7 +210,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
         meta = {"wall_s": round(wall, 2), "agent_steps": agent_steps,
                 "agent_steps_per_s": round(agent_steps / wall, 1),
                 "collect_s": round(collect_s, 2), "learn_s": round(learn_s, 2),
-                "mask_violations": violations, "device": str(device), "bc": bc}
+                "mask_violations": violations, "device": str(device),
+                "precision": precision, "bc": bc}
         (out / "summary.json").write_text(json.dumps(meta, indent=2) + "\n")
     return PPOResult(out, rows, wall, agent_steps, violations, bc)
 
@@ -233,18 +237,26 @@ _STATS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "kl_approx
 
 
 def _update(loss, opt, data, config: PPOConfig, *, warm: bool, sequences: bool,
-            T: int) -> dict:
-    """``config.epochs`` passes of minibatch updates over ``data``; mean loss statistics."""
+            T: int, precision: str = "fp32") -> dict:
+    """``config.epochs`` passes of minibatch updates over ``data``; mean loss statistics.
+
+    ``precision="bf16"``: the loss's forward pass under ``torch.autocast`` with bfloat16
+    (torch's mixed precision: matrix products in bfloat16, reductions, log-softmax and the
+    loss terms in float32; the backward pass follows the forward's types), the optimiser
+    on the float32 parameters (:attr:`PPOConfig.precision`)."""
     rows = data.shape[0]
     # minibatch in env-steps; recurrent: whole sequences of T steps per member
     mb = max(1, min(rows, config.minibatch // T if sequences else config.minibatch))
     sums = dict.fromkeys((*_STATS, "grad_norm"), 0.0)
     n = 0
     params = list(loss.parameters())
+    device_type = data.device.type if data.device is not None else "cpu"
     for _ in range(config.epochs):
         perm = torch.randperm(rows, device=data.device)
         for s in range(0, rows - mb + 1, mb):
-            lv = loss(_gather(data, perm[s:s + mb]))
+            with torch.autocast(device_type, dtype=torch.bfloat16,
+                                enabled=precision == "bf16"):
+                lv = loss(_gather(data, perm[s:s + mb]))
             total = lv["loss_critic"] if warm else (
                 lv["loss_objective"] + lv["loss_critic"] + lv["loss_entropy"])
             opt.zero_grad(set_to_none=True)
@@ -264,8 +276,27 @@ def _update(loss, opt, data, config: PPOConfig, *, warm: bool, sequences: bool,
 
 
 def _gather(data, idx: torch.Tensor):
-    """The minibatch ``data[idx]`` (a copy of the rows of every entry)."""
-    return data[idx]
+    """The minibatch ``data[idx]``: the rows ``idx`` of every entry, nested batch sizes
+    kept, the same values as TensorDict's indexing.
+
+    Each entry is gathered as a 2-D ``index_select`` of its rows: TensorDict's ``data[idx]``
+    runs torch's general advanced indexing on every entry, which copied the rows of the
+    (rows, N, O) observations 4x slower on the 2-core development machine (3.8 ms against
+    0.9 ms for 2048 of 8192 rows, N = 10, O = 148).
+    """
+    from tensordict import TensorDict, is_tensor_collection
+
+    k = int(idx.shape[0])
+
+    def rows(x: torch.Tensor) -> torch.Tensor:
+        return x.reshape(x.shape[0], -1).index_select(0, idx).reshape(k, *x.shape[1:])
+
+    def nested(td):
+        return TensorDict({key: nested(v) if is_tensor_collection(v) else rows(v)
+                           for key, v in td.items()},
+                          batch_size=(k, *td.batch_size[1:]), device=td.device)
+
+    return nested(data)
 
 
 class ReturnScaler:
