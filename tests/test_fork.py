@@ -287,7 +287,7 @@ def test_redrawn_window_follows_the_exact_conditional_law(T, pos, p):
     N = 3
     proc = RandomJointlyConnected(N, T, p)
     rng = np.random.default_rng(3)
-    window = proc._window(rng)
+    _, (_, window) = proc.sample(rng, 1, proc.initial_state(rng))  # a drawn window
     law = _exact_window_law(N, T, p, pos, window[:pos])
     draws = 20000
     counts: dict = {}

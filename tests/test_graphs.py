@@ -37,6 +37,72 @@ def test_random_jsc_by_construction(seed):
     assert not np.any(seq[:, np.arange(N), np.arange(N)])
 
 
+def _jsc_by_numpy(rng, N, T, p, K, state):
+    """The process in numpy's own generator methods: one window per T steps."""
+    pos, window = state
+    out = np.empty((K, N, N), bool)
+    for k in range(K):
+        if pos == 0:
+            union = rng.random((N, N)) < p
+            perm = rng.permutation(N)
+            union[perm[(np.arange(N) + 1) % N], perm] = True
+            union &= ~np.eye(N, dtype=bool)
+            when = rng.integers(0, T, size=(N, N))
+            window = union & (when == np.arange(T)[:, None, None])
+        out[k] = window[pos]
+        pos = (pos + 1) % T
+    return out, (pos, window)
+
+
+@pytest.mark.parametrize("N,T,p", [(2, 1, 0.0), (3, 2, 0.3), (10, 2, 0.05), (7, 5, 0.2),
+                                   (17, 3, 0.1), (5, 13, 1.0)])
+def test_random_jsc_draws_numpys_stream_run_by_run(N, T, p):
+    """The compiled pass draws what numpy's random / permutation / integers draw, in the
+    same order, over chunks that end inside windows, for runs at once or alone, and
+    leaves every generator where numpy leaves it."""
+    proc = RandomJointlyConnected(N, T, p)
+    M = 5
+    mine = [np.random.default_rng(100 + m) for m in range(M)]
+    ref = [np.random.default_rng(100 + m) for m in range(M)]
+    states = [proc.initial_state(r) for r in mine]
+    ref_states = list(states)
+    for K in (3, 2 * T + 1, 1, 7):
+        adj, states = proc.sample_many(mine, K, states)
+        for m in range(M):
+            want, ref_states[m] = _jsc_by_numpy(ref[m], N, T, p, K, ref_states[m])
+            np.testing.assert_array_equal(adj[m], want)
+            assert states[m][0] == ref_states[m][0]
+    for a, b in zip(mine, ref, strict=True):
+        assert a.random() == b.random()
+    # alone, and one generator twice (run one after the other)
+    g = np.random.default_rng(5)
+    twice, _ = proc.sample_many([g, g], 2 * T + 1, [(0, None), (0, None)])
+    h = np.random.default_rng(5)
+    first, st = _jsc_by_numpy(h, N, T, p, 2 * T + 1, (0, None))
+    second, _ = _jsc_by_numpy(h, N, T, p, 2 * T + 1, (0, None))
+    np.testing.assert_array_equal(twice[0], first)
+    np.testing.assert_array_equal(twice[1], second)
+    one, _ = proc.sample(np.random.default_rng(5), 2 * T + 1, (0, None))
+    np.testing.assert_array_equal(one, first)
+
+
+def test_random_jsc_slots_are_the_graphs_in_neighbours():
+    proc = RandomJointlyConnected(6, 2, 0.4)
+    rngs = [np.random.default_rng(s) for s in range(4)]
+    states = [(0, None)] * 4
+    out = np.full((4, 9, 6, 5), 7, dtype=np.int64)
+    nbr, _ = proc.sample_slots_many(rngs, 9, states, 5, out=out)
+    assert nbr is out
+    adj, _ = proc.sample_many([np.random.default_rng(s) for s in range(4)], 9, states)
+    np.testing.assert_array_equal(nbr, in_neighbor_slots(adj, 5)[0])
+    # fewer slots than a drawn in-degree: an error naming it, and out is not written
+    small = np.full((4, 9, 6, 1), 7, dtype=np.int64)
+    with pytest.raises(ValueError, match="in-degree .* > max_degree = 1"):
+        proc.sample_slots_many([np.random.default_rng(s) for s in range(4)], 9, states, 1,
+                               out=small)
+    assert (small == 7).all()
+
+
 def test_first_failing_interval_is_named():
     ring = as_adjacency([(0, 1), (1, 2), (2, 0)], 3)
     empty = np.zeros((3, 3), bool)

@@ -15,6 +15,9 @@ path                       what runs
                            (epochs and everything else as the defaults)
 ``torchrl-tanh-tx``        the defaults with tanh hidden layers instead of ReLU (what the
                            activation costs on this CPU)
+``torchrl-fp32-tx``        the defaults with the loss in float32 (``precision="fp32"``), where
+                           the defaults run it in bfloat16 mixed precision on a CPU with
+                           native bfloat16 products (``precision="auto"``)
 ``torchrl-threads-tx``     the defaults with every core for torch and numba
                            (``torch_threads = numba_threads = os.cpu_count()``): what the
                            one-thread default leaves on an idle machine
@@ -22,7 +25,8 @@ path                       what runs
                            SuperSuit (:func:`netsense.rl.sb3.train`, ``TrainConfig``
                            defaults), same scenario
 ``torchrl-defaults-full``  the defaults in full control (``--scenario``, keep / adopt /
-``torchrl-tuned-full``     average per substate plus transmit) and the tuned grid point
+``torchrl-tuned-full``     average per substate plus transmit), the tuned grid point and
+``torchrl-fp32-full``      the defaults with the loss in float32
 ``sb3-supersuit-full``     MaskablePPO through SuperSuit, full control
 =========================  ====================================================================
 
@@ -57,9 +61,10 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
-PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "torchrl-threads-tx",
-         "sb3-supersuit-tx",
-         "torchrl-defaults-full", "torchrl-tuned-full", "sb3-supersuit-full")
+PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "torchrl-fp32-tx",
+         "torchrl-threads-tx", "sb3-supersuit-tx",
+         "torchrl-defaults-full", "torchrl-tuned-full", "torchrl-fp32-full",
+         "sb3-supersuit-full")
 
 
 def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: int,
@@ -112,7 +117,7 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
                 for b, m in _grid(args.grid)]
     # the defaults and their one-field variants, at the defaults' batch
     cores = os.cpu_count() or 1
-    variant = {"defaults": {}, "tanh": {"activation": "tanh"},
+    variant = {"defaults": {}, "tanh": {"activation": "tanh"}, "fp32": {"precision": "fp32"},
                "threads": {"torch_threads": cores, "numba_threads": cores}}[path.split("-")[1]]
     return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
                      args.iters, **variant, **dev)]
@@ -205,6 +210,13 @@ def _ratio(s: dict, a: str, b: str) -> str:
     return f"{s[a]['median'] / s[b]['median']:.2f}x" if a in s and b in s else "-"
 
 
+def _precision(device: str) -> str:
+    """What ``precision="auto"`` resolves to for a learner on ``device`` here."""
+    from netsense.rl.config import device_of, learner_precision
+
+    return learner_precision("auto", device_of(device))
+
+
 def _report(rows: list[dict], args, path: Path) -> None:
     import torch
 
@@ -233,6 +245,9 @@ def _report(rows: list[dict], args, path: Path) -> None:
               f"ratio defaults / SB3 + SuperSuit, communication only: "
               f"{_ratio(s, 'torchrl-defaults-tx', 'sb3-supersuit-tx')}; full control: "
               f"{_ratio(s, 'torchrl-defaults-full', 'sb3-supersuit-full')}",
+              f"ratio defaults (precision {_precision(args.device)}) / the loss in float32: "
+              f"communication only {_ratio(s, 'torchrl-defaults-tx', 'torchrl-fp32-tx')}, "
+              f"full control {_ratio(s, 'torchrl-defaults-full', 'torchrl-fp32-full')}",
               f"ratio defaults (ReLU) / tanh layers, communication only: "
               f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tanh-tx')}",
               f"ratio every core / defaults (one torch and one numba thread), communication "
