@@ -190,6 +190,34 @@ def test_masked_distribution_equals_one_torchrl_categorical_per_entry(nvec):
     assert half.base_dist.logits.dtype == torch.float32
 
 
+def test_own_substate_features_give_the_mlp_the_same_input_under_autocast(core_env):
+    """Under bfloat16 autocast the actor casts the observation before appending the
+    one-hot: the logits equal those of the float32 concatenation cast by the first layer,
+    bit for bit; outside autocast it stays float32."""
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.policy import actor_net
+
+    core, _ = core_env
+    net = actor_net(PPOConfig(SCEN, num_envs=3), core, "cpu")
+    obs = torch.randn(7, core.N, core.layout.size)
+    feat = net.onehot.expand(7, core.N, net.onehot.shape[-1])
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        got = net(obs)
+        want = net.body(torch.cat([obs, feat], -1))
+    assert got.dtype == torch.bfloat16 and torch.equal(got, want)
+    assert net(obs).dtype == torch.float32
+
+
+def test_keep_freed_memory_sets_glibc_malloc():
+    import platform
+    import sys
+
+    from netsense.rl.ppo import keep_freed_memory
+
+    glibc = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
+    assert keep_freed_memory() is glibc
+
+
 def test_precision_auto_is_bf16_only_on_cpus_with_native_bf16(monkeypatch):
     from netsense.rl.config import learner_precision
 

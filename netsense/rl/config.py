@@ -170,9 +170,10 @@ class PPOConfig:
         float32; collection, advantages and evaluation always run in float32.
         ``"auto"`` (default): ``"bf16"`` when the learner runs on a CPU that computes
         bfloat16 products natively (AVX512-BF16 or AMX), ``"fp32"`` otherwise
-        (:func:`learner_precision`). On the 2-core development machine the loss's
-        matrix products take half the time in bfloat16, and five seeds from scratch reach
-        the same returns as in float32 (docs/rl.md, "Threads and devices").
+        (:func:`learner_precision`). What it gains is the ratio of the ``torchrl-fp32``
+        paths of ``experiments/bench/train_throughput.py`` (docs/performance.md); five
+        seeds from scratch reach the same returns as in float32 (docs/rl.md, "Threads and
+        devices").
     numba_threads : int or None
         Threads of the core's compiled passes during training (``None``: numba's
         default). One by default: the learner's torch threads use the cores between

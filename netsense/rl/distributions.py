@@ -12,27 +12,24 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numpy as np
 import torch
 from torch.distributions import Independent
 
 __all__ = ["MaskedMultiCategorical"]
 
-_PAD_CACHE: dict[tuple, torch.Tensor] = {}
-
-
-def _pad_index(nvec: tuple[int, ...], device: torch.device) -> torch.Tensor:
-    """``(A, K_max)`` positions in the flat layout (``sum(nvec)`` = padding)."""
-    key = (nvec, str(device))
-    if key not in _PAD_CACHE:
-        total, kmax = sum(nvec), max(nvec)
-        idx = np.full((len(nvec), kmax), total, dtype=np.int64)
-        start = 0
-        for a, k in enumerate(nvec):
-            idx[a, :k] = np.arange(start, start + k)
-            start += k
-        _PAD_CACHE[key] = torch.as_tensor(idx, device=device)
-    return _PAD_CACHE[key]
+def _runs(nvec: tuple[int, ...]) -> list[tuple[int, int, int, int]]:
+    """Runs of consecutive entries with the same number of choices: ``(first entry, end
+    entry, choices, first flat position)`` (full control: ten entries of ``M + 1``
+    choices, then the transmit bit)."""
+    out, a0, s0 = [], 0, 0
+    while a0 < len(nvec):
+        a1 = a0
+        while a1 < len(nvec) and nvec[a1] == nvec[a0]:
+            a1 += 1
+        out.append((a0, a1, nvec[a0], s0))
+        s0 += (a1 - a0) * nvec[a0]
+        a0 = a1
+    return out
 
 
 class MaskedMultiCategorical(Independent):
@@ -66,12 +63,15 @@ class MaskedMultiCategorical(Independent):
         if len(set(nv)) == 1:  # equal blocks: a view, no padding
             padded = logits.unflatten(-1, (len(nv), nv[0]))
             m = mask.bool().unflatten(-1, (len(nv), nv[0]))
-        else:
-            idx = _pad_index(nv, logits.device)
-            pad = logits.new_zeros(logits.shape[:-1] + (1,))
-            padded = torch.cat([logits, pad], -1)[..., idx]
-            m = torch.cat([mask.bool(), mask.new_zeros(mask.shape[:-1] + (1,),
-                                                       dtype=torch.bool)], -1)[..., idx]
+        else:  # padded to max(nvec) choices (logit 0, not allowed), one copy per run of
+            # entries of one size (an index over the flat layout took twice as long)
+            shape = (len(nv), max(nv))
+            padded = logits.new_zeros(logits.shape[:-1] + shape)
+            m = torch.zeros(mask.shape[:-1] + shape, dtype=torch.bool, device=mask.device)
+            for a0, a1, k, s0 in _runs(nv):
+                s1 = s0 + (a1 - a0) * k
+                padded[..., a0:a1, :k] = logits[..., s0:s1].unflatten(-1, (a1 - a0, k))
+                m[..., a0:a1, :k] = mask[..., s0:s1].bool().unflatten(-1, (a1 - a0, k))
         self.nvec = nv
         self._allowed = m
         super().__init__(MaskedCategorical(logits=padded, mask=m), 1, validate_args=False)
