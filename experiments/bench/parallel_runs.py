@@ -34,7 +34,7 @@ cores that is the aim.
 Writes ``bench_parallel_runs.csv`` (one row per run), ``.txt`` (per condition: median,
 min and max throughput and slowdown) and ``.png`` into ``--out``::
 
-    python experiments/bench/parallel_runs.py             # about 6.5 minutes on 2 cores
+    python experiments/bench/parallel_runs.py             # about 2 minutes on 2 cores
     python experiments/bench/parallel_runs.py --smoke --out /tmp/x   # plumbing, no timing
 """
 

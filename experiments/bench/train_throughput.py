@@ -42,7 +42,7 @@ The summary gives medians and the ratios the project tracks: defaults / tuned (t
 ``bench_train_throughput.csv`` (one row per round and measurement),
 ``bench_train_throughput.txt`` and ``bench_train_throughput.png`` into ``--out``::
 
-    python experiments/bench/train_throughput.py                   # about 23 minutes
+    python experiments/bench/train_throughput.py                   # about 14 minutes
     python experiments/bench/train_throughput.py --rounds 1 --iters 1 --sb3-steps 2000 \\
         --grid 8:16 --defaults-envs 8 --out /tmp/x --tag smoke       # smoke size
 """
