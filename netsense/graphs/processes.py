@@ -361,8 +361,8 @@ class RandomJointlyConnected(GraphProcess):
     def sample_slots_many(self, rngs, num_steps, states, max_degree, out=None):
         # One compiled pass over the runs draws every window from its run's generator
         # (numpy's algorithms on numpy's stream, :func:`_jsc_slots`) and writes the slot
-        # tables; the Python loop over runs and windows it replaces took two thirds of a
-        # core step on comm_process_noise-v0 (B = 256, N = 10, T = 2).
+        # tables; the Python loop over runs and windows it replaces took most of a core
+        # step on comm_process_noise-v0 (B = 256, N = 10, T = 2).
         M, K, N, T = len(rngs), int(num_steps), self.num_nodes, self.period
         _check_runs(rngs, states)
         if out is not None:
@@ -385,10 +385,11 @@ class RandomJointlyConnected(GraphProcess):
         degree = 0
         for (fns, addr), members in runs:
             sel = np.asarray(members)
-            w_sel, p_sel = windows[sel], pos[sel]
-            part = np.empty((len(sel), K, N, max_degree), dtype=np.int64)
-            if len(runs) == 1:
+            if len(runs) == 1:  # every run at once, in place
                 w_sel, p_sel, part = windows, pos, nbr
+            else:
+                w_sel, p_sel = windows[sel], pos[sel]
+                part = np.empty((len(sel), K, N, max_degree), dtype=np.int64)
             deg = np.empty(len(sel), dtype=np.int64)
             _jsc_slots.at(len(sel) * K * N * N, runs=len(sel))(
                 fns, addr, float(self.extra_edge_prob), p_sel, w_sel, part,

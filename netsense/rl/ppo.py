@@ -226,11 +226,11 @@ def keep_freed_memory() -> bool:
     with fresh ``mmap`` pages and gives them back on ``free``, so each allocation pays
     its page faults again, and the heap's top is trimmed back to the system. Setting
     ``M_MMAP_THRESHOLD`` to its largest value (32 MiB on 64-bit systems) and
-    ``M_TRIM_THRESHOLD`` to 1 GiB with ``mallopt`` keeps them: in the training benchmark's
-    process, whose earlier runs had raised the threshold, bfloat16 training ran 1.3x faster
-    than in a fresh process before this was set (docs/performance.md). The process keeps up
-    to its peak heap afterwards. Returns whether the settings were applied (False where
-    the C library has no ``mallopt``: not Linux, or not glibc)."""
+    ``M_TRIM_THRESHOLD`` to 1 GiB with ``mallopt`` keeps them; before, a run trained faster
+    in a process whose earlier runs had raised the threshold than in a fresh one
+    (docs/performance.md). The process keeps up to its peak heap afterwards. Returns
+    whether the settings were applied (False where the C library has no ``mallopt``: not
+    Linux, or not glibc)."""
     import ctypes
     import sys
 
@@ -270,9 +270,10 @@ def _update(loss, opt, data, config: PPOConfig, *, warm: bool, sequences: bool,
     """``config.epochs`` passes of minibatch updates over ``data``; mean loss statistics.
 
     ``precision="bf16"``: the loss's forward pass under ``torch.autocast`` with bfloat16
-    (torch's mixed precision: matrix products in bfloat16, reductions, log-softmax and the
-    loss terms in float32; the backward pass follows the forward's types), the optimiser
-    on the float32 parameters (:attr:`PPOConfig.precision`)."""
+    (torch's mixed precision: the layers' matrix products in bfloat16; the masked
+    distribution, which casts the logits up, and the loss terms in float32; the backward
+    pass follows the forward's types), the optimiser on the float32 parameters
+    (:attr:`PPOConfig.precision`)."""
     rows = data.shape[0]
     # minibatch in env-steps; recurrent: whole sequences of T steps per member
     mb = max(1, min(rows, config.minibatch // T if sequences else config.minibatch))
@@ -310,8 +311,7 @@ def _gather(data, idx: torch.Tensor):
 
     Each entry is gathered as a 2-D ``index_select`` of its rows: TensorDict's ``data[idx]``
     runs torch's general advanced indexing on every entry, which copied the rows of the
-    (rows, N, O) observations 4x slower on the 2-core development machine (3.8 ms against
-    0.9 ms for 2048 of 8192 rows, N = 10, O = 148).
+    (rows, N, O) observations several times slower on the 2-core development machine.
     """
     from tensordict import TensorDict, is_tensor_collection
 
