@@ -39,7 +39,8 @@ class MaskedMultiCategorical(Independent):
     ``nvec[a]`` positions after those of entries ``< a``. The logits and the mask are
     padded to ``(..., A, max(nvec))`` and handed to TorchRL's
     :class:`~torchrl.modules.MaskedCategorical`; ``log_prob`` and ``entropy`` sum over
-    the ``A`` entries (one joint action per agent), ``sample`` returns ``(..., A)``.
+    the ``A`` entries (one joint action per agent), ``sample`` returns ``(..., A)``. The
+    distribution is computed in float32 (bfloat16 logits are cast up first).
 
     Parameters
     ----------
@@ -47,8 +48,6 @@ class MaskedMultiCategorical(Independent):
     mask : (..., sum(nvec)) bool tensor
         ``True`` where a choice is allowed (every entry needs at least one).
     nvec : sequence of int
-
-    The distribution is computed in float32 (bfloat16 logits are cast up first).
     """
 
     def __init__(self, logits: torch.Tensor, mask: torch.Tensor,
