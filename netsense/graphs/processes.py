@@ -267,6 +267,21 @@ class GraphProcess:
         raise NotImplementedError  # pragma: no cover
 
 
+class _SlotTableProcess(GraphProcess):
+    """A process whose compiled pass writes slot tables (:meth:`sample_slots_many`):
+    :meth:`sample` and :meth:`sample_many` are the graphs of those tables (every node's
+    in-neighbours fit, ``D`` = :attr:`max_in_degree`), so the process's rule has one
+    implementation, the compiled one."""
+
+    def sample(self, rng, num_steps, state):
+        adj, (state,) = self.sample_many([rng], num_steps, [state])
+        return adj[0], state
+
+    def sample_many(self, rngs, num_steps, states):
+        nbr, new = self.sample_slots_many(rngs, num_steps, states, self.max_in_degree)
+        return slot_adjacency(nbr, self.num_nodes), new
+
+
 @dataclass(frozen=True, eq=False)
 class PeriodicGraphs(GraphProcess):
     """The graphs ``graphs[0], graphs[1], ...`` repeated with period ``len(graphs)``."""
@@ -324,7 +339,7 @@ def fig1_graphs() -> PeriodicGraphs:
 
 
 @dataclass(frozen=True)
-class RandomJointlyConnected(GraphProcess):
+class RandomJointlyConnected(_SlotTableProcess):
     """Random graphs whose union over every window ``[kT, (k+1)T)`` is strongly connected.
 
     Per window: a directed Hamiltonian cycle over a random permutation (strongly connected
@@ -349,14 +364,6 @@ class RandomJointlyConnected(GraphProcess):
 
     def initial_state(self, rng):
         return (0, None)
-
-    def sample(self, rng, num_steps, state):
-        adj, (state,) = self.sample_many([rng], num_steps, [state])
-        return adj[0], state
-
-    def sample_many(self, rngs, num_steps, states):
-        nbr, new = self.sample_slots_many(rngs, num_steps, states, self.max_in_degree)
-        return slot_adjacency(nbr, self.num_nodes), new
 
     def sample_slots_many(self, rngs, num_steps, states, max_degree, out=None):
         # One compiled pass over the runs draws every window from its run's generator
@@ -427,7 +434,7 @@ MARKOV_THREADED_RUNS = 256
 
 
 @dataclass(frozen=True, eq=False)
-class MarkovLinkFailures(GraphProcess):
+class MarkovLinkFailures(_SlotTableProcess):
     """Each edge of a base graph fails and recovers as an independent two-state chain.
 
     An up link goes down with probability ``p_fail`` per step; a down link comes back with
@@ -484,16 +491,6 @@ class MarkovLinkFailures(GraphProcess):
             up[ei, el] = self._edge_uniforms(rng, ()) < p_up
             return up
         return (rng.random(self.base.shape) < p_up) & self.base
-
-    def sample(self, rng, num_steps, state):
-        adj, (state,) = self.sample_many([rng], num_steps, [state])
-        return adj[0], state
-
-    def sample_many(self, rngs, num_steps, states):
-        # the graphs of the slot tables: every up base link fits (D = max in-degree), so
-        # the two-state recursion has one implementation, the compiled one below
-        nbr, new = self.sample_slots_many(rngs, num_steps, states, self.max_in_degree)
-        return slot_adjacency(nbr, self.num_nodes), new
 
     def sample_slots_many(self, rngs, num_steps, states, max_degree, out=None):
         # Works on the E base edges only: each run draws its own chunk from its own
