@@ -4,31 +4,39 @@ its defaults, in one run.
 
 Agent-steps of experience per second of training wall time, for
 
-=========================  ====================================================================
-path                       what runs
-=========================  ====================================================================
-``torchrl-defaults-tx``    ``netsense train --backend torchrl`` without flags: MAPPO with the
-                           :class:`netsense.rl.config.PPOConfig` defaults (B = 256, T = 32,
-                           4 epochs, minibatch 2048 env-steps, team critic) on the
-                           communication-only scenario (transmit bit; freshness fusion adopts)
-``torchrl-tuned-tx``       the same with the fastest ``(num_envs, minibatch)`` of ``--grid``
-                           (epochs and everything else as the defaults)
-``torchrl-tanh-tx``        the defaults with tanh hidden layers instead of ReLU (what the
-                           activation costs on this CPU)
-``torchrl-fp32-tx``        the defaults with the loss in float32 (``precision="fp32"``), where
-                           the defaults run it in bfloat16 mixed precision on a CPU with
-                           native bfloat16 products (``precision="auto"``)
-``torchrl-threads-tx``     the defaults with every core for torch and numba
-                           (``torch_threads = numba_threads = os.cpu_count()``): what the
-                           one-thread default leaves on an idle machine
-``sb3-supersuit-tx``       ``netsense train`` with its default backend: MaskablePPO through
-                           SuperSuit (:func:`netsense.rl.sb3.train`, ``TrainConfig``
-                           defaults), same scenario
-``torchrl-defaults-full``  the defaults in full control (``--scenario``, keep / adopt /
-``torchrl-tuned-full``     average per substate plus transmit), the tuned grid point and
-``torchrl-fp32-full``      the defaults with the loss in float32
-``sb3-supersuit-full``     MaskablePPO through SuperSuit, full control
-=========================  ====================================================================
+================================  =============================================================
+path                              what runs
+================================  =============================================================
+``torchrl-defaults-tx``           ``netsense train --backend torchrl`` without flags: MAPPO
+                                  with the :class:`netsense.rl.config.PPOConfig` defaults
+                                  (B = 256, T = 32, 4 epochs, minibatch 2048 env-steps, team
+                                  critic) on the communication-only scenario (transmit bit;
+                                  freshness fusion adopts)
+``torchrl-tuned-tx``              the same with the fastest ``(num_envs, minibatch)`` of
+                                  ``--grid`` (epochs and everything else as the defaults)
+``torchrl-tanh-tx``               the defaults with tanh hidden layers instead of ReLU (what
+                                  the activation costs on this CPU)
+``torchrl-fp32-tx``               the defaults with the loss in float32
+                                  (``precision="fp32"``), where the defaults run it in
+                                  bfloat16 mixed precision on a CPU with native bfloat16
+                                  products (``precision="auto"``)
+``torchrl-onethread-tx``          the defaults with one torch thread (``torch_threads=1``)
+                                  instead of torch's default of one per core: what the
+                                  learner gains from the other cores
+``torchrl-threads-tx``            the defaults with every core for numba too
+                                  (``numba_threads = os.cpu_count()``; one by default)
+``sb3-supersuit-tx``              ``netsense train`` with its default backend: MaskablePPO
+                                  through SuperSuit (:func:`netsense.rl.sb3.train`,
+                                  ``TrainConfig`` defaults, torch's threads too), same
+                                  scenario
+``sb3-supersuit-onethread-tx``    the same with one torch thread
+                                  (``TrainConfig.torch_threads=1``)
+``torchrl-defaults-full``         the defaults in full control (``--scenario``, keep / adopt
+``torchrl-tuned-full``            / average per substate plus transmit), the tuned grid point
+``torchrl-fp32-full``             and the defaults with the loss in float32
+``sb3-supersuit-full``            MaskablePPO through SuperSuit, full control, at torch's
+``sb3-supersuit-onethread-full``  threads and at one torch thread
+================================  =============================================================
 
 The ``-tx`` paths run ``--comm-scenario`` (default ``comm_process_noise-v0``, N = 10), the
 ``-full`` ones ``--scenario`` (default ``message_cost-v1``, N = 10). Every measurement is
@@ -36,9 +44,13 @@ repeated in ``--rounds`` interleaved rounds (every path once per round, in turn,
 from other processes falls on all paths alike); each path is warmed up once first (numba
 compilation, torch initialisation). The wall time is that of the training loop (building
 the environment and the networks is outside it); the TorchRL rows split it into collection
-and learning. One torch thread and one numba thread everywhere (the configs' defaults).
+and learning. Threads as the configs' defaults give them: torch's own setting for both
+learners (one thread per core: run the command without ``OMP_NUM_THREADS`` set; the report's
+first line gives the count), one numba thread; torch's setting is restored before every
+measurement, so a path that sets one thread does not leak into the next.
 The summary gives medians and the ratios the project tracks: defaults / tuned (target
->= 0.8) and defaults / SB3 + SuperSuit per control mode. Writes
+>= 0.8) and defaults / SB3 + SuperSuit per control mode, against the faster of SB3's two
+thread settings (so that the thread default of neither backend can flatter the ratio). Writes
 ``bench_train_throughput.csv`` (one row per round and measurement),
 ``bench_train_throughput.txt`` and ``bench_train_throughput.png`` into ``--out``::
 
@@ -62,9 +74,10 @@ import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
 PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "torchrl-fp32-tx",
-         "torchrl-threads-tx", "sb3-supersuit-tx",
+         "torchrl-onethread-tx", "torchrl-threads-tx", "sb3-supersuit-tx",
+         "sb3-supersuit-onethread-tx",
          "torchrl-defaults-full", "torchrl-tuned-full", "torchrl-fp32-full",
-         "sb3-supersuit-full")
+         "sb3-supersuit-full", "sb3-supersuit-onethread-full")
 
 
 def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: int,
@@ -86,10 +99,11 @@ def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: 
             "minibatch": minibatch}
 
 
-def _sb3_supersuit(scenario: str, steps: int, out: Path) -> dict:
+def _sb3_supersuit(scenario: str, steps: int, out: Path, **fields) -> dict:
     from netsense.rl.sb3 import TrainConfig, train
 
-    res = train(TrainConfig(scenario=scenario, steps=steps, seed=0), out, progress=False)
+    res = train(TrainConfig(scenario=scenario, steps=steps, seed=0, **fields), out,
+                progress=False)
     return {"agent_steps": int(res.agent_steps), "wall_s": res.wall_s}
 
 
@@ -104,11 +118,15 @@ def _grid(text: str) -> list[tuple[int, int]]:
 
 def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]:
     """The measurements of ``path`` in one round (the tuned paths: one per grid point)."""
+    import torch
+
+    torch.set_num_threads(args.start_threads)  # what a path set does not leak into the next
     full = path.endswith("-full")
     scenario = args.scenario if full else args.comm_scenario
     control = "full" if full else None
+    one = {"torch_threads": 1} if "onethread" in path else {}
     if path.startswith("sb3"):
-        return [_sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch)]
+        return [_sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch, **one)]
     if warm:
         return [_torchrl(scenario, control, 4, 16, 1, device=args.device)]
     dev = {"device": args.device}
@@ -118,7 +136,7 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     # the defaults and their one-field variants, at the defaults' batch
     cores = os.cpu_count() or 1
     variant = {"defaults": {}, "tanh": {"activation": "tanh"}, "fp32": {"precision": "fp32"},
-               "threads": {"torch_threads": cores, "numba_threads": cores}}[path.split("-")[1]]
+               "onethread": one, "threads": {"numba_threads": cores}}[path.split("-")[1]]
     return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
                      args.iters, **variant, **dev)]
 
@@ -154,6 +172,9 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--tag", default="bench_train_throughput", help="output file stem")
     args = p.parse_args(argv)
+    import torch
+
+    args.start_threads = torch.get_num_threads()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     scratch = out / f".{args.tag}_scratch"
@@ -210,6 +231,15 @@ def _ratio(s: dict, a: str, b: str) -> str:
     return f"{s[a]['median'] / s[b]['median']:.2f}x" if a in s and b in s else "-"
 
 
+def _against_sb3(s: dict, a: str, mode: str) -> str:
+    """``a`` over the faster of SB3's two thread settings in ``mode`` (tx, full)."""
+    sb3 = [p for p in (f"sb3-supersuit-{mode}", f"sb3-supersuit-onethread-{mode}") if p in s]
+    if a not in s or not sb3:
+        return "-"
+    best = max(sb3, key=lambda p: s[p]["median"])
+    return f"{s[a]['median'] / s[best]['median']:.2f}x (against {best})"
+
+
 def _precision(device: str) -> str:
     """What ``precision="auto"`` resolves to for a learner on ``device`` here."""
     from netsense.rl.config import device_of, learner_precision
@@ -223,7 +253,8 @@ def _report(rows: list[dict], args, path: Path) -> None:
     s = _summary(rows)
     lines = [f"# {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {platform.node()}, "
              f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end, "
-             f"torch {torch.__version__}, TorchRL learner on {args.device}",
+             f"torch {torch.__version__} with {args.start_threads} threads by default, "
+             f"TorchRL learner on {args.device}",
              f"# {args.comm_scenario} (-tx: communication only) and {args.scenario} (-full); "
              f"TorchRL: PPOConfig defaults, {args.iters} iterations per measurement, tuned over "
              f"num_envs:minibatch {args.grid}; SB3 + SuperSuit: TrainConfig defaults, "
@@ -242,17 +273,22 @@ def _report(rows: list[dict], args, path: Path) -> None:
     lines += [f"ratio defaults / tuned, communication only: "
               f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tuned-tx')}; full control: "
               f"{_ratio(s, 'torchrl-defaults-full', 'torchrl-tuned-full')}",
-              f"ratio defaults / SB3 + SuperSuit, communication only: "
-              f"{_ratio(s, 'torchrl-defaults-tx', 'sb3-supersuit-tx')}; full control: "
-              f"{_ratio(s, 'torchrl-defaults-full', 'sb3-supersuit-full')}",
+              f"ratio defaults / SB3 + SuperSuit at the faster of its thread settings, "
+              f"communication only: {_against_sb3(s, 'torchrl-defaults-tx', 'tx')}; full "
+              f"control: {_against_sb3(s, 'torchrl-defaults-full', 'full')}",
               f"ratio defaults (precision {_precision(args.device)}) / the loss in float32: "
               f"communication only {_ratio(s, 'torchrl-defaults-tx', 'torchrl-fp32-tx')}, "
               f"full control {_ratio(s, 'torchrl-defaults-full', 'torchrl-fp32-full')}",
               f"ratio defaults (ReLU) / tanh layers, communication only: "
               f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tanh-tx')}",
-              f"ratio every core / defaults (one torch and one numba thread), communication "
-              f"only: {_ratio(s, 'torchrl-threads-tx', 'torchrl-defaults-tx')}; every core / "
-              f"SB3 + SuperSuit: {_ratio(s, 'torchrl-threads-tx', 'sb3-supersuit-tx')}"]
+              f"ratio defaults / one torch thread, communication only: TorchRL "
+              f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-onethread-tx')}, SB3 + SuperSuit "
+              f"{_ratio(s, 'sb3-supersuit-tx', 'sb3-supersuit-onethread-tx')} (full control "
+              f"{_ratio(s, 'sb3-supersuit-full', 'sb3-supersuit-onethread-full')}); both at "
+              f"one torch thread, TorchRL / SB3 + SuperSuit: "
+              f"{_ratio(s, 'torchrl-onethread-tx', 'sb3-supersuit-onethread-tx')}",
+              f"ratio numba on every core too / defaults, communication only: "
+              f"{_ratio(s, 'torchrl-threads-tx', 'torchrl-defaults-tx')}"]
     path.write_text("\n".join(lines) + "\n")
 
 

@@ -63,6 +63,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ent-coef", type=finite_float, default=None,
                         help="entropy bonus (default 0.01; torchrl decays it linearly to 0 "
                              "over the run)")
+    parser.add_argument("--torch-threads", type=positive_int, default=None, metavar="T",
+                        help="torch threads of the learner, both backends (default: torch's, "
+                             "one per core unless OMP_NUM_THREADS is set; --workers and "
+                             "--ray runs start with their share, one by default); 1 on a "
+                             "machine shared with other jobs")
     parser.add_argument("--override", action="append", default=[], metavar="KEY=JSON",
                         help="scenario override passed to netsense.make, e.g. horizon=40 "
                              "(repeatable; the value is parsed as JSON)")
@@ -152,7 +157,8 @@ TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory",
 SHARED = {"steps": ("steps", "steps"), "num_envs": ("num_envs", "num_vec_envs"),
           "rollout": ("rollout", "n_steps"), "batch_size": ("minibatch", "batch_size"),
           "lr": ("lr", "learning_rate"), "gamma": ("gamma", "gamma"),
-          "ent_coef": ("entropy_coef", "ent_coef")}
+          "ent_coef": ("entropy_coef", "ent_coef"),
+          "torch_threads": ("torch_threads", "torch_threads")}
 
 
 def given_fields(args: argparse.Namespace, backend: str) -> dict:

@@ -176,13 +176,17 @@ class PPOConfig:
         devices").
     numba_threads : int or None
         Threads of the core's compiled passes during training (``None``: numba's
-        default). One by default: the learner's torch threads use the cores between
-        collections, and threaded passes stall on busy cores (``docs/rl.md``).
+        default). One by default: at the default batch the passes are too small to pay
+        for a second thread, and threaded passes stall on busy cores (``docs/rl.md``).
     torch_threads : int or None
-        ``torch.set_num_threads`` for the learner (``None``: torch's default). One by
-        default, as the SB3 path: on the shared 2-core machine two threads of small
-        matrix products waited on each other (a 20480 x 233 x 64 layer: 11.5 ms on one
-        thread, 25 ms on two, with the other core busy).
+        ``torch.set_num_threads`` for the learner. ``None`` (default): leave torch's
+        setting, which is one thread per core unless ``OMP_NUM_THREADS`` says otherwise;
+        the worker processes and Ray tasks of :func:`netsense.rl.launch.launch` start with
+        that variable at their share of the cores (one by default), so several runs at once
+        do not share cores. The learner's matrix products are what the second core speeds
+        up (docs/performance.md, the ``torchrl-onethread`` path); on a core busy with
+        another job a second thread waits for it (docs/rl.md, "Threads and devices"), so
+        give 1 on a machine shared with other work.
     overrides : dict
         Scenario overrides (checked against the scenario file when the config is built).
 
@@ -238,7 +242,7 @@ class PPOConfig:
     device: str = "auto"
     precision: str = "auto"
     numba_threads: int | None = 1
-    torch_threads: int | None = 1
+    torch_threads: int | None = None
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:

@@ -193,6 +193,10 @@ class TrainConfig:
     normalize_reward : bool
         Scale rewards by a running estimate of the return's standard deviation
         (SB3 ``VecNormalize(norm_obs=False)``); inference is unaffected.
+    torch_threads : int or None
+        ``torch.set_num_threads`` while training; ``None`` (default) leaves torch's
+        setting (one thread per core unless ``OMP_NUM_THREADS`` says otherwise), as
+        :attr:`netsense.rl.config.PPOConfig.torch_threads` does.
     overrides : dict
         Keyword overrides for ``netsense.make``.
     """
@@ -210,6 +214,7 @@ class TrainConfig:
     ent_coef: float = 0.01
     net_arch: tuple[int, ...] = (64, 64)
     normalize_reward: bool = False
+    torch_threads: int | None = None
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -225,6 +230,8 @@ class TrainConfig:
         for name in ("gamma", "gae_lambda"):
             checks.number(f"TrainConfig.{name}", getattr(self, name), 0, 1)
         checks.number("TrainConfig.ent_coef", self.ent_coef)
+        if self.torch_threads is not None:
+            checks.integer("TrainConfig.torch_threads", self.torch_threads, 1, 4096)
         if not isinstance(self.overrides, dict):
             raise ValueError(f"TrainConfig.overrides must be a dict, got "
                              f"{type(self.overrides).__name__}")
@@ -328,7 +335,8 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    torch.set_num_threads(1)
+    if config.torch_threads is not None:
+        torch.set_num_threads(int(config.torch_threads))
     env = make_vec_env(None if env_fn else config.scenario, num_vec_envs=config.num_vec_envs,
                        seed=config.seed, overrides=config.overrides, env_fn=env_fn)
     monitor = env
