@@ -130,6 +130,8 @@ LIBRARY = [
         {"kind": "liar", "agents": [1], "claim": 2**63 - 1}]), "field 'faults\\[0\\].claim'"),
     ("TrainConfig-steps-float", lambda: __import__("netsense.rl.sb3").rl.sb3.TrainConfig(
         "fig1_scalar-v0", steps=1.5), "TrainConfig.steps must be an integer"),
+    ("TrainConfig-torch_threads-zero", lambda: __import__("netsense.rl.sb3").rl.sb3
+     .TrainConfig("fig1_scalar-v0", torch_threads=0), "TrainConfig.torch_threads must be"),
     ("benchmark-make_jobs-seed-float", lambda: __import__("netsense.benchmark").benchmark
      .make_jobs(["fig1_scalar-v0"], ["freshness"], [1.5]), "seeds\\[\\] must be an integer"),
     ("SweepCase-N-str", lambda: __import__("netsense.studies.sweep").studies.sweep.SweepCase(
@@ -630,6 +632,8 @@ CLI = [
      "--network, --reward belong to --backend torchrl; the sb3 backend would ignore them"),
     ("train-rollout-zero", ["train", "fig1_scalar-v0", "--backend", "torchrl",
                             "--n-steps", "0"], "argument --rollout/--n-steps: must be >= 1"),
+    ("train-torch-threads-zero", ["train", "fig1_scalar-v0", "--torch-threads", "0"],
+     "argument --torch-threads: must be >= 1"),
     ("train-torchrl-device-bogus", ["train", "fig1_scalar-v0", "--backend", "torchrl",
                                     "--device", "bogus", "--out", "{tmp}/t"],
      "PPOConfig.device must be 'auto', 'cpu', 'cuda' or 'cuda:<index>'"),
@@ -1481,6 +1485,29 @@ def test_cli_names_the_policies_a_scenario_skipped(tmp_path, capsys):
     assert rc == 0
     assert f"note: uniform_consensus skipped on {COMM}:" in err, err
     assert "freshness skipped" not in err
+
+
+@pytest.mark.parametrize("backend", ["torchrl", "sb3"])
+def test_cli_torch_threads_reaches_either_backend_config(backend):
+    """``--torch-threads`` is one flag for both backends: it becomes the config field that
+    each learner hands to ``torch.set_num_threads``; not given, the configs' default (one
+    thread) stands."""
+    import argparse
+
+    from netsense.commands.train import add_arguments, given_fields
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    args = parser.parse_args(["fig1_scalar-v0", "--backend", backend, "--torch-threads", "3"])
+    assert given_fields(args, backend) == {"torch_threads": 3}
+    args = parser.parse_args(["fig1_scalar-v0", "--backend", backend])
+    assert "torch_threads" not in given_fields(args, backend)
+    if backend == "torchrl":
+        _torch()
+        from netsense.rl.config import PPOConfig as Config
+    else:
+        from netsense.rl.sb3 import TrainConfig as Config
+    assert Config("fig1_scalar-v0").torch_threads == 1
 
 
 def test_cli_torchrl_training_with_a_control_override_runs(tmp_path, capsys):

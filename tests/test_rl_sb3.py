@@ -101,6 +101,25 @@ def test_maskable_ppo_learns_the_masked_toy_and_never_breaks_a_mask(tmp_path):
     assert res.curve[-1]["mean_episode_reward"] > res.curve[0]["mean_episode_reward"]
 
 
+def test_torch_threads_are_set_only_when_given(tmp_path):
+    """``TrainConfig.torch_threads`` goes to ``torch.set_num_threads`` (one by default);
+    ``None`` leaves the process's setting as it was."""
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        small = {"steps": 64, "n_steps": 32, "batch_size": 64, "num_vec_envs": 2}
+        train(TrainConfig("toy", torch_threads=None, **small), tmp_path / "a",
+              env_fn=ToyMaskedEnv, progress=False)
+        assert torch.get_num_threads() == 2
+        train(TrainConfig("toy", **small), tmp_path / "b", env_fn=ToyMaskedEnv,
+              progress=False)
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_train_then_benchmark_fig1(tmp_path):
     out = tmp_path / "run"
     assert main(["train", "fig1_scalar-v0", "--steps", "1500", "--out", str(out),

@@ -257,6 +257,30 @@ def test_bf16_precision_changes_the_loss_arithmetic_only(tmp_path):
         assert b[k] == pytest.approx(a[k], rel=0.02), k
 
 
+def test_torch_threads_are_set_only_when_given(tmp_path):
+    """``PPOConfig.torch_threads`` goes to ``torch.set_num_threads`` (one by default);
+    ``None`` leaves the process's setting, and ``summary.json`` records the count the
+    learner ran with."""
+    import json
+
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.ppo import train_ppo
+
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        for given, want in ((None, 2), (1, 1)):  # 1: the default
+            cfg = PPOConfig(SCEN, num_envs=4, rollout=4, steps=4 * 4 * 10, epochs=1,
+                            minibatch=16, eval_interval=0, eval_envs=1,
+                            torch_threads=given, overrides={"horizon": 8})
+            train_ppo(cfg, tmp_path / str(given))
+            assert torch.get_num_threads() == want
+            summary = json.loads((tmp_path / str(given) / "summary.json").read_text())
+            assert summary["torch_threads"] == want
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_stagger_spreads_the_episode_phases():
     from netsense.rl.envs import NetSenseBatchedEnv, make_core
     from netsense.rl.memory import RecurrentActor

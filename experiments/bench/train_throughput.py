@@ -20,22 +20,22 @@ path                              what runs
                                   (``precision="fp32"``), where the defaults run it in
                                   bfloat16 mixed precision on a CPU with native bfloat16
                                   products (``precision="auto"``)
-``torchrl-onethread-tx``          the defaults with one torch thread (``torch_threads=1``)
-                                  instead of torch's default of one per core: what the
-                                  learner gains from the other cores
-``torchrl-threads-tx``            the defaults with every core for numba too
-                                  (``numba_threads = os.cpu_count()``; one by default)
+``torchrl-tunedcores-tx``         the tuned grid again with torch on every core
+                                  (``torch_threads = os.cpu_count()``)
+``torchrl-cores-tx``              the defaults with torch on every core: what the learner
+                                  gains from the other cores at the default batch
+``torchrl-threads-tx``            the defaults with every core for torch and numba
+                                  (``torch_threads = numba_threads = os.cpu_count()``)
 ``sb3-supersuit-tx``              ``netsense train`` with its default backend: MaskablePPO
                                   through SuperSuit (:func:`netsense.rl.sb3.train`,
-                                  ``TrainConfig`` defaults, torch's threads too), same
-                                  scenario
-``sb3-supersuit-onethread-tx``    the same with one torch thread
-                                  (``TrainConfig.torch_threads=1``)
+                                  ``TrainConfig`` defaults, one torch thread), same scenario
+``sb3-supersuit-cores-tx``        the same with torch on every core
 ``torchrl-defaults-full``         the defaults in full control (``--scenario``, keep / adopt
 ``torchrl-tuned-full``            / average per substate plus transmit), the tuned grid point
 ``torchrl-fp32-full``             and the defaults with the loss in float32
-``sb3-supersuit-full``            MaskablePPO through SuperSuit, full control, at torch's
-``sb3-supersuit-onethread-full``  threads and at one torch thread
+``torchrl-cores-full``            the defaults with torch on every core, full control
+``sb3-supersuit-full``            MaskablePPO through SuperSuit, full control, at one torch
+``sb3-supersuit-cores-full``      thread (its default) and with torch on every core
 ================================  =============================================================
 
 The ``-tx`` paths run ``--comm-scenario`` (default ``comm_process_noise-v0``, N = 10), the
@@ -44,10 +44,9 @@ repeated in ``--rounds`` interleaved rounds (every path once per round, in turn,
 from other processes falls on all paths alike); each path is warmed up once first (numba
 compilation, torch initialisation). The wall time is that of the training loop (building
 the environment and the networks is outside it); the TorchRL rows split it into collection
-and learning. Threads as the configs' defaults give them: torch's own setting for both
-learners (one thread per core: run the command without ``OMP_NUM_THREADS`` set; the report's
-first line gives the count), one numba thread; torch's setting is restored before every
-measurement, so a path that sets one thread does not leak into the next.
+and learning. One torch thread and one numba thread (the configs' defaults) unless the
+path says otherwise; torch's setting is restored before every measurement, so that a path
+that sets its threads does not leak into the next.
 The summary gives medians and the ratios the project tracks: defaults / tuned (target
 >= 0.8) and defaults / SB3 + SuperSuit per control mode, against the faster of SB3's two
 thread settings (so that the thread default of neither backend can flatter the ratio). Writes
@@ -74,10 +73,10 @@ import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
 PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "torchrl-fp32-tx",
-         "torchrl-onethread-tx", "torchrl-threads-tx", "sb3-supersuit-tx",
-         "sb3-supersuit-onethread-tx",
+         "torchrl-tunedcores-tx", "torchrl-cores-tx", "torchrl-threads-tx",
+         "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
          "torchrl-defaults-full", "torchrl-tuned-full", "torchrl-fp32-full",
-         "sb3-supersuit-full", "sb3-supersuit-onethread-full")
+         "torchrl-cores-full", "sb3-supersuit-full", "sb3-supersuit-cores-full")
 
 
 def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: int,
@@ -124,19 +123,20 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     full = path.endswith("-full")
     scenario = args.scenario if full else args.comm_scenario
     control = "full" if full else None
-    one = {"torch_threads": 1} if "onethread" in path else {}
+    cores = os.cpu_count() or 1
+    every = {"torch_threads": cores} if "cores" in path else {}
     if path.startswith("sb3"):
-        return [_sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch, **one)]
+        return [_sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch, **every)]
     if warm:
         return [_torchrl(scenario, control, 4, 16, 1, device=args.device)]
     dev = {"device": args.device}
     if "tuned" in path:
-        return [_torchrl(scenario, control, b, m, args.iters, **dev)
+        return [_torchrl(scenario, control, b, m, args.iters, **every, **dev)
                 for b, m in _grid(args.grid)]
     # the defaults and their one-field variants, at the defaults' batch
-    cores = os.cpu_count() or 1
     variant = {"defaults": {}, "tanh": {"activation": "tanh"}, "fp32": {"precision": "fp32"},
-               "onethread": one, "threads": {"numba_threads": cores}}[path.split("-")[1]]
+               "cores": every, "threads": {"torch_threads": cores, "numba_threads": cores}
+               }[path.split("-")[1]]
     return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
                      args.iters, **variant, **dev)]
 
@@ -231,9 +231,20 @@ def _ratio(s: dict, a: str, b: str) -> str:
     return f"{s[a]['median'] / s[b]['median']:.2f}x" if a in s and b in s else "-"
 
 
+def _fastest(s: dict, mode: str) -> str:
+    """The fastest path of ``mode`` (and its grid point)."""
+    paths = [p for p in s if p.endswith(mode)]
+    if not paths:
+        return "fastest path: -"
+    best = max(paths, key=lambda p: s[p]["median"])
+    b, m = s[best]["point"]
+    return (f"fastest path{mode}: {best} at num_envs:minibatch {b}:{m}, "
+            f"{s[best]['median']:,.0f} agent-steps/s")
+
+
 def _against_sb3(s: dict, a: str, mode: str) -> str:
     """``a`` over the faster of SB3's two thread settings in ``mode`` (tx, full)."""
-    sb3 = [p for p in (f"sb3-supersuit-{mode}", f"sb3-supersuit-onethread-{mode}") if p in s]
+    sb3 = [p for p in (f"sb3-supersuit-{mode}", f"sb3-supersuit-cores-{mode}") if p in s]
     if a not in s or not sb3:
         return "-"
     best = max(sb3, key=lambda p: s[p]["median"])
@@ -281,14 +292,15 @@ def _report(rows: list[dict], args, path: Path) -> None:
               f"full control {_ratio(s, 'torchrl-defaults-full', 'torchrl-fp32-full')}",
               f"ratio defaults (ReLU) / tanh layers, communication only: "
               f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tanh-tx')}",
-              f"ratio defaults / one torch thread, communication only: TorchRL "
-              f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-onethread-tx')}, SB3 + SuperSuit "
-              f"{_ratio(s, 'sb3-supersuit-tx', 'sb3-supersuit-onethread-tx')} (full control "
-              f"{_ratio(s, 'sb3-supersuit-full', 'sb3-supersuit-onethread-full')}); both at "
-              f"one torch thread, TorchRL / SB3 + SuperSuit: "
-              f"{_ratio(s, 'torchrl-onethread-tx', 'sb3-supersuit-onethread-tx')}",
-              f"ratio numba on every core too / defaults, communication only: "
-              f"{_ratio(s, 'torchrl-threads-tx', 'torchrl-defaults-tx')}"]
+              f"ratio torch on every core / one torch thread (the default): TorchRL "
+              f"{_ratio(s, 'torchrl-cores-tx', 'torchrl-defaults-tx')} communication only, "
+              f"{_ratio(s, 'torchrl-cores-full', 'torchrl-defaults-full')} full control; "
+              f"SB3 + SuperSuit {_ratio(s, 'sb3-supersuit-cores-tx', 'sb3-supersuit-tx')} "
+              f"and {_ratio(s, 'sb3-supersuit-cores-full', 'sb3-supersuit-full')}; fastest "
+              f"grid point {_ratio(s, 'torchrl-tunedcores-tx', 'torchrl-tuned-tx')}",
+              f"ratio every core for torch and numba / defaults, communication only: "
+              f"{_ratio(s, 'torchrl-threads-tx', 'torchrl-defaults-tx')}",
+              _fastest(s, "-tx")]
     path.write_text("\n".join(lines) + "\n")
 
 

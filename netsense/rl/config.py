@@ -179,14 +179,12 @@ class PPOConfig:
         default). One by default: at the default batch the passes are too small to pay
         for a second thread, and threaded passes stall on busy cores (``docs/rl.md``).
     torch_threads : int or None
-        ``torch.set_num_threads`` for the learner. ``None`` (default): leave torch's
-        setting, which is one thread per core unless ``OMP_NUM_THREADS`` says otherwise;
-        the worker processes and Ray tasks of :func:`netsense.rl.launch.launch` start with
-        that variable at their share of the cores (one by default), so several runs at once
-        do not share cores. The learner's matrix products are what the second core speeds
-        up (docs/performance.md, the ``torchrl-onethread`` path); on a core busy with
-        another job a second thread waits for it (docs/rl.md, "Threads and devices"), so
-        give 1 on a machine shared with other work.
+        ``torch.set_num_threads`` for the learner (``None``: leave torch's setting, one
+        thread per core unless ``OMP_NUM_THREADS`` says otherwise). One by default, as the
+        SB3 path: at the default batch on the 2-core machine a second thread gained
+        nothing measurable, it pays at larger batches and in full control (the
+        ``torchrl-cores`` paths of ``experiments/bench/train_throughput.py``,
+        docs/performance.md), and on a core busy with another job it waits for that job.
     overrides : dict
         Scenario overrides (checked against the scenario file when the config is built).
 
@@ -242,7 +240,7 @@ class PPOConfig:
     device: str = "auto"
     precision: str = "auto"
     numba_threads: int | None = 1
-    torch_threads: int | None = None
+    torch_threads: int | None = 1
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:

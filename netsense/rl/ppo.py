@@ -213,7 +213,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                 "agent_steps_per_s": round(agent_steps / wall, 1),
                 "collect_s": round(collect_s, 2), "learn_s": round(learn_s, 2),
                 "mask_violations": violations, "device": str(device),
-                "precision": precision, "bc": bc}
+                "precision": precision, "torch_threads": torch.get_num_threads(), "bc": bc}
         (out / "summary.json").write_text(json.dumps(meta, indent=2) + "\n")
     return PPOResult(out, rows, wall, agent_steps, violations, bc)
 

@@ -194,9 +194,9 @@ class TrainConfig:
         Scale rewards by a running estimate of the return's standard deviation
         (SB3 ``VecNormalize(norm_obs=False)``); inference is unaffected.
     torch_threads : int or None
-        ``torch.set_num_threads`` while training; ``None`` (default) leaves torch's
-        setting (one thread per core unless ``OMP_NUM_THREADS`` says otherwise), as
-        :attr:`netsense.rl.config.PPOConfig.torch_threads` does.
+        ``torch.set_num_threads`` while training (default 1: SB3's minibatches of a few
+        hundred rows run slower on two threads, docs/performance.md); ``None`` leaves
+        torch's setting (one thread per core unless ``OMP_NUM_THREADS`` says otherwise).
     overrides : dict
         Keyword overrides for ``netsense.make``.
     """
@@ -214,7 +214,7 @@ class TrainConfig:
     ent_coef: float = 0.01
     net_arch: tuple[int, ...] = (64, 64)
     normalize_reward: bool = False
-    torch_threads: int | None = None
+    torch_threads: int | None = 1
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
