@@ -417,21 +417,29 @@ def test_bench_train_throughput_smoke(tmp_path):
     pytest.importorskip("sb3_contrib")
     import csv
 
+    import torch
     from experiment_loader import load_experiment
 
     mod = load_experiment("bench/train_throughput")
-    path = mod.main(["--paths", "torchrl-defaults-tx", "torchrl-tuned-tx", "sb3-supersuit-tx",
+    before = torch.get_num_threads()
+    path = mod.main(["--paths", "torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-cores-tx",
+                     "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
                      "--rounds", "1", "--iters", "1", "--grid", "4:8,8:16",
                      "--defaults-envs", "4", "--defaults-minibatch", "8", "--sb3-steps", "512",
                      "--out", str(tmp_path), "--tag", "smoke"])
+    assert torch.get_num_threads() == before  # the -cores paths' threads do not leak
     rows = list(csv.DictReader(open(path)))
     # the tuned path measures every grid point
     assert [(r["path"], r["num_envs"]) for r in rows] == [
         ("torchrl-defaults-tx", "4"), ("torchrl-tuned-tx", "4"), ("torchrl-tuned-tx", "8"),
-        ("sb3-supersuit-tx", "")]
+        ("torchrl-cores-tx", "4"), ("sb3-supersuit-tx", ""), ("sb3-supersuit-cores-tx", "")]
     assert all(float(r["agent_steps_per_s"]) > 0 for r in rows)
     text = (tmp_path / "smoke.txt").read_text()
-    assert "ratio defaults / SB3 + SuperSuit, communication only: " in text
+    sb3 = {p: float(r["agent_steps_per_s"]) for r in rows for p in [r["path"]]
+           if p.startswith("sb3")}
+    faster = max(sb3, key=sb3.get)
+    line = next(t for t in text.splitlines() if t.startswith("ratio defaults / SB3"))
+    assert f"(against {faster})" in line  # the ratio divides by SB3's faster setting
     assert (tmp_path / "smoke.png").exists()
 
 

@@ -195,6 +195,7 @@ def main(argv: list[str] | None = None) -> Path:
             bar.update(1)
             bar.set_postfix(path=path, aps=rows[-1]["agent_steps_per_s"])
     bar.close()
+    torch.set_num_threads(args.start_threads)
     csv_path = out / f"{args.tag}.csv"
     with csv_path.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
