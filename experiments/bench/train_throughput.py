@@ -233,13 +233,13 @@ def _ratio(s: dict, a: str, b: str) -> str:
 
 
 def _fastest(s: dict, mode: str) -> str:
-    """The fastest path of ``mode`` (and its grid point)."""
+    """The fastest path ending in ``mode`` (``-tx``, ``-full``) and its grid point."""
     paths = [p for p in s if p.endswith(mode)]
     if not paths:
-        return "fastest path: -"
+        return f"fastest ({mode}): -"
     best = max(paths, key=lambda p: s[p]["median"])
     b, m = s[best]["point"]
-    return (f"fastest path{mode}: {best} at num_envs:minibatch {b}:{m}, "
+    return (f"fastest ({mode}): {best} at num_envs:minibatch {b}:{m}, "
             f"{s[best]['median']:,.0f} agent-steps/s")
 
 
