@@ -1506,6 +1506,7 @@ def test_cli_torch_threads_reaches_either_backend_config(backend):
         _torch()
         from netsense.rl.config import PPOConfig as Config
     else:
+        pytest.importorskip("torch", reason="the sb3 backend needs the 'rl' extra")
         from netsense.rl.sb3 import TrainConfig as Config
     assert Config("fig1_scalar-v0").torch_threads == 1
 
