@@ -183,9 +183,9 @@ class PPOConfig:
         thread per core unless ``OMP_NUM_THREADS`` says otherwise). One by default, as the
         SB3 path: at the communication-only defaults on the 2-core machine a second thread
         gained 0.99x-1.09x, within the spread of runs; it pays at larger batches and in
-        full control (the
-        ``torchrl-cores`` paths of ``experiments/bench/train_throughput.py``,
-        docs/performance.md), and on a core busy with another job it waits for that job.
+        full control (the ``torchrl-cores`` paths of
+        ``experiments/bench/train_throughput.py``, docs/performance.md), and on a core
+        busy with another job it waits for that job.
     overrides : dict
         Scenario overrides (checked against the scenario file when the config is built).
 
