@@ -1511,6 +1511,22 @@ def test_cli_torch_threads_reaches_either_backend_config(backend):
     assert Config("fig1_scalar-v0").torch_threads == 1
 
 
+def test_cli_precision_choices_are_the_configs():
+    """``--precision`` lists its choices literally (the parser does not import torch);
+    they must stay :data:`netsense.rl.config.PRECISIONS`."""
+    import argparse
+
+    from netsense.commands.train import add_arguments
+
+    _torch()
+    from netsense.rl.config import PRECISIONS
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    action = next(a for a in parser._actions if a.dest == "precision")
+    assert tuple(action.choices) == PRECISIONS
+
+
 def test_cli_torchrl_training_with_a_control_override_runs(tmp_path, capsys):
     """The issue's crash (``make_core() got multiple values for keyword argument
     'control'``) is a valid input: the run trains, says the minibatch is the whole
