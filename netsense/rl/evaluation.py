@@ -52,15 +52,14 @@ def evaluate(net: torch.nn.Module, config: PPOConfig, *, episodes: int | None = 
     """Return per agent, mean error and messages per agent-step of the actor network
     ``net`` on ``episodes`` fresh episodes (seeds :data:`EVAL_SEED` + b), one horizon each,
     with the most likely allowed actions (``deterministic``) or sampled ones, scored with
-    the scenario's reward (not ``config.reward``). Torch's random state is restored
-    afterwards, so evaluating does not change a training run."""
+    the scenario's reward (not ``config.reward``). Sampled actions come from the collector's
+    own generator (seeded with :data:`EVAL_SEED`), not torch's global one, so evaluating
+    does not change a training run, nor a collection running in another thread."""
     core = _core(config, episodes)
     dev = next(net.parameters()).device
     env = NetSenseBatchedEnv(core, reward="scenario", seed=EVAL_SEED)
-    with torch.random.fork_rng(devices=[dev] if dev.type == "cuda" else []):
-        torch.manual_seed(EVAL_SEED)
-        ro = Collector(env, net, core.horizon, device=dev).collect(
-            deterministic=deterministic)
+    ro = Collector(env, net, core.horizon, device=dev, seed=EVAL_SEED).collect(
+        deterministic=deterministic)
     return first_episode(ro.reward, ro.done, ro.error, ro.sent)
 
 

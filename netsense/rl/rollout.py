@@ -83,7 +83,10 @@ class Collector:
     stagger : bool
         Spread the members' episode phases first (see the module docstring; training).
     seed : int
-        Seeds the stagger's restart steps and random actions.
+        Seeds the collector's own random streams: the stagger's restart steps and random
+        actions, and the sampled actions of every rollout. The collector never draws from
+        torch's global generator, so a rollout's actions do not depend on what else the
+        process draws in the meantime (a learner in another thread, an evaluation).
     """
 
     def __init__(self, env: NetSenseBatchedEnv, net: torch.nn.Module, steps: int, *,
@@ -99,13 +102,18 @@ class Collector:
         self.B, self.N = int(core.B), int(core.N)
         self.recurrent = is_recurrent(net)
         obs, mask = env.restart()
+        gen = torch.Generator().manual_seed(int(seed))
         if stagger:
-            obs, mask = self._stagger(obs, mask, seed)
+            obs, mask = self._stagger(obs, mask, gen)
         self._obs, self._mask = obs, mask
         self._first = np.ones(self.B, bool)
         self._h = (torch.zeros(self.B, self.N, net.memory, device=self.device)
                    if self.recurrent else None)
         self._acc = np.zeros((self.B, self.N))
+        # the actions' generator, on the actor's device, seeded from the stagger's stream
+        # (the same seed on both would replay the stagger's draws)
+        self._gen = torch.Generator(self.device).manual_seed(
+            int(torch.randint(0, 2**62, (), generator=gen)))
 
     def _actor(self, o: torch.Tensor) -> torch.Tensor:
         """Logits of the current observations (a recurrent actor advances its state)."""
@@ -118,13 +126,17 @@ class Collector:
                 deterministic: bool) -> tuple[torch.Tensor, torch.Tensor]:
         """Allowed actions (sampled or most likely) and their log-probabilities."""
         d = MaskedMultiCategorical(logits, m, self.nvec)
-        a = d.deterministic_sample if deterministic else d.sample()
+        if deterministic:
+            a = d.deterministic_sample
+        else:  # the distribution's own sampling, from the collector's generator
+            p = d.base_dist.probs
+            a = torch.multinomial(p.reshape(-1, p.shape[-1]), 1,
+                                  generator=self._gen).reshape(p.shape[:-1])
         return a, d.log_prob(a)
 
-    def _stagger(self, obs: np.ndarray, mask: np.ndarray, seed: int):
+    def _stagger(self, obs: np.ndarray, mask: np.ndarray, gen: torch.Generator):
         """``H`` steps of random allowed actions; member ``b`` restarts at step ``s_b``."""
         env, H = self.env, int(self.env.core.horizon)
-        gen = torch.Generator().manual_seed(int(seed))
         # restarts on a grid of STAGGER_STEP steps: members end in groups afterwards, so a
         # partial reset (whose fixed cost is that of a whole observation pass) runs every
         # STAGGER_STEP steps, not at every step
