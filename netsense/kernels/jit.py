@@ -184,7 +184,14 @@ def njit_cached(**options):
     system's temporary directory) and, if even that fails, compiled without a cache; the
     first such fallback issues one :class:`CacheWarning` for the whole package. Setting
     ``NUMBA_CACHE_DIR`` to a writable directory avoids both.
+
+    Compiled functions release the GIL while they run (``nogil=True`` unless ``options``
+    say otherwise): they touch only the arrays they are given, and another Python thread
+    (the learner while a training loop's collector steps the core,
+    :attr:`netsense.rl.config.PPOConfig.overlap`) runs meanwhile.
     """
+    options = {"nogil": True, **options}
+
     def decorate(fn):
         try:
             return njit(cache=True, **options)(fn)
