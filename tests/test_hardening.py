@@ -876,6 +876,7 @@ PPO_CONFIG = [
     ("bc-bad-knob", {"bc": "event:x"}, "PPOConfig.bc: 'event:x'"),
     ("numba_threads-zero", {"numba_threads": 0}, "PPOConfig.numba_threads"),
     ("torch_threads-str", {"torch_threads": "1"}, "PPOConfig.torch_threads"),
+    ("overlap-int", {"overlap": 1}, "PPOConfig.overlap"),
     ("precision-unknown", {"precision": "fp16"}, "PPOConfig.precision must be one of"),
     ("precision-case", {"precision": "BF16"}, "PPOConfig.precision must be one of"),
     ("seed-bool", {"seed": True}, "PPOConfig.seed must be an integer"),

@@ -234,6 +234,7 @@ def test_cli_seeds_train_what_launch_trains(reference, tmp_path, capsys):
     (["--seeds", "0", "1"], "--seeds belongs to --backend torchrl"),
     (["--clock", "5"], "--clock belongs to --backend torchrl"),
     (["--news-gate"], "--news-gate belongs to --backend torchrl"),
+    (["--no-overlap"], "--no-overlap belongs to --backend torchrl"),
     (["--backend", "torchrl", "--news-gate", "--control", "full"],
      "PPOConfig.news_gate gates the send choices"),
     (["--backend", "torchrl", "--clock", "1"], "PPOConfig.clock[0] must be an integer in [2,"),

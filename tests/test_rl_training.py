@@ -281,6 +281,146 @@ def test_torch_threads_are_set_only_when_given(tmp_path):
         torch.set_num_threads(before)
 
 
+def _tiny(**kw):
+    from netsense.rl.config import PPOConfig
+
+    base = dict(num_envs=8, rollout=8, steps=8 * 8 * 10 * 4, epochs=2, minibatch=32,
+                eval_interval=0, eval_envs=2, overrides={"horizon": 16})
+    return PPOConfig(SCEN, **{**base, **kw})
+
+
+def _second_rollout_of_the_initial_actor(cfg):
+    """Replays the training loop's first steps by hand: the actor it builds from the seed,
+    the collector it builds, two rollouts without any update."""
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core
+    from netsense.rl.policy import actor_net
+    from netsense.rl.rollout import Collector
+
+    torch.manual_seed(cfg.seed)
+    core = make_core(cfg.scenario, cfg.num_envs, **cfg.overrides)
+    env = NetSenseBatchedEnv(core, reward=cfg.reward, seed=cfg.seed * cfg.num_envs)
+    net = actor_net(cfg, core, torch.device("cpu"))
+    col = Collector(env, net, cfg.rollout, stagger=cfg.stagger, seed=cfg.seed)
+    col.collect()
+    return col.collect()
+
+
+@pytest.mark.parametrize("overlap", [True, False])
+def test_overlap_collects_the_next_rollout_with_parameters_one_update_behind(overlap):
+    """With ``overlap`` the second rollout comes from the initial parameters (collected
+    while the learner made its first update); without it, from the updated ones."""
+    from netsense.rl.ppo import train_ppo
+
+    cfg = _tiny(overlap=overlap)
+    rows = train_ppo(cfg).rows
+    ro = _second_rollout_of_the_initial_actor(cfg)
+    same = (rows[1]["step_reward"] == float(ro.reward.mean())
+            and rows[1]["train_messages"] == float(ro.sent.mean()))
+    assert same == overlap
+
+
+def test_overlap_clips_around_the_parameters_at_the_start_of_every_update(monkeypatch):
+    """The decoupled objective's proximal policy (TorchRL's target actor parameters) is
+    refreshed once per iteration, before the update, to the learner's parameters; the
+    serial loop keeps plain PPO (no proximal copy)."""
+    import torchrl.objectives
+
+    from netsense.rl.ppo import train_ppo
+
+    seen = []
+
+    class Spy(torchrl.objectives.HardUpdate):
+        def step(self):
+            super().step()
+            loss = self.loss_module
+            seen.append(all(torch.equal(a, b) for a, b in zip(
+                loss.actor_network_params.values(True, True),
+                loss.target_actor_network_params.values(True, True), strict=True)))
+
+    monkeypatch.setattr(torchrl.objectives, "HardUpdate", Spy)
+    res = train_ppo(_tiny())
+    assert seen == [True] * len(res.rows) and len(seen) == 4
+    seen.clear()
+    train_ppo(_tiny(overlap=False))
+    assert seen == []
+
+
+def test_decoupled_objective_is_ppo_on_the_first_rollout():
+    """The first rollout comes from the initial parameters with or without the overlap,
+    so proximal = behaviour there and the decoupled loss is PPO's: the first iteration's
+    statistics agree to float rounding (float32 loss: the proximal log-probabilities come
+    from the loss's own pass, the behaviour ones from the collector's)."""
+    from netsense.rl.ppo import train_ppo
+
+    a = train_ppo(_tiny(precision="fp32")).rows[0]
+    b = train_ppo(_tiny(precision="fp32", overlap=False)).rows[0]
+    assert a["step_reward"] == b["step_reward"]
+    for k in ("loss_objective", "loss_critic", "entropy", "grad_norm"):
+        assert a[k] == pytest.approx(b[k], rel=1e-4, abs=1e-7), k
+
+
+def test_overlapped_training_is_reproducible_and_leaves_no_thread(tmp_path):
+    """Two overlapped runs of one seed give the same statistics and weights, whatever
+    the process draws from torch's global generator in between (the collector has its own
+    generator; evaluations in the loop draw from theirs); no collection thread outlives
+    a run."""
+    import threading
+
+    from netsense.rl.ppo import train_ppo
+
+    cfg = _tiny(eval_interval=2, obs_norm=True)
+    skip = ("wall_s", "agent_steps_per_s", "collect_s", "learn_s")
+    runs = []
+    for k in range(2):
+        torch.rand(k + 1)  # the global generator in another state
+        res = train_ppo(cfg, tmp_path / str(k))
+        runs.append(([{c: v for c, v in r.items() if c not in skip} for r in res.rows],
+                     torch.load(tmp_path / str(k) / "policy.pt", weights_only=True)["actor"]))
+    assert runs[0][0] == runs[1][0]
+    assert all(torch.equal(runs[0][1][name], runs[1][1][name]) for name in runs[0][1])
+    assert not [t for t in threading.enumerate() if t.name.startswith("netsense-collect")]
+
+
+def test_sync_gives_the_collector_the_parameters_and_the_learner_the_normaliser():
+    """Between overlapped collections parameters go from learner to collector, and the
+    observation normaliser's statistics (only collection updates them) the other way."""
+    import copy
+
+    from netsense.rl.policy import ObsNormActor
+    from netsense.rl.ppo import _sync
+
+    torch.manual_seed(0)
+    learner = ObsNormActor(torch.nn.Linear(3, 2), 3)
+    collector = copy.deepcopy(learner)
+    with torch.no_grad():
+        learner.body.weight.add_(1.0)  # an update
+    collector.update(torch.randn(50, 3) * 4 + 2)  # observations collected
+    stats = [b.clone() for b in collector.buffers()]
+    assert any(not torch.equal(a, b) for a, b in zip(learner.buffers(), stats, strict=True))
+    _sync(learner, collector)
+    for a, b in zip(collector.parameters(), learner.parameters(), strict=True):
+        assert torch.equal(a, b)
+    for a, b in zip(learner.buffers(), stats, strict=True):
+        assert torch.equal(a, b)
+
+
+def test_collector_actions_do_not_depend_on_the_global_generator(core_env):
+    """Sampled actions come from the collector's own generator (seeded by ``seed``)."""
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core
+    from netsense.rl.rollout import Collector
+
+    torch.manual_seed(0)
+    core, _ = core_env
+    net = torch.nn.Linear(core.layout.size, int(sum(core.nvec)))
+    acts = []
+    for glob, seed in ((1, 7), (2, 7), (1, 8)):
+        env = NetSenseBatchedEnv(make_core(SCEN, 3, horizon=6), reward="team", seed=5)
+        torch.manual_seed(glob)
+        acts.append(Collector(env, net, 6, seed=seed).collect().action)
+    assert torch.equal(acts[0], acts[1])  # another global state: the same actions
+    assert not torch.equal(acts[0], acts[2])  # another seed: others
+
+
 def test_stagger_spreads_the_episode_phases():
     from netsense.rl.envs import NetSenseBatchedEnv, make_core
     from netsense.rl.memory import RecurrentActor

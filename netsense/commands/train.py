@@ -122,6 +122,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help="arithmetic of the PPO loss: bf16 (mixed precision, bfloat16 "
                          "matrix products) or fp32; auto (default): bf16 on a CPU with "
                          "native bfloat16 products (AVX512-BF16), fp32 elsewhere")
+    tr.add_argument("--no-overlap", dest="overlap", action="store_const", const=False,
+                    default=None,
+                    help="collect and learn one after the other, plain PPO (default: the "
+                         "next rollout is collected in a second thread while the learner "
+                         "trains, with the actor's parameters one update behind, and the "
+                         "loss is PPO's decoupled objective for such data)")
     many = parser.add_argument_group(
         "many runs (torchrl backend; the learning library is --backend's choice, these "
         "choose where the runs of --seeds train)")
@@ -149,7 +155,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: :class:`netsense.rl.config.PPOConfig`'s default).
 TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock",
                 "clock_shift", "clock_only", "news_gate", "epochs", "eval_interval",
-                "eval_envs", "bc", "device", "precision", "seeds")
+                "eval_envs", "bc", "device", "precision", "overlap", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).
 SHARED = {"steps": ("steps", "steps"), "num_envs": ("num_envs", "num_vec_envs"),
@@ -189,8 +195,13 @@ def parse_overrides(items: list[str]) -> dict:
     return out
 
 
+#: Options whose flag is not the field's name.
+_FLAGS = {"overlap": "no_overlap"}
+
+
 def _given(args: argparse.Namespace, names) -> list[str]:
-    return ["--" + n.replace("_", "-") for n in names if getattr(args, n) is not None]
+    return ["--" + _FLAGS.get(n, n).replace("_", "-") for n in names
+            if getattr(args, n) is not None]
 
 
 def _check_inputs(args: argparse.Namespace) -> dict:

@@ -186,6 +186,15 @@ class PPOConfig:
         full control (the ``torchrl-cores`` paths of
         ``experiments/bench/train_throughput.py``, docs/performance.md), and on a core
         busy with another job it waits for that job.
+    overlap : bool
+        Collect the next rollout in a second Python thread while the learner trains on
+        the current one (the default). The collector then acts with a copy of the actor
+        whose parameters are one update behind the learner's (the rollout of iteration
+        ``k + 1`` comes from the parameters before update ``k``), and the loss is the
+        decoupled clipped objective for such data (TorchRL's ``delay_actor``: clipping
+        around the parameters at the start of the update, the surrogate weighted by
+        their probability of the action over the collector's; :mod:`netsense.rl.ppo`).
+        ``False``: collection and learning one after the other, plain PPO.
     overrides : dict
         Scenario overrides (checked against the scenario file when the config is built).
 
@@ -242,6 +251,7 @@ class PPOConfig:
     precision: str = "auto"
     numba_threads: int | None = 1
     torch_threads: int | None = 1
+    overlap: bool = True
     overrides: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -398,6 +408,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "precision": ("choice", PRECISIONS, None),
     "numba_threads": ("int?", 1, 4096),
     "torch_threads": ("int?", 1, 4096),
+    "overlap": ("choice", (True, False), None),
     "overrides": ("dict", None, None),
 }
 

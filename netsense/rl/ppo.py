@@ -13,6 +13,19 @@ One iteration::
     Adam, gradient clipping, schedules      learning rate and entropy coefficient per
                                             iteration (lr_decay, entropy_final)
 
+Overlap (``PPOConfig.overlap``, the default): the collector runs in a second Python thread
+with its own copy of the actor and collects the next rollout while the learner trains on
+the current one, so an iteration takes about the longer of the two instead of their sum
+(the core's compiled passes and torch's operations release the GIL). The rollout then
+comes from the parameters before the last update (one update of lag): the loss is TorchRL's
+decoupled objective (``delay_actor``; Hilton et al. 2021, "Batch size-invariance for policy
+optimization"): the ratio is clipped around the parameters at the start of the update
+(the proximal policy, copied in every iteration) and the surrogate is weighted by the
+proximal over the behaviour probability of the action taken. Between two collections the
+collector takes the learner's parameters and the learner the collector's observation
+statistics (:func:`_sync`). The collector draws from its own generator, so a run is as
+reproducible as without the overlap.
+
 No PPO arithmetic lives here: losses, advantages and value normalisers are TorchRL's.
 Actor: :func:`netsense.rl.policy.actor_net` (MLP, recurrent MLP, set network) behind
 TorchRL's ``ProbabilisticActor`` with
@@ -44,8 +57,10 @@ loss runs in bfloat16 mixed precision on CPUs with native bfloat16 products
 
 from __future__ import annotations
 
+import copy
 import json
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -97,6 +112,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     training iteration frees (:func:`keep_freed_memory`).
     """
     from torchrl.modules import RunningValueNorm
+    from torchrl.objectives import HardUpdate
     from torchrl.objectives.multiagent import IPPOLoss, MAPPOLoss
     from tqdm.auto import tqdm
 
@@ -110,9 +126,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     if config.torch_threads:
         torch.set_num_threads(int(config.torch_threads))
     if config.numba_threads:
-        import numba
-
-        numba.set_num_threads(min(int(config.numba_threads), numba.config.NUMBA_NUM_THREADS))
+        _numba_threads(config.numba_threads)
     out = None if out is None else Path(out)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
@@ -132,14 +146,29 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     Loss = IPPOLoss if config.algo == "ippo" else MAPPOLoss  # noqa: N806
     loss = Loss(actor, critic, clip_epsilon=config.clip, entropy_coeff=config.entropy_coef,
                 critic_coeff=config.critic_coef, normalize_advantage=False,
-                loss_critic_type="l2")  # advantages standardised per rollout (loss_batch)
+                loss_critic_type="l2",  # advantages standardised per rollout (loss_batch)
+                delay_actor=config.overlap)
+    # overlap: the rollout comes from the parameters before the last update; the clipping
+    # acts around the parameters at the start of this update (the proximal policy, copied
+    # in every iteration) and the surrogate is reweighted by proximal / behaviour (decoupled
+    # PPO, TorchRL's delay_actor)
+    proximal = HardUpdate(loss, value_network_update_interval=0) if config.overlap else None
     loss.set_keys(action=("agents", "action"), sample_log_prob=("agents", "action_log_prob"),
                   value=("agents", "state_value"), advantage=("agents", "advantage"),
                   value_target=("agents", "value_target"))
     opt = torch.optim.Adam(loss.parameters(), lr=config.lr)
-    collector = Collector(env, net, T, device=device, with_state="state" in critic.in_keys,
+    # overlap: the collector acts with its own copy of the actor (parameters one update
+    # behind the learner's), in a second thread while the learner trains
+    net_c = copy.deepcopy(net) if config.overlap else net
+    collector = Collector(env, net_c, T, device=device,
+                          with_state="state" in critic.in_keys,
                           update_obs_norm=config.obs_norm, stagger=config.stagger,
                           seed=config.seed)
+    pool = None
+    if config.overlap:  # numba's thread count is per Python thread
+        pool = ThreadPoolExecutor(1, "netsense-collect", initializer=_numba_threads,
+                                  initargs=(config.numba_threads,))
+    pending = None
     sequences = is_recurrent(net)
     iters = max(1, -(-int(config.steps) // (B * T * N)))
     log = RunLog(out) if out is not None else None
@@ -149,59 +178,71 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     collect_s = learn_s = 0.0
     bar = tqdm(total=iters * B * T * N, desc=f"{config.algo} seed {config.seed}",
                unit="agent-step", unit_scale=True, disable=not progress)
-    for it in range(iters):
-        frac = it / iters
-        lr = config.lr * (1.0 - frac) if config.lr_decay else config.lr
-        for g in opt.param_groups:
-            g["lr"] = lr
-        ent = _schedule(config.entropy_coef, config.entropy_final, frac)
-        loss.entropy_coeff.fill_(ent)
-        t_start = time.perf_counter()
-        ro = collector.collect()
-        t_collected = time.perf_counter()
-        violations += mask_violations(ro.mask, ro.action, core.nvec)
-        reward = scaler(ro.reward, ro.done) if scaler is not None else ro.reward
-        adv = estimate(critic_values(critic, ro, value_norm), reward, ro.done,
-                       config.gamma, config.lmbda)
-        if value_norm is not None:
-            value_norm.update(adv.target.reshape(-1, 1))
-        data = loss_batch(ro, adv, value_norm, sequences=sequences)
-        stats = _update(loss, opt, data, config, warm=it < config.critic_warmup,
-                        sequences=sequences, T=T, precision=precision)
-        t_learned = time.perf_counter()
-        collect_s += t_collected - t_start
-        learn_s += t_learned - t_collected
-        agent_steps += B * T * N
-        bar.update(B * T * N)
-        wall = time.perf_counter() - t0
-        row = {"iteration": it, "agent_steps": agent_steps, "wall_s": round(wall, 3),
-               "agent_steps_per_s": round(agent_steps / wall, 1),
-               "collect_s": round(collect_s, 3), "learn_s": round(learn_s, 3),
-               "step_reward": float(ro.reward.mean()),
-               "train_error": float(ro.error.mean()), "train_messages": float(ro.sent.mean()),
-               **stats, "explained_variance": explained_variance(adv.value, adv.target),
-               "value_sd": float(adv.value.std()), "target_sd": float(adv.target.std()),
-               "advantage_mean": float(adv.advantage.mean()),
-               "advantage_sd": float(adv.advantage.std()),
-               "action_gap": action_gap(adv.advantage, ro.action, core.nvec),
-               "lr": lr, "entropy_coef": ent}
-        if ro.returns:
-            row["train_return"] = float(np.mean(ro.returns))
-            row["train_episodes"] = len(ro.returns)
-        last = it == iters - 1
-        if out is not None and evaluate_every and (
-                last or (config.eval_interval and (it + 1) % config.eval_interval == 0)):
-            # greedy and sampled: a learned randomised schedule (transmit with some
-            # probability) collapses to all-or-nothing under the greedy action
-            row.update({f"eval_{k}": v for k, v in evaluate(net, config).items()})
-            row.update({f"eval_sampled_{k}": v for k, v in evaluate(
-                net, config, deterministic=False).items()})
-            save_checkpoint(out / f"checkpoint_{it + 1:05d}.pt", config, net, critic, it + 1,
-                            agent_steps, core)
-        rows.append(row)
-        if log is not None:
-            log.add(row)
-        bar.set_postfix(r=f"{row['step_reward']:.3g}", ev=f"{row['explained_variance']:.2f}")
+    try:
+        for it in range(iters):
+            frac = it / iters
+            lr = config.lr * (1.0 - frac) if config.lr_decay else config.lr
+            for g in opt.param_groups:
+                g["lr"] = lr
+            ent = _schedule(config.entropy_coef, config.entropy_final, frac)
+            loss.entropy_coeff.fill_(ent)
+            if pending is None:
+                ro, took = _timed(collector.collect)
+            else:
+                ro, took = pending.result()
+            if pool is not None:
+                _sync(net, net_c)
+                if it + 1 < iters:
+                    pending = pool.submit(_timed, collector.collect)
+            t_collected = time.perf_counter()
+            violations += mask_violations(ro.mask, ro.action, core.nvec)
+            reward = scaler(ro.reward, ro.done) if scaler is not None else ro.reward
+            adv = estimate(critic_values(critic, ro, value_norm), reward, ro.done,
+                           config.gamma, config.lmbda)
+            if value_norm is not None:
+                value_norm.update(adv.target.reshape(-1, 1))
+            data = loss_batch(ro, adv, value_norm, sequences=sequences)
+            if proximal is not None:
+                proximal.step()
+            stats = _update(loss, opt, data, config, warm=it < config.critic_warmup,
+                            sequences=sequences, T=T, precision=precision)
+            t_learned = time.perf_counter()
+            collect_s += took
+            learn_s += t_learned - t_collected
+            agent_steps += B * T * N
+            bar.update(B * T * N)
+            wall = time.perf_counter() - t0
+            row = {"iteration": it, "agent_steps": agent_steps, "wall_s": round(wall, 3),
+                   "agent_steps_per_s": round(agent_steps / wall, 1),
+                   "collect_s": round(collect_s, 3), "learn_s": round(learn_s, 3),
+                   "step_reward": float(ro.reward.mean()),
+                   "train_error": float(ro.error.mean()), "train_messages": float(ro.sent.mean()),
+                   **stats, "explained_variance": explained_variance(adv.value, adv.target),
+                   "value_sd": float(adv.value.std()), "target_sd": float(adv.target.std()),
+                   "advantage_mean": float(adv.advantage.mean()),
+                   "advantage_sd": float(adv.advantage.std()),
+                   "action_gap": action_gap(adv.advantage, ro.action, core.nvec),
+                   "lr": lr, "entropy_coef": ent}
+            if ro.returns:
+                row["train_return"] = float(np.mean(ro.returns))
+                row["train_episodes"] = len(ro.returns)
+            last = it == iters - 1
+            if out is not None and evaluate_every and (
+                    last or (config.eval_interval and (it + 1) % config.eval_interval == 0)):
+                # greedy and sampled: a learned randomised schedule (transmit with some
+                # probability) collapses to all-or-nothing under the greedy action
+                row.update({f"eval_{k}": v for k, v in evaluate(net, config).items()})
+                row.update({f"eval_sampled_{k}": v for k, v in evaluate(
+                    net, config, deterministic=False).items()})
+                save_checkpoint(out / f"checkpoint_{it + 1:05d}.pt", config, net, critic, it + 1,
+                                agent_steps, core)
+            rows.append(row)
+            if log is not None:
+                log.add(row)
+            bar.set_postfix(r=f"{row['step_reward']:.3g}", ev=f"{row['explained_variance']:.2f}")
+    finally:  # an error in the learner leaves no collection running
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     wall = time.perf_counter() - t0
     bar.close()
     if out is not None:
@@ -216,6 +257,32 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                 "precision": precision, "torch_threads": torch.get_num_threads(), "bc": bc}
         (out / "summary.json").write_text(json.dumps(meta, indent=2) + "\n")
     return PPOResult(out, rows, wall, agent_steps, violations, bc)
+
+
+def _numba_threads(k: int | None) -> None:
+    """numba's thread count for the calling Python thread (``None``: numba's default)."""
+    if k:
+        import numba
+
+        numba.set_num_threads(min(int(k), numba.config.NUMBA_NUM_THREADS))
+
+
+def _timed(f):
+    """``(f(), seconds it took)``."""
+    t = time.perf_counter()
+    out = f()
+    return out, time.perf_counter() - t
+
+
+@torch.no_grad()
+def _sync(learner: torch.nn.Module, collector: torch.nn.Module) -> None:
+    """Between two overlapped collections: the collector's actor takes the learner's
+    parameters, the learner's actor the collector's buffers (the observation normaliser's
+    statistics, which only collection updates; :class:`netsense.rl.policy.ObsNormActor`)."""
+    for mine, theirs in zip(collector.parameters(), learner.parameters(), strict=True):
+        mine.copy_(theirs)
+    for mine, theirs in zip(learner.buffers(), collector.buffers(), strict=True):
+        mine.copy_(theirs)
 
 
 def keep_freed_memory() -> bool:
