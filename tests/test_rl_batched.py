@@ -422,8 +422,8 @@ def test_bench_train_throughput_smoke(tmp_path):
 
     mod = load_experiment("bench/train_throughput")
     before = torch.get_num_threads()
-    path = mod.main(["--paths", "torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-cores-tx",
-                     "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
+    path = mod.main(["--paths", "torchrl-defaults-tx", "torchrl-serial-tx", "torchrl-tuned-tx",
+                     "torchrl-cores-tx", "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
                      "--rounds", "1", "--iters", "1", "--grid", "4:8,8:16",
                      "--defaults-envs", "4", "--defaults-minibatch", "8", "--sb3-steps", "512",
                      "--out", str(tmp_path), "--tag", "smoke"])
@@ -431,7 +431,8 @@ def test_bench_train_throughput_smoke(tmp_path):
     rows = list(csv.DictReader(open(path)))
     # the tuned path measures every grid point
     assert [(r["path"], r["num_envs"]) for r in rows] == [
-        ("torchrl-defaults-tx", "4"), ("torchrl-tuned-tx", "4"), ("torchrl-tuned-tx", "8"),
+        ("torchrl-defaults-tx", "4"), ("torchrl-serial-tx", "4"), ("torchrl-tuned-tx", "4"),
+        ("torchrl-tuned-tx", "8"),
         ("torchrl-cores-tx", "4"), ("sb3-supersuit-tx", ""), ("sb3-supersuit-cores-tx", "")]
     assert all(float(r["agent_steps_per_s"]) > 0 for r in rows)
     text = (tmp_path / "smoke.txt").read_text()
@@ -440,6 +441,15 @@ def test_bench_train_throughput_smoke(tmp_path):
     faster = max(sb3, key=sb3.get)
     line = next(t for t in text.splitlines() if t.startswith("ratio defaults / SB3"))
     assert f"(against {faster})" in line  # the ratio divides by SB3's faster setting
+    med: dict[str, float] = {}  # one round: a path's figure is its best grid point's
+    for r in rows:
+        med[r["path"]] = max(med.get(r["path"], 0.0), float(r["agent_steps_per_s"]))
+    line = next(t for t in text.splitlines() if t.startswith("ratio defaults (collection"))
+    want = med["torchrl-defaults-tx"] / med["torchrl-serial-tx"]
+    assert f"communication only {want:.2f}x" in line  # overlapped over serial, this run's
+    line = next(t for t in text.splitlines() if t.startswith("fastest (-tx)"))
+    fastest = max(med, key=med.get)
+    assert f"fastest (-tx): {fastest}" in line
     assert (tmp_path / "smoke.png").exists()
 
 

@@ -21,6 +21,10 @@ condition          what
                    started side by side
 ``alone-unset``    one run, nothing set: torch's and numba's defaults (one thread per core)
 ``pair-unset``     two runs at once, nothing set
+``alone-serial``   ``alone`` with collection and learning one after the other
+                   (``PPOConfig.overlap = False``): every other condition overlaps them, a
+                   second thread per run
+``pair-serial``    two runs at once, as ``alone-serial``
 =================  ==========================================================================
 
 The thread variables of the caller are removed first, so each condition sets only its own.
@@ -34,7 +38,7 @@ cores that is the aim.
 Writes ``bench_parallel_runs.csv`` (one row per run), ``.txt`` (per condition: median,
 min and max throughput and slowdown) and ``.png`` into ``--out``::
 
-    python experiments/bench/parallel_runs.py             # about 2 minutes on 2 cores
+    python experiments/bench/parallel_runs.py             # about 3 minutes on 2 cores
     python experiments/bench/parallel_runs.py --smoke --out /tmp/x   # plumbing, no timing
 """
 
@@ -49,19 +53,23 @@ import tempfile
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "parallel_runs"
-#: condition -> (runs at once, launcher threads, PPOConfig torch / numba threads)
+#: condition -> (runs at once, launcher threads, PPOConfig torch / numba threads,
+#: PPOConfig.overlap)
 CONDITIONS = {
-    "alone": (1, 1, 1),
-    "pair": (2, 1, 1),
-    "pair-env": (2, None, 1),
-    "alone-unset": (1, None, None),
-    "pair-unset": (2, None, None),
+    "alone": (1, 1, 1, True),
+    "pair": (2, 1, 1, True),
+    "pair-env": (2, None, 1, True),
+    "alone-unset": (1, None, None, True),
+    "pair-unset": (2, None, None, True),
+    "alone-serial": (1, 1, 1, False),
+    "pair-serial": (2, 1, 1, False),
 }
 #: The reference of each condition's slowdown.
 REFERENCE = {"alone": "alone", "pair": "alone", "pair-env": "alone",
-             "alone-unset": "alone-unset", "pair-unset": "alone-unset"}
+             "alone-unset": "alone-unset", "pair-unset": "alone-unset",
+             "alone-serial": "alone-serial", "pair-serial": "alone-serial"}
 COLUMNS = ("round", "condition", "run", "runs_at_once", "launcher_threads", "torch_threads",
-           "numba_threads", "agent_steps", "wall_s", "agent_steps_per_s", "collect_s",
+           "numba_threads", "overlap", "agent_steps", "wall_s", "agent_steps_per_s", "collect_s",
            "learn_s", "loadavg")
 
 
@@ -72,10 +80,10 @@ def measure(condition: str, scenario: str, iters: int, num_envs: int, rollout: i
     from netsense.rl.config import PPOConfig
     from netsense.rl.launch import launch, make_runs
 
-    at_once, threads, lib_threads = CONDITIONS[condition]
+    at_once, threads, lib_threads, overlap = CONDITIONS[condition]
     cfg = PPOConfig(scenario, control="transmit", num_envs=num_envs, rollout=rollout,
                     steps=iters * num_envs * rollout * 10, eval_interval=0, eval_envs=8,
-                    torch_threads=lib_threads, numba_threads=lib_threads)
+                    torch_threads=lib_threads, numba_threads=lib_threads, overlap=overlap)
     with tempfile.TemporaryDirectory() as tmp:
         summary = launch(make_runs(cfg, range(at_once)), tmp, workers=2, threads=threads,
                          progress=False)
@@ -88,7 +96,7 @@ def measure(condition: str, scenario: str, iters: int, num_envs: int, rollout: i
             rows.append({"round": rnd, "condition": condition, "run": e["seed"],
                          "runs_at_once": at_once, "launcher_threads": threads or "",
                          "torch_threads": lib_threads or "", "numba_threads": lib_threads or "",
-                         "agent_steps": e["agent_steps"], "wall_s": e["wall_s"],
+                         "overlap": overlap, "agent_steps": e["agent_steps"], "wall_s": e["wall_s"],
                          "agent_steps_per_s": e["agent_steps_per_s"],
                          "collect_s": last["collect_s"], "learn_s": last["learn_s"],
                          "loadavg": round(os.getloadavg()[0], 2)})

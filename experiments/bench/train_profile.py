@@ -2,8 +2,10 @@
 split into its stages by a profile.
 
 Trains ``--iters`` iterations of :func:`netsense.rl.ppo.train_ppo` with the
-:class:`netsense.rl.config.PPOConfig` defaults (one torch and one numba thread) under
-:mod:`cProfile`, and attributes the wall time to disjoint stages by the cumulative time of
+:class:`netsense.rl.config.PPOConfig` defaults (one torch and one numba thread) but with
+collection and learning one after the other (``overlap=False``: :mod:`cProfile` sees only
+the thread it runs in, and the defaults collect in a second one) under :mod:`cProfile`, and
+attributes the wall time to disjoint stages by the cumulative time of
 the functions that implement them:
 
 ==================  ==========================================================================
@@ -31,7 +33,7 @@ other               the rest of the loop (building the core and networks, loggin
 Evaluation is timed on its own (one greedy and one sampled :func:`netsense.rl.evaluation.
 evaluate`, which the defaults run every 10 iterations). Writes ``profile.txt`` (a table:
 seconds and share per stage, plus the unprofiled wall time of the same run length measured
-first, and the evaluation's cost) and ``profile.png`` into ``--out``::
+first, serial and overlapped, and the evaluation's cost) and ``profile.png`` into ``--out``::
 
     python experiments/bench/train_profile.py          # about 1 minute
 """
@@ -43,6 +45,7 @@ import argparse
 import cProfile
 import pstats
 import time
+from dataclasses import replace
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_profile"
@@ -89,12 +92,18 @@ def main(argv: list[str] | None = None) -> Path:
     from netsense.rl.envs import make_core
 
     N = make_core(args.scenario, 1).N
-    cfg = PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N * args.iters)
+    # one thread of work, which cProfile sees whole: the defaults collect the next rollout
+    # in a second thread while the learner trains (PPOConfig.overlap), timed apart below
+    cfg = PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N * args.iters,
+                    overlap=False)
     train_ppo(PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N), None,
               evaluate_every=False)  # warm-up: compilation, allocation
     t0 = time.perf_counter()
     res = train_ppo(cfg, None, evaluate_every=False)
     plain = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    train_ppo(replace(cfg, overlap=True), None, evaluate_every=False)
+    overlapped = time.perf_counter() - t0
     prof = cProfile.Profile()
     prof.enable()
     t0 = time.perf_counter()
@@ -115,12 +124,14 @@ def main(argv: list[str] | None = None) -> Path:
     rows.append(("other", max(0.0, profiled - sum(v for _, v in rows))))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    lines = [f"# {args.scenario}, PPOConfig defaults (B = {cfg.num_envs}, T = {cfg.rollout}, "
-             f"{cfg.epochs} epochs, minibatch {cfg.minibatch} env-steps, critic "
+    lines = [f"# {args.scenario}, PPOConfig defaults but overlap=False (B = {cfg.num_envs}, "
+             f"T = {cfg.rollout}, {cfg.epochs} epochs, minibatch {cfg.minibatch} env-steps, critic "
              f"{cfg.critic_kind}), {args.iters} iterations = {res.agent_steps} agent-steps",
              f"# without the profiler: {plain:.2f} s, {res.agent_steps / plain:,.0f} "
              f"agent-steps/s (collection {res.rows[-1]['collect_s']:.2f} s, learning "
-             f"{res.rows[-1]['learn_s']:.2f} s)",
+             f"{res.rows[-1]['learn_s']:.2f} s), collection and learning one after the "
+             f"other (overlap=False); the defaults, which overlap them: {overlapped:.2f} s, "
+             f"{res.agent_steps / overlapped:,.0f} agent-steps/s",
              f"# under the profiler (shares below; the profiler slows Python-heavy stages "
              f"more): {profiled:.2f} s",
              f"# evaluation (not in the table): {eval_s:.2f} s for one greedy and one sampled "

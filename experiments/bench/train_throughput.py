@@ -12,7 +12,10 @@ path                              what runs
                                   (B = 256, T = 32, 4 epochs, minibatch 2048 env-steps, team
                                   critic) on the communication-only scenario (transmit bit;
                                   freshness fusion adopts)
-``torchrl-tuned-tx``              the same with the fastest ``(num_envs, minibatch)`` of
+``torchrl-serial-tx``             the defaults with collection and learning one after the
+                                  other (``overlap=False``), where the defaults collect the
+                                  next rollout in a second thread while the learner trains
+``torchrl-tuned-tx``              the defaults with the fastest ``(num_envs, minibatch)`` of
                                   ``--grid`` (epochs and everything else as the defaults)
 ``torchrl-tanh-tx``               the defaults with tanh hidden layers instead of ReLU (what
                                   the activation costs on this CPU)
@@ -34,6 +37,7 @@ path                              what runs
 ``torchrl-tuned-full``            / average per substate plus transmit), the tuned grid point
 ``torchrl-fp32-full``             and the defaults with the loss in float32
 ``torchrl-cores-full``            the defaults with torch on every core, full control
+``torchrl-serial-full``           the defaults without the overlap, full control
 ``sb3-supersuit-full``            MaskablePPO through SuperSuit, full control, at one torch
 ``sb3-supersuit-cores-full``      thread (its default) and with torch on every core
 ================================  =============================================================
@@ -53,7 +57,7 @@ thread settings (so that the thread default of neither backend can flatter the r
 ``bench_train_throughput.csv`` (one row per round and measurement),
 ``bench_train_throughput.txt`` and ``bench_train_throughput.png`` into ``--out``::
 
-    python experiments/bench/train_throughput.py                   # about 14 minutes
+    python experiments/bench/train_throughput.py                   # about 15 minutes
     python experiments/bench/train_throughput.py --rounds 1 --iters 1 --sb3-steps 2000 \\
         --grid 8:16 --defaults-envs 8 --out /tmp/x --tag smoke       # smoke size
 """
@@ -72,11 +76,12 @@ from pathlib import Path
 import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
-PATHS = ("torchrl-defaults-tx", "torchrl-tuned-tx", "torchrl-tanh-tx", "torchrl-fp32-tx",
-         "torchrl-tunedcores-tx", "torchrl-cores-tx", "torchrl-threads-tx",
+PATHS = ("torchrl-defaults-tx", "torchrl-serial-tx", "torchrl-tuned-tx", "torchrl-tanh-tx",
+         "torchrl-fp32-tx", "torchrl-tunedcores-tx", "torchrl-cores-tx", "torchrl-threads-tx",
          "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
-         "torchrl-defaults-full", "torchrl-tuned-full", "torchrl-fp32-full",
-         "torchrl-cores-full", "sb3-supersuit-full", "sb3-supersuit-cores-full")
+         "torchrl-defaults-full", "torchrl-serial-full", "torchrl-tuned-full",
+         "torchrl-fp32-full", "torchrl-cores-full", "sb3-supersuit-full",
+         "sb3-supersuit-cores-full")
 
 
 def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: int,
@@ -135,8 +140,8 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
                 for b, m in _grid(args.grid)]
     # the defaults and their one-field variants, at the defaults' batch
     variant = {"defaults": {}, "tanh": {"activation": "tanh"}, "fp32": {"precision": "fp32"},
-               "cores": every, "threads": {"torch_threads": cores, "numba_threads": cores}
-               }[path.split("-")[1]]
+               "cores": every, "threads": {"torch_threads": cores, "numba_threads": cores},
+               "serial": {"overlap": False}}[path.split("-")[1]]
     return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
                      args.iters, **variant, **dev)]
 
@@ -240,7 +245,8 @@ def _fastest(s: dict, mode: str) -> str:
     best = max(paths, key=lambda p: s[p]["median"])
     b, m = s[best]["point"]
     return (f"fastest ({mode}): {best} at num_envs:minibatch {b}:{m}, "
-            f"{s[best]['median']:,.0f} agent-steps/s")
+            f"{s[best]['median']:,.0f} agent-steps/s; defaults / fastest "
+            f"{_ratio(s, 'torchrl-defaults' + mode, best)}")
 
 
 def _against_sb3(s: dict, a: str, mode: str) -> str:
@@ -299,9 +305,13 @@ def _report(rows: list[dict], args, path: Path) -> None:
               f"SB3 + SuperSuit {_ratio(s, 'sb3-supersuit-cores-tx', 'sb3-supersuit-tx')} "
               f"and {_ratio(s, 'sb3-supersuit-cores-full', 'sb3-supersuit-full')}; fastest "
               f"grid point {_ratio(s, 'torchrl-tunedcores-tx', 'torchrl-tuned-tx')}",
+              f"ratio defaults (collection overlapped with learning) / one after the "
+              f"other: communication only "
+              f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-serial-tx')}, full control "
+              f"{_ratio(s, 'torchrl-defaults-full', 'torchrl-serial-full')}",
               f"ratio every core for torch and numba / defaults, communication only: "
               f"{_ratio(s, 'torchrl-threads-tx', 'torchrl-defaults-tx')}",
-              _fastest(s, "-tx")]
+              _fastest(s, "-tx"), _fastest(s, "-full")]
     path.write_text("\n".join(lines) + "\n")
 
 
