@@ -319,30 +319,69 @@ def test_overlap_collects_the_next_rollout_with_parameters_one_update_behind(ove
     assert same == overlap
 
 
-def test_overlap_clips_around_the_parameters_at_the_start_of_every_update(monkeypatch):
-    """The decoupled objective's proximal policy (TorchRL's target actor parameters) is
-    refreshed once per iteration, before the update, to the learner's parameters; the
-    serial loop keeps plain PPO (no proximal copy)."""
-    import torchrl.objectives
+def test_overlap_trains_every_iteration_on_the_decoupled_batch(monkeypatch):
+    """The overlapped loop prepares every iteration's batch for the decoupled objective,
+    with the learner's actor at the parameters it has when the update starts; the serial
+    loop trains plain PPO on the batch as collected."""
+    import netsense.rl.ppo as ppo
 
-    from netsense.rl.ppo import train_ppo
+    calls = []
 
-    seen = []
+    def spy(data, actor, *, precision):
+        calls.append([p.detach().clone() for p in actor.parameters()])
+        return decouple(data, actor, precision=precision)
 
-    class Spy(torchrl.objectives.HardUpdate):
-        def step(self):
-            super().step()
-            loss = self.loss_module
-            seen.append(all(torch.equal(a, b) for a, b in zip(
-                loss.actor_network_params.values(True, True),
-                loss.target_actor_network_params.values(True, True), strict=True)))
+    decouple = ppo.decouple
+    monkeypatch.setattr(ppo, "decouple", spy)
+    res = ppo.train_ppo(_tiny())
+    assert len(calls) == len(res.rows) == 4
+    assert any(not torch.equal(a, b) for a, b in zip(calls[0], calls[1], strict=True))
+    calls.clear()
+    ppo.train_ppo(_tiny(overlap=False))
+    assert calls == []
 
-    monkeypatch.setattr(torchrl.objectives, "HardUpdate", Spy)
-    res = train_ppo(_tiny())
-    assert seen == [True] * len(res.rows) and len(seen) == 4
-    seen.clear()
-    train_ppo(_tiny(overlap=False))
-    assert seen == []
+
+@pytest.mark.filterwarnings("ignore:No target network updater")
+def test_decouple_gives_torchrl_delay_actor_loss(core_env):
+    """PPO's loss on the decoupled batch equals TorchRL's own decoupled loss
+    (``delay_actor``, proximal = the current parameters) on the batch as collected, for
+    data whose behaviour policy differs from the proximal one."""
+    from torchrl.objectives.multiagent import MAPPOLoss
+
+    from netsense.rl.advantage import critic_values, decouple, estimate, loss_batch
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.policy import actor_net, build_actor, critic_module
+    from netsense.rl.rollout import Collector
+
+    core, env = core_env
+    torch.manual_seed(0)
+    cfg = PPOConfig(SCEN, num_envs=3)
+    net = actor_net(cfg, core, torch.device("cpu"))
+    behaviour = actor_net(cfg, core, torch.device("cpu"))  # other weights collect
+    actor = build_actor(net, core.nvec)
+    critic = critic_module(cfg, env, torch.device("cpu"))
+    ro = Collector(env, behaviour, 6, with_state=True).collect()
+    adv = estimate(critic_values(critic, ro), ro.reward, ro.done, 0.99, 0.95)
+    keys = dict(action=("agents", "action"), sample_log_prob=("agents", "action_log_prob"),
+                value=("agents", "state_value"), advantage=("agents", "advantage"),
+                value_target=("agents", "value_target"))
+    losses = {}
+    for delay in (True, False):
+        losses[delay] = MAPPOLoss(actor, critic, clip_epsilon=0.2, entropy_coeff=0.0,
+                                  normalize_advantage=False, loss_critic_type="l2",
+                                  delay_actor=delay)  # (True: proximal = the weights now)
+        losses[delay].set_keys(**keys)
+    ready = decouple(loss_batch(ro, adv), actor)  # at the same (proximal) weights
+    with torch.no_grad():  # an update moves the actor away from the proximal policy
+        for p in net.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    out = {True: losses[True](loss_batch(ro, adv)), False: losses[False](ready),
+           "plain": losses[False](loss_batch(ro, adv))}
+    assert float(out[True]["clip_fraction"]) > 0.05  # the clipping acts
+    gap = out["plain"]["loss_objective"] - out[True]["loss_objective"]
+    assert abs(float(gap.detach())) > 1e-3  # and the weights w matter
+    for k in ("loss_objective", "kl_approx", "clip_fraction", "entropy"):
+        torch.testing.assert_close(out[False][k], out[True][k], rtol=1e-5, atol=1e-7)
 
 
 def test_decoupled_objective_is_ppo_on_the_first_rollout():

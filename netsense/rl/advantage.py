@@ -109,3 +109,32 @@ def loss_batch(ro: Rollout, adv: Advantages, value_norm=None, *,
     if sequences:
         return td.transpose(0, 1).contiguous()  # (B, T): one sequence per member
     return td.reshape(T * B)
+
+
+@torch.no_grad()
+def decouple(data: TensorDict, actor, *, precision: str = "fp32") -> TensorDict:
+    """A loss batch of lagged data made ready for the decoupled clipped objective.
+
+    The decoupled objective of Hilton et al. (2021, "Batch size-invariance for policy
+    optimization", the ``delay_actor`` option of TorchRL's PPO losses) clips the ratio
+    ``r = pi / pi_prox`` around a proximal policy ``pi_prox`` and weights the surrogate by
+    ``w = pi_prox / pi_behav`` (the probability of the action taken under the proximal
+    over the behaviour policy that collected it): ``-w min(r A, clip(r) A)``. As ``w > 0``
+    does not depend on the parameters, that equals PPO's loss on the same batch with the
+    recorded log-probabilities replaced by the proximal ones and the advantages ``A`` by
+    ``w A``, which this function does in place (and returns ``data``). ``actor`` (the loss's
+    actor) at its current parameters is the proximal policy: its log-probabilities of the
+    recorded actions are computed once here, under the loss's arithmetic (``precision``),
+    where ``delay_actor`` computes them again in every minibatch of every epoch (one more
+    forward pass of the actor each time). Equal to TorchRL's ``delay_actor`` loss to float
+    rounding (``tests/test_rl_training.py``).
+    """
+    device = data.device if data.device is not None else data["agents", "action"].device
+    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
+        prox = actor.get_dist(data).log_prob(data["agents", "action"]).float()
+    agents = data["agents"]
+    w = (prox - agents["action_log_prob"]).exp()
+    agents["advantage"] = agents["advantage"] * w.unsqueeze(-1)
+    agents["action_log_prob"] = prox
+    return data
+

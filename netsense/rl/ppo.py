@@ -17,11 +17,12 @@ Overlap (``PPOConfig.overlap``, the default): the collector runs in a second Pyt
 with its own copy of the actor and collects the next rollout while the learner trains on
 the current one, so an iteration takes about the longer of the two instead of their sum
 (the core's compiled passes and torch's operations release the GIL). The rollout then
-comes from the parameters before the last update (one update of lag): the loss is TorchRL's
-decoupled objective (``delay_actor``; Hilton et al. 2021, "Batch size-invariance for policy
-optimization"): the ratio is clipped around the parameters at the start of the update
-(the proximal policy, copied in every iteration) and the surrogate is weighted by the
-proximal over the behaviour probability of the action taken. Between two collections the
+comes from the parameters before the last update (one update of lag), and the loss is the
+decoupled objective for such data (Hilton et al. 2021, "Batch size-invariance for policy
+optimization"; TorchRL's ``delay_actor``): the ratio is clipped around the parameters at
+the start of the update (the proximal policy) and the surrogate is weighted by the
+proximal over the behaviour probability of the action taken, through the batch
+(:func:`netsense.rl.advantage.decouple`) and TorchRL's PPO loss. Between two collections the
 collector takes the learner's parameters and the learner the collector's observation
 statistics (:func:`_sync`). The collector draws from its own generator, so a run is as
 reproducible as without the overlap.
@@ -67,7 +68,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from netsense.rl.advantage import critic_values, estimate, explained_variance, loss_batch
+from netsense.rl.advantage import critic_values, decouple, estimate, explained_variance, loss_batch
 from netsense.rl.checkpoint import save_checkpoint
 from netsense.rl.cloning import behaviour_clone
 from netsense.rl.config import PPOConfig, device_of, learner_precision
@@ -112,7 +113,6 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     training iteration frees (:func:`keep_freed_memory`).
     """
     from torchrl.modules import RunningValueNorm
-    from torchrl.objectives import HardUpdate
     from torchrl.objectives.multiagent import IPPOLoss, MAPPOLoss
     from tqdm.auto import tqdm
 
@@ -146,13 +146,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     Loss = IPPOLoss if config.algo == "ippo" else MAPPOLoss  # noqa: N806
     loss = Loss(actor, critic, clip_epsilon=config.clip, entropy_coeff=config.entropy_coef,
                 critic_coeff=config.critic_coef, normalize_advantage=False,
-                loss_critic_type="l2",  # advantages standardised per rollout (loss_batch)
-                delay_actor=config.overlap)
-    # overlap: the rollout comes from the parameters before the last update; the clipping
-    # acts around the parameters at the start of this update (the proximal policy, copied
-    # in every iteration) and the surrogate is reweighted by proximal / behaviour (decoupled
-    # PPO, TorchRL's delay_actor)
-    proximal = HardUpdate(loss, value_network_update_interval=0) if config.overlap else None
+                loss_critic_type="l2")  # advantages standardised per rollout (loss_batch)
     loss.set_keys(action=("agents", "action"), sample_log_prob=("agents", "action_log_prob"),
                   value=("agents", "state_value"), advantage=("agents", "advantage"),
                   value_target=("agents", "value_target"))
@@ -202,8 +196,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
             if value_norm is not None:
                 value_norm.update(adv.target.reshape(-1, 1))
             data = loss_batch(ro, adv, value_norm, sequences=sequences)
-            if proximal is not None:
-                proximal.step()
+            if config.overlap:  # the rollout is one update old: the decoupled objective
+                data = decouple(data, actor, precision=precision)
             stats = _update(loss, opt, data, config, warm=it < config.critic_warmup,
                             sequences=sequences, T=T, precision=precision)
             t_learned = time.perf_counter()
