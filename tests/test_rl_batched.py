@@ -420,11 +420,13 @@ def test_bench_train_throughput_smoke(tmp_path):
     import torch
     from experiment_loader import load_experiment
 
+    from netsense.rl.config import PPOConfig
+
     mod = load_experiment("bench/train_throughput")
     before = torch.get_num_threads()
     path = mod.main(["--paths", "torchrl-defaults-tx", "torchrl-serial-tx", "torchrl-tuned-tx",
                      "torchrl-cores-tx", "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
-                     "--rounds", "1", "--iters", "1", "--grid", "4:8,8:16",
+                     "--rounds", "1", "--iters", "2", "--grid", "4:8,8:16",
                      "--defaults-envs", "4", "--defaults-minibatch", "8", "--sb3-steps", "512",
                      "--out", str(tmp_path), "--tag", "smoke"])
     assert torch.get_num_threads() == before  # the -cores paths' threads do not leak
@@ -451,6 +453,13 @@ def test_bench_train_throughput_smoke(tmp_path):
     fastest = max(med, key=med.get)
     assert f"fastest (-tx): {fastest}" in line
     assert (tmp_path / "smoke.png").exists()
+    T = PPOConfig("comm_process_noise-v0").rollout
+    for r in rows:  # TorchRL: the rate after the first iteration, the whole loop's beside it
+        assert float(r["whole_agent_steps_per_s"]) > 0
+        if r["path"].startswith("torchrl"):  # one iteration of two: num_envs x T x N
+            assert int(r["agent_steps"]) == int(r["num_envs"]) * T * 10
+    with pytest.raises(SystemExit):  # no iteration after the first to time
+        mod.main(["--iters", "1", "--out", str(tmp_path)])
 
 
 # ------------------------------------------------------------------ policy files

@@ -48,7 +48,13 @@ repeated in ``--rounds`` interleaved rounds (every path once per round, in turn,
 from other processes falls on all paths alike); each path is warmed up once first (numba
 compilation, torch initialisation). The wall time is that of the training loop (building
 the environment and the networks is outside it); the TorchRL rows split it into collection
-and learning. One torch thread and one numba thread (the configs' defaults) unless the
+and learning. A TorchRL path's rate is that of its iterations after the first (the whole
+loop's rate is in the CSV's ``whole_agent_steps_per_s``): with the overlap, the first
+rollout is collected with nothing to overlap, once per run, and a measurement of a few
+iterations would weigh that once-per-run cost as if it came back every few iterations
+(a run of 10M agent-steps at the defaults has 123 iterations); SB3's rate is that of its
+whole ``learn`` call, which collects and learns one after the other throughout. One
+torch thread and one numba thread (the configs' defaults) unless the
 path says otherwise; torch's setting is restored before every measurement, so that a path
 that sets its threads does not leak into the next.
 The summary gives medians and the ratios the project tracks: defaults / tuned (target
@@ -57,8 +63,8 @@ thread settings (so that the thread default of neither backend can flatter the r
 ``bench_train_throughput.csv`` (one row per round and measurement),
 ``bench_train_throughput.txt`` and ``bench_train_throughput.png`` into ``--out``::
 
-    python experiments/bench/train_throughput.py                   # about 15 minutes
-    python experiments/bench/train_throughput.py --rounds 1 --iters 1 --sb3-steps 2000 \\
+    python experiments/bench/train_throughput.py                   # about 18 minutes
+    python experiments/bench/train_throughput.py --rounds 1 --iters 2 --sb3-steps 2000 \\
         --grid 8:16 --defaults-envs 8 --out /tmp/x --tag smoke       # smoke size
 """
 
@@ -97,9 +103,14 @@ def _torchrl(scenario: str, control: str | None, B: int, minibatch: int, iters: 
     cfg = PPOConfig(scenario, control=control, num_envs=B, minibatch=minibatch,
                     steps=B * base.rollout * N * iters, **fields)
     res = train_ppo(cfg, None, evaluate_every=False)
-    last = res.rows[-1]
-    return {"agent_steps": res.agent_steps, "wall_s": res.wall_s,
-            "collect_s": last["collect_s"], "learn_s": last["learn_s"], "num_envs": B,
+    first, last = res.rows[0], res.rows[-1]
+    # the rate after the first iteration: the overlapped loop's first collection has no
+    # learning to hide behind (once per run: a run of 10M agent-steps has 123 iterations)
+    return {"agent_steps": res.agent_steps - first["agent_steps"],
+            "wall_s": last["wall_s"] - first["wall_s"],
+            "whole_agent_steps_per_s": res.agent_steps / res.wall_s,
+            "collect_s": last["collect_s"] - first["collect_s"],
+            "learn_s": last["learn_s"] - first["learn_s"], "num_envs": B,
             "minibatch": minibatch}
 
 
@@ -108,7 +119,8 @@ def _sb3_supersuit(scenario: str, steps: int, out: Path, **fields) -> dict:
 
     res = train(TrainConfig(scenario=scenario, steps=steps, seed=0, **fields), out,
                 progress=False)
-    return {"agent_steps": int(res.agent_steps), "wall_s": res.wall_s}
+    return {"agent_steps": int(res.agent_steps), "wall_s": res.wall_s,
+            "whole_agent_steps_per_s": res.agent_steps / res.wall_s}
 
 
 def _grid(text: str) -> list[tuple[int, int]]:
@@ -133,7 +145,7 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     if path.startswith("sb3"):
         return [_sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch, **every)]
     if warm:
-        return [_torchrl(scenario, control, 4, 16, 1, device=args.device)]
+        return [_torchrl(scenario, control, 4, 16, 2, device=args.device)]
     dev = {"device": args.device}
     if "tuned" in path:
         return [_torchrl(scenario, control, b, m, args.iters, **every, **dev)
@@ -161,7 +173,9 @@ def main(argv: list[str] | None = None) -> Path:
                    help="scenario of the communication-only (-tx) paths")
     p.add_argument("--paths", nargs="+", default=list(PATHS), choices=PATHS)
     p.add_argument("--rounds", type=int, default=3)
-    p.add_argument("--iters", type=int, default=3, help="PPO iterations per measurement")
+    p.add_argument("--iters", type=int, default=4,
+                   help="PPO iterations per measurement (TorchRL paths: the rate is that of "
+                        "the iterations after the first; at least 2)")
     p.add_argument("--grid", default="256:2048,512:4096,1024:8192,1024:16384",
                    help="num_envs:minibatch points of the tuned paths (minibatch in "
                         "env-steps)")
@@ -177,6 +191,9 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--tag", default="bench_train_throughput", help="output file stem")
     args = p.parse_args(argv)
+    if args.iters < 2:
+        p.error(f"--iters must be at least 2 (the rate is taken after the first iteration), "
+                f"got {args.iters}")
     import torch
 
     args.start_threads = torch.get_num_threads()
@@ -195,6 +212,7 @@ def main(argv: list[str] | None = None) -> Path:
                                  "minibatch", ""), "agent_steps": m["agent_steps"],
                              "wall_s": round(m["wall_s"], 3),
                              "agent_steps_per_s": round(m["agent_steps"] / m["wall_s"], 1),
+                             "whole_agent_steps_per_s": round(m["whole_agent_steps_per_s"], 1),
                              "collect_s": round(m.get("collect_s", float("nan")), 3),
                              "learn_s": round(m.get("learn_s", float("nan")), 3)})
             bar.update(1)
@@ -274,7 +292,8 @@ def _report(rows: list[dict], args, path: Path) -> None:
              f"torch {torch.__version__} with {args.start_threads} threads by default, "
              f"TorchRL learner on {args.device}",
              f"# {args.comm_scenario} (-tx: communication only) and {args.scenario} (-full); "
-             f"TorchRL: PPOConfig defaults, {args.iters} iterations per measurement, tuned over "
+             f"TorchRL: PPOConfig defaults, {args.iters} iterations per measurement (rate after "
+             f"the first), tuned over "
              f"num_envs:minibatch {args.grid}; SB3 + SuperSuit: TrainConfig defaults, "
              f"{args.sb3_steps} agent-steps; {args.rounds} interleaved rounds",
              "path                     median agent-steps/s  (min - max)        learn share  "
