@@ -426,7 +426,7 @@ def test_sync_gives_the_collector_the_parameters_and_the_learner_the_normaliser(
     import copy
 
     from netsense.rl.policy import ObsNormActor
-    from netsense.rl.ppo import _sync
+    from netsense.rl.rollout import sync
 
     torch.manual_seed(0)
     learner = ObsNormActor(torch.nn.Linear(3, 2), 3)
@@ -436,7 +436,7 @@ def test_sync_gives_the_collector_the_parameters_and_the_learner_the_normaliser(
     collector.update(torch.randn(50, 3) * 4 + 2)  # observations collected
     stats = [b.clone() for b in collector.buffers()]
     assert any(not torch.equal(a, b) for a, b in zip(learner.buffers(), stats, strict=True))
-    _sync(learner, collector)
+    sync(learner, collector)
     for a, b in zip(collector.parameters(), learner.parameters(), strict=True):
         assert torch.equal(a, b)
     for a, b in zip(learner.buffers(), stats, strict=True):

@@ -126,8 +126,11 @@ def decouple(data: TensorDict, actor, *, precision: str = "fp32") -> TensorDict:
     actor) at its current parameters is the proximal policy: its log-probabilities of the
     recorded actions are computed once here, under the loss's arithmetic (``precision``),
     where ``delay_actor`` computes them again in every minibatch of every epoch (one more
-    forward pass of the actor each time). Equal to TorchRL's ``delay_actor`` loss to float
-    rounding (``tests/test_rl_training.py``).
+    forward pass of the actor each time) from a copy of the actor's parameters that
+    TorchRL's target updaters refresh, which leaves the copy's buffers as they were when
+    the loss was built (an :class:`~netsense.rl.policy.ObsNormActor`'s statistics went
+    stale there). Equal to TorchRL's ``delay_actor`` loss to float rounding for an actor
+    without such buffers (``tests/test_rl_training.py``).
     """
     device = data.device if data.device is not None else data["agents", "action"].device
     with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):

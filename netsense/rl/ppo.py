@@ -22,10 +22,10 @@ decoupled objective for such data (Hilton et al. 2021, "Batch size-invariance fo
 optimization"; TorchRL's ``delay_actor``): the ratio is clipped around the parameters at
 the start of the update (the proximal policy) and the surrogate is weighted by the
 proximal over the behaviour probability of the action taken, through the batch
-(:func:`netsense.rl.advantage.decouple`) and TorchRL's PPO loss. Between two collections the
-collector takes the learner's parameters and the learner the collector's observation
-statistics (:func:`_sync`). The collector draws from its own generator, so a run is as
-reproducible as without the overlap.
+(:func:`netsense.rl.advantage.decouple`) and TorchRL's PPO loss. Between two collections
+the collector takes the learner's parameters and the learner the collector's observation
+statistics (:class:`netsense.rl.rollout.CollectAhead`). The collector draws from its own
+generator, so a run is as reproducible as without the overlap.
 
 No PPO arithmetic lives here: losses, advantages and value normalisers are TorchRL's.
 Actor: :func:`netsense.rl.policy.actor_net` (MLP, recurrent MLP, set network) behind
@@ -61,7 +61,6 @@ from __future__ import annotations
 import copy
 import json
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -76,7 +75,7 @@ from netsense.rl.envs import NetSenseBatchedEnv, make_core
 from netsense.rl.evaluation import evaluate, mask_violations
 from netsense.rl.memory import is_recurrent
 from netsense.rl.policy import actor_net, build_actor, critic_module
-from netsense.rl.rollout import Collector
+from netsense.rl.rollout import CollectAhead, Collector
 from netsense.rl.runlog import RunLog, plot_curve
 
 __all__ = ["PPOResult", "ReturnScaler", "keep_freed_memory", "train_ppo"]
@@ -153,16 +152,12 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     opt = torch.optim.Adam(loss.parameters(), lr=config.lr)
     # overlap: the collector acts with its own copy of the actor (parameters one update
     # behind the learner's), in a second thread while the learner trains
-    net_c = copy.deepcopy(net) if config.overlap else net
-    collector = Collector(env, net_c, T, device=device,
-                          with_state="state" in critic.in_keys,
+    collector = Collector(env, copy.deepcopy(net) if config.overlap else net, T,
+                          device=device, with_state="state" in critic.in_keys,
                           update_obs_norm=config.obs_norm, stagger=config.stagger,
                           seed=config.seed)
-    pool = None
-    if config.overlap:  # numba's thread count is per Python thread
-        pool = ThreadPoolExecutor(1, "netsense-collect", initializer=_numba_threads,
-                                  initargs=(config.numba_threads,))
-    pending = None
+    ahead = (CollectAhead(collector, net, initializer=_numba_threads,
+                          initargs=(config.numba_threads,)) if config.overlap else None)
     sequences = is_recurrent(net)
     iters = max(1, -(-int(config.steps) // (B * T * N)))
     log = RunLog(out) if out is not None else None
@@ -180,14 +175,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                 g["lr"] = lr
             ent = _schedule(config.entropy_coef, config.entropy_final, frac)
             loss.entropy_coeff.fill_(ent)
-            if pending is None:
-                ro, took = _timed(collector.collect)
-            else:
-                ro, took = pending.result()
-            if pool is not None:
-                _sync(net, net_c)
-                if it + 1 < iters:
-                    pending = pool.submit(_timed, collector.collect)
+            ro, took = (ahead.next(more=it + 1 < iters) if ahead is not None
+                        else collector.timed_collect())
             t_collected = time.perf_counter()
             violations += mask_violations(ro.mask, ro.action, core.nvec)
             reward = scaler(ro.reward, ro.done) if scaler is not None else ro.reward
@@ -235,8 +224,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                 log.add(row)
             bar.set_postfix(r=f"{row['step_reward']:.3g}", ev=f"{row['explained_variance']:.2f}")
     finally:  # an error in the learner leaves no collection running
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+        if ahead is not None:
+            ahead.close()
     wall = time.perf_counter() - t0
     bar.close()
     if out is not None:
@@ -259,24 +248,6 @@ def _numba_threads(k: int | None) -> None:
         import numba
 
         numba.set_num_threads(min(int(k), numba.config.NUMBA_NUM_THREADS))
-
-
-def _timed(f):
-    """``(f(), seconds it took)``."""
-    t = time.perf_counter()
-    out = f()
-    return out, time.perf_counter() - t
-
-
-@torch.no_grad()
-def _sync(learner: torch.nn.Module, collector: torch.nn.Module) -> None:
-    """Between two overlapped collections: the collector's actor takes the learner's
-    parameters, the learner's actor the collector's buffers (the observation normaliser's
-    statistics, which only collection updates; :class:`netsense.rl.policy.ObsNormActor`)."""
-    for mine, theirs in zip(collector.parameters(), learner.parameters(), strict=True):
-        mine.copy_(theirs)
-    for mine, theirs in zip(learner.buffers(), collector.buffers(), strict=True):
-        mine.copy_(theirs)
 
 
 def keep_freed_memory() -> bool:

@@ -28,6 +28,8 @@ Imports: numpy, torch and the stages below (envs, distributions, memory).
 
 from __future__ import annotations
 
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,7 +39,7 @@ from netsense.rl.distributions import MaskedMultiCategorical
 from netsense.rl.envs import NetSenseBatchedEnv, global_state
 from netsense.rl.memory import is_recurrent
 
-__all__ = ["STAGGER_STEP", "Collector", "Rollout"]
+__all__ = ["STAGGER_STEP", "CollectAhead", "Collector", "Rollout"]
 
 #: Granularity of the staggered episode phases (env-steps).
 STAGGER_STEP = 8
@@ -160,6 +162,12 @@ class Collector:
             t = t.to(dtype)
         return t.to(self.device, non_blocking=True)
 
+    def timed_collect(self) -> tuple[Rollout, float]:
+        """:meth:`collect` and the seconds it took."""
+        t = time.perf_counter()
+        ro = self.collect()
+        return ro, time.perf_counter() - t
+
     @torch.no_grad()
     def collect(self, *, deterministic: bool = False) -> Rollout:
         """The next ``T`` steps (the collector keeps its members' episodes going)."""
@@ -216,3 +224,64 @@ class Collector:
         return Rollout(obs_t, mask_t, act_t, logp_t, as_t(rew), as_t(done), as_t(first),
                        None if state is None else as_t(state), hid, as_t(err), as_t(sent),
                        returns)
+
+
+class CollectAhead:
+    """A :class:`Collector` one rollout ahead of the learner, in a second Python thread.
+
+    :meth:`next` returns the rollout collected meanwhile (the first one is collected on the
+    spot), hands the collector the learner's parameters and the learner the collector's
+    buffers (:func:`sync`), and starts the next collection, which then runs while the
+    learner trains on the returned rollout: each rollout comes from the parameters the
+    learner had one update earlier. The core's compiled passes and torch's operations
+    release the GIL, so the two threads run at once.
+
+    Parameters
+    ----------
+    collector : Collector
+        Its actor network must be a copy of ``learner``'s, not the same module.
+    learner : torch module
+        The actor network the learner trains.
+    initializer, initargs
+        Run in the collection thread first (per-thread settings such as numba's thread
+        count).
+    """
+
+    def __init__(self, collector: Collector, learner: torch.nn.Module, *,
+                 initializer=None, initargs: tuple = ()) -> None:
+        if collector.net is learner:
+            raise ValueError("CollectAhead: the collector needs its own copy of the actor "
+                             "(it acts while the learner's changes)")
+        self.collector, self.learner = collector, learner
+        self._pool = ThreadPoolExecutor(1, "netsense-collect", initializer=initializer,
+                                        initargs=initargs)
+        self._pending: Future | None = None
+
+    def next(self, *, more: bool = True) -> tuple[Rollout, float]:
+        """The next rollout and its collection's seconds; ``more=False``: collect no
+        further one (the last iteration)."""
+        if self._pending is None:
+            ro, took = self.collector.timed_collect()
+        else:
+            ro, took = self._pending.result()
+            self._pending = None
+        sync(self.learner, self.collector.net)
+        if more:
+            self._pending = self._pool.submit(self.collector.timed_collect)
+        return ro, took
+
+    def close(self) -> None:
+        """Wait for a running collection and stop the thread."""
+        self._pool.shutdown(cancel_futures=True)
+
+
+@torch.no_grad()
+def sync(learner: torch.nn.Module, collector: torch.nn.Module) -> None:
+    """Between two collections ahead: the collector's actor takes the learner's
+    parameters, the learner's actor the collector's buffers (the observation normaliser's
+    statistics, which only collection updates; :class:`netsense.rl.policy.ObsNormActor`)."""
+    for mine, theirs in zip(collector.parameters(), learner.parameters(), strict=True):
+        mine.copy_(theirs)
+    for mine, theirs in zip(learner.buffers(), collector.buffers(), strict=True):
+        mine.copy_(theirs)
+
