@@ -341,6 +341,31 @@ def test_overlap_trains_every_iteration_on_the_decoupled_batch(monkeypatch):
     assert calls == []
 
 
+def test_decouple_of_on_policy_data_changes_nothing_with_an_observation_normaliser(core_env):
+    """Data collected by the current actor (with its normaliser's statistics as they are):
+    proximal = behaviour, so the weights are 1 and the advantages stay; the proximal pass
+    reads the actor's current statistics (a stale copy of them would not)."""
+    from netsense.rl.advantage import critic_values, decouple, estimate, loss_batch
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.policy import actor_net, build_actor, critic_module
+    from netsense.rl.rollout import Collector
+
+    core, env = core_env
+    torch.manual_seed(1)
+    cfg = PPOConfig(SCEN, num_envs=3, obs_norm=True)
+    net = actor_net(cfg, core, torch.device("cpu"))
+    net.update(torch.randn(64, core.layout.size) * 3 + 2)  # statistics far from (0, 1)
+    ro = Collector(env, net, 6, with_state=True).collect()
+    adv = estimate(critic_values(critic_module(cfg, env, torch.device("cpu")), ro),
+                   ro.reward, ro.done, 0.99, 0.95)
+    data = loss_batch(ro, adv)
+    before = data["agents", "advantage"].clone()
+    decouple(data, build_actor(net, core.nvec))
+    torch.testing.assert_close(data["agents", "action_log_prob"], ro.log_prob.reshape(
+        data["agents", "action_log_prob"].shape), rtol=0, atol=1e-5)
+    torch.testing.assert_close(data["agents", "advantage"], before, rtol=1e-5, atol=1e-6)
+
+
 @pytest.mark.filterwarnings("ignore:No target network updater")
 def test_decouple_gives_torchrl_delay_actor_loss(core_env):
     """PPO's loss on the decoupled batch equals TorchRL's own decoupled loss
