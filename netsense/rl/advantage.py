@@ -16,7 +16,7 @@ communication task sit near -10 per agent with a spread of about 2 between state
 normalisation the critic spends its first hundreds of updates on the offset and explains
 little of the spread (see docs/rl.md, the diagnosis).
 
-Imports: torch, TensorDict, TorchRL and the stages below (rollout, memory).
+Imports: torch, TensorDict, TorchRL and the stages below (config, rollout, memory).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDict
 
+from netsense.rl.config import loss_arithmetic
 from netsense.rl.rollout import Rollout
 
 __all__ = ["Advantages", "critic_values", "estimate", "explained_variance", "loss_batch"]
@@ -132,8 +133,7 @@ def decouple(data: TensorDict, actor, *, precision: str = "fp32") -> TensorDict:
     stale there). Equal to TorchRL's ``delay_actor`` loss to float rounding for an actor
     without such buffers (``tests/test_rl_training.py``).
     """
-    device = data.device if data.device is not None else data["agents", "action"].device
-    with torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16"):
+    with loss_arithmetic(data["agents", "action"].device, precision):
         prox = actor.get_dist(data).log_prob(data["agents", "action"]).float()
     agents = data["agents"]
     w = (prox - agents["action_log_prob"]).exp()

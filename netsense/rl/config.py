@@ -22,7 +22,7 @@ from netsense.rl.networks import ACTIVATIONS, CRITICS
 
 __all__ = ["ALGOS", "BC_HELDOUT_SEED", "CONFIG_CHECKS", "EVAL_SEED", "MAX_WIDTH", "NETWORKS",
            "PPOConfig", "PRECISIONS", "check_config_fields", "check_field", "device_of",
-           "learner_precision", "training_seeds"]
+           "learner_precision", "loss_arithmetic", "training_seeds"]
 
 ALGOS = ("mappo", "ippo")
 NETWORKS = ("mlp", "set")
@@ -350,6 +350,15 @@ def learner_precision(precision: str, device: torch.device) -> str:
         raise ValueError(f"PPOConfig.precision 'bf16': the learner's device {device} has no "
                          f"bfloat16 support; use 'fp32' or 'auto'")
     return precision
+
+
+def loss_arithmetic(device: torch.device, precision: str):
+    """The context the PPO loss's forward passes run in for a resolved ``precision``
+    (:func:`learner_precision`) on ``device``: ``torch.autocast`` with bfloat16 for
+    ``"bf16"`` (the layers' matrix products in bfloat16), off for ``"fp32"``. One rule for
+    every pass that must match the loss's arithmetic (the update's minibatches, the
+    proximal pass of :func:`netsense.rl.advantage.decouple`)."""
+    return torch.autocast(device.type, dtype=torch.bfloat16, enabled=precision == "bf16")
 
 
 # ------------------------------------------------------------------ field checks

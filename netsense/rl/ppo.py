@@ -70,7 +70,7 @@ import torch
 from netsense.rl.advantage import critic_values, decouple, estimate, explained_variance, loss_batch
 from netsense.rl.checkpoint import save_checkpoint
 from netsense.rl.cloning import behaviour_clone
-from netsense.rl.config import PPOConfig, device_of, learner_precision
+from netsense.rl.config import PPOConfig, device_of, learner_precision, loss_arithmetic
 from netsense.rl.envs import NetSenseBatchedEnv, make_core
 from netsense.rl.evaluation import evaluate, mask_violations
 from netsense.rl.memory import is_recurrent
@@ -312,12 +312,12 @@ def _update(loss, opt, data, config: PPOConfig, *, warm: bool, sequences: bool,
     sums = dict.fromkeys((*_STATS, "grad_norm"), 0.0)
     n = 0
     params = list(loss.parameters())
-    device_type = data.device.type if data.device is not None else "cpu"
+    # the batch's tensors' device (a TensorDict built without one has device None)
+    device = data["agents", "action"].device
     for _ in range(config.epochs):
         perm = torch.randperm(rows, device=data.device)
         for s in range(0, rows - mb + 1, mb):
-            with torch.autocast(device_type, dtype=torch.bfloat16,
-                                enabled=precision == "bf16"):
+            with loss_arithmetic(device, precision):
                 lv = loss(_gather(data, perm[s:s + mb]))
             total = lv["loss_critic"] if warm else (
                 lv["loss_objective"] + lv["loss_critic"] + lv["loss_entropy"])
