@@ -462,6 +462,30 @@ def test_bench_train_throughput_smoke(tmp_path):
         mod.main(["--iters", "1", "--out", str(tmp_path)])
 
 
+def test_bench_train_profile_second_thread_changes_timing_only():
+    """The profile's busy second thread (compiled or Python work) runs beside the training
+    and stops with it, and the run trains as it does alone (it draws nothing from the
+    generator the run seeds)."""
+    import threading
+
+    from experiment_loader import load_experiment
+
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.ppo import train_ppo
+
+    mod = load_experiment("bench/train_profile")
+    cfg = PPOConfig("comm_process_noise-v0", num_envs=4, minibatch=8, steps=4 * 32 * 10 * 2,
+                    overlap=False, eval_interval=0)
+    threads = threading.active_count()
+    alone = train_ppo(cfg, None, evaluate_every=False)
+    keys = ("loss_objective", "loss_critic", "entropy", "step_reward")
+    for kind in ("compiled", "python"):
+        beside = mod._beside(cfg, kind)
+        assert threading.active_count() == threads  # the busy thread has stopped
+        assert [[r[k] for k in keys] for r in beside.rows] == [
+            [r[k] for k in keys] for r in alone.rows]
+
+
 # ------------------------------------------------------------------ policy files
 @pytest.fixture(scope="module")
 def tiny_policies(tmp_path_factory):

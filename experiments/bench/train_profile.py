@@ -33,9 +33,14 @@ other               the rest of the loop (building the core and networks, loggin
 Evaluation is timed on its own (one greedy and one sampled :func:`netsense.rl.evaluation.
 evaluate`, which the defaults run every 10 iterations). Writes ``profile.txt`` (a table:
 seconds and share per stage, plus the unprofiled wall time of the same run length measured
-first, serial and overlapped, and the evaluation's cost) and ``profile.png`` into ``--out``::
+first, serial and overlapped, with the collection's and the learning's seconds in each;
+what a second thread costs the serial loop when it runs compiled code with the GIL
+released (matrix products) and when it runs Python; and the evaluation's cost; the
+unprofiled runs take ``--rounds`` interleaved rounds, medians reported, each round's ratios
+to its own serial run) and
+``profile.png`` into ``--out``::
 
-    python experiments/bench/train_profile.py          # about 1 minute
+    python experiments/bench/train_profile.py          # about 1.5 minutes
 """
 
 # %%
@@ -44,6 +49,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import pstats
+import statistics
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -82,8 +88,13 @@ def main(argv: list[str] | None = None) -> Path:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenario", default="comm_process_noise-v0")
     p.add_argument("--iters", type=int, default=10, help="training iterations profiled")
+    p.add_argument("--rounds", type=int, default=3,
+                   help="rounds of the unprofiled runs (serial, overlapped, serial beside "
+                        "a busy thread); medians are reported")
     p.add_argument("--out", default=str(RESULTS))
     args = p.parse_args(argv)
+    if args.rounds < 1 or args.iters < 1:
+        p.error(f"--rounds and --iters must be at least 1, got {args.rounds} and {args.iters}")
     from netsense.rl.config import PPOConfig
     from netsense.rl.evaluation import evaluate
     from netsense.rl.ppo import train_ppo
@@ -98,12 +109,30 @@ def main(argv: list[str] | None = None) -> Path:
                     overlap=False)
     train_ppo(PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N), None,
               evaluate_every=False)  # warm-up: compilation, allocation
-    t0 = time.perf_counter()
-    res = train_ppo(cfg, None, evaluate_every=False)
-    plain = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    train_ppo(replace(cfg, overlap=True), None, evaluate_every=False)
-    overlapped = time.perf_counter() - t0
+    # rounds of: the serial loop alone, the defaults (collection in a second thread), and
+    # the serial loop beside a second thread that runs compiled code with the GIL released
+    # (matrix products) or Python; each round's ratios are to its own serial run
+    runs: dict[str, list] = {"serial": [], "overlap": [], "compiled": [], "python": []}
+    for _ in range(args.rounds):
+        for kind, got in runs.items():
+            t0 = time.perf_counter()
+            if kind in _WORK:
+                r = _beside(cfg, kind)
+            else:
+                r = train_ppo(replace(cfg, overlap=kind == "overlap"), None,
+                              evaluate_every=False)
+            got.append((time.perf_counter() - t0, r))
+    res = runs["serial"][0][1]
+    plain, overlapped = (statistics.median(w for w, _ in runs[k]) for k in ("serial", "overlap"))
+    parts = {k: {key: statistics.median(r.rows[-1][key] for _, r in runs[k])
+                 for key in ("collect_s", "learn_s")} for k in ("serial", "overlap")}
+
+    def ratio(kind: str, key: str) -> str:  # median over rounds of kind / serial
+        pairs = zip(runs[kind], runs["serial"], strict=True)
+        med = statistics.median(_per_iteration(r, key) / _per_iteration(a, key)
+                                for (_, r), (_, a) in pairs)
+        return f"{med:.2f}x"
+
     prof = cProfile.Profile()
     prof.enable()
     t0 = time.perf_counter()
@@ -127,11 +156,19 @@ def main(argv: list[str] | None = None) -> Path:
     lines = [f"# {args.scenario}, PPOConfig defaults but overlap=False (B = {cfg.num_envs}, "
              f"T = {cfg.rollout}, {cfg.epochs} epochs, minibatch {cfg.minibatch} env-steps, critic "
              f"{cfg.critic_kind}), {args.iters} iterations = {res.agent_steps} agent-steps",
-             f"# without the profiler: {plain:.2f} s, {res.agent_steps / plain:,.0f} "
-             f"agent-steps/s (collection {res.rows[-1]['collect_s']:.2f} s, learning "
-             f"{res.rows[-1]['learn_s']:.2f} s), collection and learning one after the "
-             f"other (overlap=False); the defaults, which overlap them: {overlapped:.2f} s, "
-             f"{res.agent_steps / overlapped:,.0f} agent-steps/s",
+             f"# without the profiler (medians of {args.rounds} rounds): {plain:.2f} s, "
+             f"{res.agent_steps / plain:,.0f} agent-steps/s (collection "
+             f"{parts['serial']['collect_s']:.2f} s, learning {parts['serial']['learn_s']:.2f} "
+             f"s), collection and learning one after the other (overlap=False); the defaults, "
+             f"which overlap them: {overlapped:.2f} s, {res.agent_steps / overlapped:,.0f} "
+             f"agent-steps/s (collection {parts['overlap']['collect_s']:.2f} s in its thread, "
+             f"learning {parts['overlap']['learn_s']:.2f} s)",
+             f"# beside each other, learning (with its proximal pass) took "
+             f"{ratio('overlap', 'learn_s')} and the collection {ratio('overlap', 'collect_s')} "
+             f"their time one after the other (median of the rounds' ratios)",
+             *[f"# the serial loop beside a second thread busy with {_WORK[kind]}: learning "
+               f"{ratio(kind, 'learn_s')}, collection {ratio(kind, 'collect_s')} their time "
+               f"alone" for kind in _WORK],
              f"# under the profiler (shares below; the profiler slows Python-heavy stages "
              f"more): {profiled:.2f} s",
              f"# evaluation (not in the table): {eval_s:.2f} s for one greedy and one sampled "
@@ -144,6 +181,47 @@ def main(argv: list[str] | None = None) -> Path:
     _plot(rows, profiled, out / "profile.png", args.scenario)
     print("\n".join(lines))
     return out / "profile.txt"
+
+
+_WORK = {"compiled": "matrix products (compiled code, GIL released)",
+         "python": "a Python loop (GIL held between its torch operations)"}
+
+
+def _beside(cfg, kind: str):
+    """:func:`~netsense.rl.ppo.train_ppo` of ``cfg`` while a second thread runs ``kind`` of
+    work (:data:`_WORK`) until it ends."""
+    import threading
+
+    import torch
+
+    from netsense.rl.ppo import train_ppo
+
+    stop = threading.Event()
+
+    def work() -> None:
+        a = torch.full((400, 400), 0.5)  # no draw from the generator the run seeds
+        c = torch.empty(400, 400)
+        while not stop.is_set():
+            if kind == "compiled":
+                torch.mm(a, a, out=c)
+            else:
+                s = 0
+                for i in range(200):
+                    s += i
+                c.add_(1.0)
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    try:
+        return train_ppo(cfg, None, evaluate_every=False)
+    finally:
+        stop.set()
+        t.join()
+
+
+def _per_iteration(result, key: str) -> float:
+    """Seconds of ``key`` (``collect_s``, ``learn_s``) per iteration of a run."""
+    return result.rows[-1][key] / len(result.rows)
 
 
 def _plot(rows, total: float, path: Path, scenario: str) -> None:
