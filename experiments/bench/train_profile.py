@@ -34,13 +34,14 @@ Evaluation is timed on its own (one greedy and one sampled :func:`netsense.rl.ev
 evaluate`, which the defaults run every 10 iterations). Writes ``profile.txt`` (a table:
 seconds and share per stage, plus the unprofiled wall time of the same run length measured
 first, serial and overlapped, with the collection's and the learning's seconds in each;
-what a second thread costs the serial loop when it runs compiled code with the GIL
-released (matrix products) and when it runs Python; and the evaluation's cost; the
+what a second thread costs the serial loop when it runs compiled code on data in cache
+(matrix products), when it streams memory (copies of a 64 MiB array; both with the GIL
+released) and when it runs Python; and the evaluation's cost; the
 unprofiled runs take ``--rounds`` interleaved rounds, medians reported, each round's ratios
 to its own serial run) and
 ``profile.png`` into ``--out``::
 
-    python experiments/bench/train_profile.py          # about 1.5 minutes
+    python experiments/bench/train_profile.py          # about 2 minutes
 """
 
 # %%
@@ -110,9 +111,10 @@ def main(argv: list[str] | None = None) -> Path:
     train_ppo(PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N), None,
               evaluate_every=False)  # warm-up: compilation, allocation
     # rounds of: the serial loop alone, the defaults (collection in a second thread), and
-    # the serial loop beside a second thread that runs compiled code with the GIL released
-    # (matrix products) or Python; each round's ratios are to its own serial run
-    runs: dict[str, list] = {"serial": [], "overlap": [], "compiled": [], "python": []}
+    # the serial loop beside a second thread that runs compiled code on data in cache,
+    # streams memory (both with the GIL released) or runs Python (_WORK); each round's
+    # ratios are to its own serial run
+    runs: dict[str, list] = {"serial": [], "overlap": [], **{kind: [] for kind in _WORK}}
     for _ in range(args.rounds):
         for kind, got in runs.items():
             t0 = time.perf_counter()
@@ -183,7 +185,8 @@ def main(argv: list[str] | None = None) -> Path:
     return out / "profile.txt"
 
 
-_WORK = {"compiled": "matrix products (compiled code, GIL released)",
+_WORK = {"compiled": "matrix products (compiled code on data in cache, GIL released)",
+         "memory": "copies of a 64 MiB array (memory traffic, GIL released)",
          "python": "a Python loop (GIL held between its torch operations)"}
 
 
@@ -201,16 +204,20 @@ def _beside(cfg, kind: str):
     def work() -> None:
         a = torch.full((400, 400), 0.5)  # no draw from the generator the run seeds
         c = torch.empty(400, 400)
+        big = torch.ones(16 * 2**20) if kind == "memory" else None  # 64 MiB of float32
+        out = torch.empty_like(big) if big is not None else None
         while not stop.is_set():
             if kind == "compiled":
                 torch.mm(a, a, out=c)
+            elif kind == "memory":
+                out.copy_(big)
             else:
                 s = 0
                 for i in range(200):
                     s += i
                 c.add_(1.0)
 
-    t = threading.Thread(target=work, daemon=True)
+    t = threading.Thread(target=work, name=f"train-profile-{kind}", daemon=True)
     t.start()
     try:
         return train_ppo(cfg, None, evaluate_every=False)
