@@ -31,15 +31,17 @@ other               the rest of the loop (building the core and networks, loggin
 ==================  ==========================================================================
 
 Evaluation is timed on its own (one greedy and one sampled :func:`netsense.rl.evaluation.
-evaluate`, which the defaults run every 10 iterations). Writes ``profile.txt`` (a table:
-seconds and share per stage, plus the unprofiled wall time of the same run length measured
-first, serial and overlapped, with the collection's and the learning's seconds in each;
-what a second thread costs the serial loop when it runs compiled code on data in cache
-(matrix products), when it streams memory (copies of a 64 MiB array; both with the GIL
-released) and when it runs Python; and the evaluation's cost; the
-unprofiled runs take ``--rounds`` interleaved rounds, medians reported, each round's ratios
-to its own serial run) and
-``profile.png`` into ``--out``::
+evaluate`, which the defaults run every 10 iterations).
+
+Unprofiled, in ``--rounds`` interleaved rounds, the script also times the serial loop, the
+overlapped defaults (learning and collection in two threads), and the serial loop beside a
+second thread that runs compiled code on data in its cache (matrix products), streams
+memory (copies of a 64 MiB array; both with the GIL released) or runs a Python loop: what
+a thread beside it costs the learning and the collection, as medians of each round's
+ratio to its own serial run.
+
+Writes ``profile.txt`` (the table of seconds and share per stage, the unprofiled figures
+above and the evaluation's cost) and ``profile.png`` into ``--out``::
 
     python experiments/bench/train_profile.py          # about 2 minutes
 """
