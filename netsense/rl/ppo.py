@@ -315,7 +315,7 @@ def _update(loss, opt, data, config: PPOConfig, *, warm: bool, sequences: bool,
     # the batch's tensors' device (a TensorDict built without one has device None)
     device = data["agents", "action"].device
     for _ in range(config.epochs):
-        perm = torch.randperm(rows, device=data.device)
+        perm = torch.randperm(rows, device=device)
         for s in range(0, rows - mb + 1, mb):
             with loss_arithmetic(device, precision):
                 lv = loss(_gather(data, perm[s:s + mb]))
