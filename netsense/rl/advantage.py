@@ -140,4 +140,3 @@ def decouple(data: TensorDict, actor, *, precision: str = "fp32") -> TensorDict:
     agents["advantage"] = agents["advantage"] * w.unsqueeze(-1)
     agents["action_log_prob"] = prox
     return data
-

@@ -284,4 +284,3 @@ def sync(learner: torch.nn.Module, collector: torch.nn.Module) -> None:
         mine.copy_(theirs)
     for mine, theirs in zip(learner.buffers(), collector.buffers(), strict=True):
         mine.copy_(theirs)
-
