@@ -1491,8 +1491,8 @@ def test_cli_names_the_policies_a_scenario_skipped(tmp_path, capsys):
 @pytest.mark.parametrize("backend", ["torchrl", "sb3"])
 def test_cli_torch_threads_reaches_either_backend_config(backend):
     """``--torch-threads`` is one flag for both backends: it becomes the config field that
-    each learner hands to ``torch.set_num_threads``; not given, the configs' default (one
-    thread) stands."""
+    each learner hands to ``torch.set_num_threads``; not given, the configs' defaults stand
+    (SB3: one thread; TorchRL: ``None``, torch's own count)."""
     import argparse
 
     from netsense.commands.train import add_arguments, given_fields
@@ -1509,7 +1509,7 @@ def test_cli_torch_threads_reaches_either_backend_config(backend):
     else:
         pytest.importorskip("torch", reason="the sb3 backend needs the 'rl' extra")
         from netsense.rl.sb3 import TrainConfig as Config
-    assert Config("fig1_scalar-v0").torch_threads == 1
+    assert Config("fig1_scalar-v0").torch_threads == (None if backend == "torchrl" else 1)
 
 
 def test_cli_precision_choices_are_the_configs():

@@ -425,17 +425,17 @@ def test_bench_train_throughput_smoke(tmp_path):
     mod = load_experiment("bench/train_throughput")
     before = torch.get_num_threads()
     path = mod.main(["--paths", "torchrl-defaults-tx", "torchrl-serial-tx", "torchrl-tuned-tx",
-                     "torchrl-cores-tx", "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
+                     "torchrl-onethread-tx", "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
                      "--rounds", "1", "--iters", "2", "--grid", "4:8,8:16",
                      "--defaults-envs", "4", "--defaults-minibatch", "8", "--sb3-steps", "512",
                      "--out", str(tmp_path), "--tag", "smoke"])
-    assert torch.get_num_threads() == before  # the -cores paths' threads do not leak
+    assert torch.get_num_threads() == before  # the paths' thread settings do not leak
     rows = list(csv.DictReader(open(path)))
     # the tuned path measures every grid point
     assert [(r["path"], r["num_envs"]) for r in rows] == [
         ("torchrl-defaults-tx", "4"), ("torchrl-serial-tx", "4"), ("torchrl-tuned-tx", "4"),
         ("torchrl-tuned-tx", "8"),
-        ("torchrl-cores-tx", "4"), ("sb3-supersuit-tx", ""), ("sb3-supersuit-cores-tx", "")]
+        ("torchrl-onethread-tx", "4"), ("sb3-supersuit-tx", ""), ("sb3-supersuit-cores-tx", "")]
     assert all(float(r["agent_steps_per_s"]) > 0 for r in rows)
     text = (tmp_path / "smoke.txt").read_text()
     sb3 = {p: float(r["agent_steps_per_s"]) for r in rows for p in [r["path"]]

@@ -258,9 +258,9 @@ def test_bf16_precision_changes_the_loss_arithmetic_only(tmp_path):
 
 
 def test_torch_threads_are_set_only_when_given(tmp_path):
-    """``PPOConfig.torch_threads`` goes to ``torch.set_num_threads`` (one by default);
-    ``None`` leaves the process's setting, and ``summary.json`` records the count the
-    learner ran with."""
+    """``PPOConfig.torch_threads`` goes to ``torch.set_num_threads``; ``None`` (the default)
+    leaves the process's setting, and ``summary.json`` records the count the learner ran
+    with."""
     import json
 
     from netsense.rl.config import PPOConfig
@@ -269,7 +269,8 @@ def test_torch_threads_are_set_only_when_given(tmp_path):
     before = torch.get_num_threads()
     try:
         torch.set_num_threads(2)
-        for given, want in ((None, 2), (1, 1)):  # 1: the default
+        assert PPOConfig(SCEN).torch_threads is None
+        for given, want in ((None, 2), (1, 1)):
             cfg = PPOConfig(SCEN, num_envs=4, rollout=4, steps=4 * 4 * 10, epochs=1,
                             minibatch=16, eval_interval=0, eval_envs=1,
                             torch_threads=given, overrides={"horizon": 8})

@@ -9,24 +9,26 @@ path                              what runs
 ================================  =============================================================
 ``torchrl-defaults-tx``           ``netsense train --backend torchrl`` without flags: MAPPO
                                   with the :class:`netsense.rl.config.PPOConfig` defaults
-                                  (B = 256, T = 32, 4 epochs, minibatch 2048 env-steps, team
-                                  critic) on the communication-only scenario (transmit bit;
-                                  freshness fusion adopts)
+                                  (B = 512, T = 32, 4 epochs, minibatch 4096 env-steps, team
+                                  critic, torch's own thread count) on the
+                                  communication-only scenario (transmit bit; freshness
+                                  fusion adopts)
 ``torchrl-serial-tx``             the defaults with collection and learning one after the
                                   other (``overlap=False``), where the defaults collect the
                                   next rollout in a second thread while the learner trains
 ``torchrl-tuned-tx``              the defaults with the fastest ``(num_envs, minibatch)`` of
-                                  ``--grid`` (epochs and everything else as the defaults)
+                                  ``--grid`` (epochs, threads and everything else as the
+                                  defaults)
 ``torchrl-tanh-tx``               the defaults with tanh hidden layers instead of ReLU (what
                                   the activation costs on this CPU)
 ``torchrl-fp32-tx``               the defaults with the loss in float32
                                   (``precision="fp32"``), where the defaults run it in
                                   bfloat16 mixed precision on a CPU with native bfloat16
                                   products (``precision="auto"``)
-``torchrl-tunedcores-tx``         the tuned grid again with torch on every core
-                                  (``torch_threads = os.cpu_count()``)
-``torchrl-cores-tx``              the defaults with torch on every core: what the learner
-                                  gains from the other cores at the default batch
+``torchrl-tunedone-tx``           the tuned grid again with one torch thread
+                                  (``torch_threads = 1``)
+``torchrl-onethread-tx``          the defaults with one torch thread: what the learner gains
+                                  from torch's other threads at the default batch
 ``torchrl-threads-tx``            the defaults with every core for torch and numba
                                   (``torch_threads = numba_threads = os.cpu_count()``)
 ``sb3-supersuit-tx``              ``netsense train`` with its default backend: MaskablePPO
@@ -36,7 +38,7 @@ path                              what runs
 ``torchrl-defaults-full``         the defaults in full control (``--scenario``, keep / adopt
 ``torchrl-tuned-full``            / average per substate plus transmit), the tuned grid point
 ``torchrl-fp32-full``             and the defaults with the loss in float32
-``torchrl-cores-full``            the defaults with torch on every core, full control
+``torchrl-onethread-full``        the defaults with one torch thread, full control
 ``torchrl-serial-full``           the defaults without the overlap, full control
 ``sb3-supersuit-full``            MaskablePPO through SuperSuit, full control, at one torch
 ``sb3-supersuit-cores-full``      thread (its default) and with torch on every core
@@ -53,10 +55,11 @@ loop's rate is in the CSV's ``whole_agent_steps_per_s``): with the overlap, the 
 rollout is collected with nothing to overlap, once per run, and a measurement of a few
 iterations would weigh that once-per-run cost as if it came back every few iterations
 (a run of 10M agent-steps at the defaults has 123 iterations); SB3's rate is that of its
-whole ``learn`` call, which collects and learns one after the other throughout. One
-torch thread and one numba thread (the configs' defaults) unless the
-path says otherwise; torch's setting is restored before every measurement, so that a path
-that sets its threads does not leak into the next.
+whole ``learn`` call, which collects and learns one after the other throughout. The
+TorchRL paths run torch's own thread count (``PPOConfig``'s default: one thread per core
+unless ``OMP_NUM_THREADS`` says otherwise) and one numba thread, SB3 one torch thread (its
+default), unless the path says otherwise; torch's setting is restored before every
+measurement, so that a path that sets its threads does not leak into the next.
 The summary gives medians and the ratios the project tracks: defaults / tuned (target
 >= 0.8) and defaults / SB3 + SuperSuit per control mode, against the faster of SB3's two
 thread settings (so that the thread default of neither backend can flatter the ratio). Writes
@@ -83,10 +86,10 @@ import numpy as np
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "bench" / "train_throughput"
 PATHS = ("torchrl-defaults-tx", "torchrl-serial-tx", "torchrl-tuned-tx", "torchrl-tanh-tx",
-         "torchrl-fp32-tx", "torchrl-tunedcores-tx", "torchrl-cores-tx", "torchrl-threads-tx",
-         "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
+         "torchrl-fp32-tx", "torchrl-tunedone-tx", "torchrl-onethread-tx",
+         "torchrl-threads-tx", "sb3-supersuit-tx", "sb3-supersuit-cores-tx",
          "torchrl-defaults-full", "torchrl-serial-full", "torchrl-tuned-full",
-         "torchrl-fp32-full", "torchrl-cores-full", "sb3-supersuit-full",
+         "torchrl-fp32-full", "torchrl-onethread-full", "sb3-supersuit-full",
          "sb3-supersuit-cores-full")
 
 
@@ -141,18 +144,21 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     scenario = args.scenario if full else args.comm_scenario
     control = "full" if full else None
     cores = os.cpu_count() or 1
-    every = {"torch_threads": cores} if "cores" in path else {}
     if path.startswith("sb3"):
+        every = {"torch_threads": cores} if "cores" in path else {}
         return [_sb3_supersuit(scenario, 512 if warm else args.sb3_steps, scratch, **every)]
     if warm:
         return [_torchrl(scenario, control, 4, 16, 2, device=args.device)]
     dev = {"device": args.device}
+    one = {"torch_threads": 1}
     if "tuned" in path:
-        return [_torchrl(scenario, control, b, m, args.iters, **every, **dev)
+        return [_torchrl(scenario, control, b, m, args.iters,
+                         **(one if path.startswith("torchrl-tunedone") else {}), **dev)
                 for b, m in _grid(args.grid)]
     # the defaults and their one-field variants, at the defaults' batch
     variant = {"defaults": {}, "tanh": {"activation": "tanh"}, "fp32": {"precision": "fp32"},
-               "cores": every, "threads": {"torch_threads": cores, "numba_threads": cores},
+               "onethread": one,
+               "threads": {"torch_threads": cores, "numba_threads": cores},
                "serial": {"overlap": False}}[path.split("-")[1]]
     return [_torchrl(scenario, control, args.defaults_envs, args.defaults_minibatch,
                      args.iters, **variant, **dev)]
@@ -318,12 +324,15 @@ def _report(rows: list[dict], args, path: Path) -> None:
               f"full control {_ratio(s, 'torchrl-defaults-full', 'torchrl-fp32-full')}",
               f"ratio defaults (ReLU) / tanh layers, communication only: "
               f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-tanh-tx')}",
-              f"ratio torch on every core / one torch thread (the default): TorchRL "
-              f"{_ratio(s, 'torchrl-cores-tx', 'torchrl-defaults-tx')} communication only, "
-              f"{_ratio(s, 'torchrl-cores-full', 'torchrl-defaults-full')} full control; "
-              f"SB3 + SuperSuit {_ratio(s, 'sb3-supersuit-cores-tx', 'sb3-supersuit-tx')} "
-              f"and {_ratio(s, 'sb3-supersuit-cores-full', 'sb3-supersuit-full')}; fastest "
-              f"grid point {_ratio(s, 'torchrl-tunedcores-tx', 'torchrl-tuned-tx')}",
+              f"ratio torch's {args.start_threads} threads (the TorchRL default) / one torch "
+              f"thread: TorchRL "
+              f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-onethread-tx')} communication "
+              f"only, {_ratio(s, 'torchrl-defaults-full', 'torchrl-onethread-full')} full "
+              f"control, fastest grid point "
+              f"{_ratio(s, 'torchrl-tuned-tx', 'torchrl-tunedone-tx')}; SB3 + SuperSuit on "
+              f"every core / one thread (its default) "
+              f"{_ratio(s, 'sb3-supersuit-cores-tx', 'sb3-supersuit-tx')} and "
+              f"{_ratio(s, 'sb3-supersuit-cores-full', 'sb3-supersuit-full')}",
               f"ratio defaults (collection overlapped with learning) / one after the "
               f"other: communication only "
               f"{_ratio(s, 'torchrl-defaults-tx', 'torchrl-serial-tx')}, full control "

@@ -64,8 +64,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="entropy bonus (default 0.01; torchrl decays it linearly to 0 "
                              "over the run)")
     parser.add_argument("--torch-threads", type=positive_int, default=None, metavar="T",
-                        help="torch threads of the learner, both backends (default: 1; more "
-                             "pay for large batches on idle cores, see docs/performance.md)")
+                        help="torch threads of the learner, both backends (default: sb3 1; "
+                             "torchrl torch's own count, one per core unless "
+                             "OMP_NUM_THREADS says otherwise: give 1 on cores other jobs "
+                             "keep busy, see docs/performance.md)")
     parser.add_argument("--override", action="append", default=[], metavar="KEY=JSON",
                         help="scenario override passed to netsense.make, e.g. horizon=40 "
                              "(repeatable; the value is parsed as JSON)")

@@ -76,6 +76,9 @@ class PPOConfig:
         ``B`` environments, ``T`` steps each per iteration.
     epochs, minibatch : int
         PPO epochs per iteration; minibatch size in env-steps (each holds ``N`` agents).
+        Larger batches train more agent-steps per second but take fewer gradient steps
+        per agent-step, and cost returns at a fixed budget (docs/rl.md, "Larger batches
+        learn less per sample").
     lr, clip, gamma, lmbda, entropy_coef, critic_coef, max_grad_norm : float
     hidden : tuple of int
         Hidden layers of the MLP actor (the set network uses ``set_hidden``).
@@ -179,13 +182,14 @@ class PPOConfig:
         default). One by default: at the default batch the passes are too small to pay
         for a second thread, and threaded passes stall on busy cores (``docs/rl.md``).
     torch_threads : int or None
-        ``torch.set_num_threads`` for the learner (``None``: leave torch's setting, one
-        thread per core unless ``OMP_NUM_THREADS`` says otherwise). One by default, as the
-        SB3 path: at the communication-only defaults on the 2-core machine a second thread
-        gained 0.99x-1.09x, within the spread of runs; it pays at larger batches and in
-        full control (the ``torchrl-cores`` paths of
-        ``experiments/bench/train_throughput.py``, docs/performance.md), and on a core
-        busy with another job it waits for that job.
+        ``torch.set_num_threads`` for the learner. ``None`` (default) leaves torch's
+        setting: one thread per core unless ``OMP_NUM_THREADS`` (or an earlier
+        ``torch.set_num_threads``) says otherwise, so the learner takes the cores of the
+        machine, and a worker of :func:`netsense.rl.launch.launch` the one its
+        environment gives it. On the idle 2-core machine both cores train faster than
+        one, at the default batch and in full control (the ``torchrl-onethread`` paths
+        of ``experiments/bench/train_throughput.py``, docs/performance.md); on a core
+        that another job keeps busy, every product waits for that job: give 1 there.
     overlap : bool
         Collect the next rollout in a second Python thread while the learner trains on
         the current one (the default). The collector then acts with a copy of the actor
@@ -250,7 +254,7 @@ class PPOConfig:
     device: str = "auto"
     precision: str = "auto"
     numba_threads: int | None = 1
-    torch_threads: int | None = 1
+    torch_threads: int | None = None
     overlap: bool = True
     overrides: dict = field(default_factory=dict)
 
