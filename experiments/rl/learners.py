@@ -13,9 +13,9 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
 again where a run's ``policy.pt`` exists (by default an existing run is evaluated as it is,
 so the committed policies are re-evaluated without training). Runs train one at a time, in
-this process, with one torch thread (the config's ``[defaults]``, beside its batch of 256
-environments and minibatches of 2048 env-steps) and one numba thread (``PPOConfig``'s
-default); a progress bar counts the runs.
+this process, with one torch thread (the config's ``[defaults]``; ``PPOConfig``'s default
+is torch's own count) and one numba thread (``PPOConfig``'s default); a progress bar counts
+the runs.
 
 **results** writes into ``experiments/results/rl/learners/``:
 
