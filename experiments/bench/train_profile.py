@@ -2,7 +2,9 @@
 split into its stages by a profile.
 
 Trains ``--iters`` iterations of :func:`netsense.rl.ppo.train_ppo` with the
-:class:`netsense.rl.config.PPOConfig` defaults (one torch and one numba thread) but with
+:class:`netsense.rl.config.PPOConfig` defaults with one torch thread (the defaults take
+torch's own count; one leaves the other core of the 2-core machine to the second thread
+measured below) and one numba thread, and with
 collection and learning one after the other (``overlap=False``: :mod:`cProfile` sees only
 the thread it runs in, and the defaults collect in a second one) under :mod:`cProfile`, and
 attributes the wall time to disjoint stages by the cumulative time of
@@ -109,8 +111,9 @@ def main(argv: list[str] | None = None) -> Path:
     # one thread of work, which cProfile sees whole: the defaults collect the next rollout
     # in a second thread while the learner trains (PPOConfig.overlap), timed apart below
     cfg = PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N * args.iters,
-                    overlap=False)
-    train_ppo(PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N), None,
+                    overlap=False, torch_threads=1)
+    train_ppo(PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N,
+                        torch_threads=1), None,
               evaluate_every=False)  # warm-up: compilation, allocation
     # rounds of: the serial loop alone, the defaults (collection in a second thread), and
     # the serial loop beside a second thread that runs compiled code on data in cache,
@@ -157,14 +160,16 @@ def main(argv: list[str] | None = None) -> Path:
     rows.append(("other", max(0.0, profiled - sum(v for _, v in rows))))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    lines = [f"# {args.scenario}, PPOConfig defaults but overlap=False (B = {cfg.num_envs}, "
+    lines = [f"# {args.scenario}, PPOConfig defaults but overlap=False and one torch thread "
+             f"(B = {cfg.num_envs}, "
              f"T = {cfg.rollout}, {cfg.epochs} epochs, minibatch {cfg.minibatch} env-steps, critic "
              f"{cfg.critic_kind}), {args.iters} iterations = {res.agent_steps} agent-steps",
              f"# without the profiler (medians of {args.rounds} rounds): {plain:.2f} s, "
              f"{res.agent_steps / plain:,.0f} agent-steps/s (collection "
              f"{parts['serial']['collect_s']:.2f} s, learning {parts['serial']['learn_s']:.2f} "
-             f"s), collection and learning one after the other (overlap=False); the defaults, "
-             f"which overlap them: {overlapped:.2f} s, {res.agent_steps / overlapped:,.0f} "
+             f"s), collection and learning one after the other (overlap=False); the "
+             f"overlapped loop (the defaults' overlap, one torch thread): {overlapped:.2f} s, "
+             f"{res.agent_steps / overlapped:,.0f} "
              f"agent-steps/s (collection {parts['overlap']['collect_s']:.2f} s in its thread, "
              f"learning {parts['overlap']['learn_s']:.2f} s)",
              f"# beside each other, learning (with its proximal pass) took "
