@@ -9,7 +9,7 @@ path                              what runs
 ================================  =============================================================
 ``torchrl-defaults-tx``           ``netsense train --backend torchrl`` without flags: MAPPO
                                   with the :class:`netsense.rl.config.PPOConfig` defaults
-                                  (B = 512, T = 32, 4 epochs, minibatch 4096 env-steps, team
+                                  (B = 256, T = 32, 4 epochs, minibatch 2048 env-steps, team
                                   critic, torch's own thread count) on the
                                   communication-only scenario (transmit bit; freshness
                                   fusion adopts)
