@@ -112,8 +112,7 @@ def main(argv: list[str] | None = None) -> Path:
     # in a second thread while the learner trains (PPOConfig.overlap), timed apart below
     cfg = PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N * args.iters,
                     overlap=False, torch_threads=1)
-    train_ppo(PPOConfig(args.scenario, steps=base.num_envs * base.rollout * N,
-                        torch_threads=1), None,
+    train_ppo(replace(cfg, steps=base.num_envs * base.rollout * N, overlap=True), None,
               evaluate_every=False)  # warm-up: compilation, allocation
     # rounds of: the serial loop alone, the defaults (collection in a second thread), and
     # the serial loop beside a second thread that runs compiled code on data in cache,
