@@ -410,6 +410,46 @@ def test_decouple_gives_torchrl_delay_actor_loss(core_env):
         torch.testing.assert_close(out[False][k], out[True][k], rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.parametrize("algo", ["mappo", "ippo"])
+def test_trainer_loss_matches_torchrl_functional_loss(core_env, algo):
+    """The trainer's PPO loss (TorchRL's, built with ``functional=False``) gives the same
+    loss terms and the same gradients as TorchRL's default functional loss over the same
+    modules, on a batch where the clipping acts."""
+    from netsense.rl.advantage import critic_values, estimate, loss_batch
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.policy import actor_net, build_actor, critic_module
+    from netsense.rl.ppo import ppo_loss
+    from netsense.rl.rollout import Collector
+
+    core, env = core_env
+    torch.manual_seed(1)
+    cfg = PPOConfig(SCEN, algo=algo, num_envs=3)
+    net = actor_net(cfg, core, torch.device("cpu"))
+    actor = build_actor(net, core.nvec)
+    critic = critic_module(cfg, env, torch.device("cpu"))
+    ro = Collector(env, net, 6, with_state="state" in critic.in_keys).collect()
+    data = loss_batch(ro, estimate(critic_values(critic, ro), ro.reward, ro.done, 0.99, 0.95))
+    with torch.no_grad():  # move the actor away from the behaviour policy: ratios clip
+        for p in net.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    params = list(net.parameters()) + list(critic.parameters())
+    out, grads = {}, {}
+    for functional in (False, True):
+        loss = ppo_loss(cfg, actor, critic, functional=functional)
+        for p in params:
+            p.grad = None
+        out[functional] = loss(data.clone())
+        (out[functional]["loss_objective"] + out[functional]["loss_critic"]
+         + out[functional]["loss_entropy"]).backward()
+        grads[functional] = [p.grad.clone() for p in params]
+    assert not ppo_loss(cfg, actor, critic).functional
+    assert float(out[False]["clip_fraction"]) > 0.05
+    for k in ("loss_objective", "loss_critic", "loss_entropy", "kl_approx", "clip_fraction"):
+        torch.testing.assert_close(out[False][k], out[True][k], rtol=0, atol=0)
+    for a, b in zip(grads[False], grads[True], strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
 def test_decoupled_objective_is_ppo_on_the_first_rollout():
     """The first rollout comes from the initial parameters with or without the overlap,
     so proximal = behaviour there and the decoupled loss is PPO's: the first iteration's

@@ -78,7 +78,7 @@ from netsense.rl.policy import actor_net, build_actor, critic_module
 from netsense.rl.rollout import CollectAhead, Collector
 from netsense.rl.runlog import RunLog, plot_curve
 
-__all__ = ["PPOResult", "ReturnScaler", "keep_freed_memory", "train_ppo"]
+__all__ = ["PPOResult", "ReturnScaler", "keep_freed_memory", "ppo_loss", "train_ppo"]
 
 
 @dataclass
@@ -112,7 +112,6 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     training iteration frees (:func:`keep_freed_memory`).
     """
     from torchrl.modules import RunningValueNorm
-    from torchrl.objectives.multiagent import IPPOLoss, MAPPOLoss
     from tqdm.auto import tqdm
 
     device = device_of(config.device)
@@ -142,13 +141,7 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     critic = critic_module(config, env, device).to(device)
     value_norm = RunningValueNorm(shape=1, device=device) if config.value_norm else None
     scaler = ReturnScaler(config.gamma) if config.reward_scale else None
-    Loss = IPPOLoss if config.algo == "ippo" else MAPPOLoss  # noqa: N806
-    loss = Loss(actor, critic, clip_epsilon=config.clip, entropy_coeff=config.entropy_coef,
-                critic_coeff=config.critic_coef, normalize_advantage=False,
-                loss_critic_type="l2")  # advantages standardised per rollout (loss_batch)
-    loss.set_keys(action=("agents", "action"), sample_log_prob=("agents", "action_log_prob"),
-                  value=("agents", "state_value"), advantage=("agents", "advantage"),
-                  value_target=("agents", "value_target"))
+    loss = ppo_loss(config, actor, critic)
     opt = torch.optim.Adam(loss.parameters(), lr=config.lr)
     # overlap: the collector acts with its own copy of the actor (parameters one update
     # behind the learner's), in a second thread while the learner trains
@@ -240,6 +233,33 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                 "precision": precision, "torch_threads": torch.get_num_threads(), "bc": bc}
         (out / "summary.json").write_text(json.dumps(meta, indent=2) + "\n")
     return PPOResult(out, rows, wall, agent_steps, violations, bc)
+
+
+def ppo_loss(config: PPOConfig, actor, critic, **kwargs):
+    """TorchRL's PPO loss as the trainer uses it: ``MAPPOLoss`` (``IPPOLoss`` for
+    ``algo="ippo"``) over the batch keys of :func:`netsense.rl.advantage.loss_batch`,
+    without TorchRL's own advantage standardisation (the batch's advantages are
+    standardised over the whole rollout).
+
+    The loss is built with ``functional=False``: it calls ``actor`` and ``critic`` with
+    their own parameters, where TorchRL's default copies them into a parameter
+    TensorDict and swaps them into the modules on every forward pass (for meta-learning
+    and ``delay_actor``, which the trainer does not use: its decoupled objective is
+    :func:`netsense.rl.advantage.decouple`). The values and gradients are the same
+    (``tests/test_rl_training.py``); a gradient step costs 0.24-0.38 ms less at small
+    minibatches on the 2-core development machine (``experiments/bench/update_cost.py``).
+    ``kwargs`` go to the loss (tests)."""
+    from torchrl.objectives.multiagent import IPPOLoss, MAPPOLoss
+
+    Loss = IPPOLoss if config.algo == "ippo" else MAPPOLoss  # noqa: N806
+    kw = dict(clip_epsilon=config.clip, entropy_coeff=config.entropy_coef,
+              critic_coeff=config.critic_coef, normalize_advantage=False,
+              loss_critic_type="l2", functional=False)
+    loss = Loss(actor, critic, **{**kw, **kwargs})
+    loss.set_keys(action=("agents", "action"), sample_log_prob=("agents", "action_log_prob"),
+                  value=("agents", "state_value"), advantage=("agents", "advantage"),
+                  value_target=("agents", "value_target"))
+    return loss
 
 
 def _numba_threads(k: int | None) -> None:
