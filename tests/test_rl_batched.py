@@ -462,6 +462,47 @@ def test_bench_train_throughput_smoke(tmp_path):
         mod.main(["--iters", "1", "--out", str(tmp_path)])
 
 
+def test_bench_update_cost_smoke(tmp_path):
+    """The update-cost benchmark measures every grid point, size, thread count and loss,
+    restores torch's thread count, and its report's ratios are those of its own CSV."""
+    import csv
+    import statistics
+
+    import torch
+    from experiment_loader import load_experiment
+
+    mod = load_experiment("bench/update_cost")
+    before = torch.get_num_threads()
+    path = mod.main(["--grid", "4:8,8:16", "--iters", "2", "--rounds", "1", "--envs", "4",
+                     "--sizes", "2", "8", "--max-steps", "4", "--out", str(tmp_path)])
+    assert torch.get_num_threads() == before
+    rows = list(csv.DictReader(open(tmp_path / "update_cost.csv")))
+    threads = sorted({1, before})
+    e2e = [r for r in rows if r["measure"] == "end_to_end"]
+    upd = [r for r in rows if r["measure"] == "update"]
+    assert sorted((r["num_envs"], r["minibatch"], int(r["threads"])) for r in e2e) == sorted(
+        (b, m, t) for b, m in (("4", "8"), ("8", "16")) for t in threads)
+    assert sorted((r["minibatch"], int(r["threads"]), r["loss"]) for r in upd) == sorted(
+        (m, t, loss) for m in ("2", "8") for t in threads
+        for loss in ("trainer", "functional"))
+    assert all(float(r["s_per_step"]) > 0 for r in upd)
+    # at most --max-steps gradient steps on the rollout's 4 * 32 env-steps
+    assert {int(r["gradient_steps"]) for r in upd} == {4}
+    text = path.read_text()
+    learn = {(r["num_envs"], int(r["threads"])): float(r["learn_s_per_m"]) for r in e2e}
+    line = next(t for t in text.splitlines()
+                if t.startswith("# learning per agent-step at threads 1,"))
+    assert f"4:8 {learn['4', 1] / learn['8', 1]:.2f}x" in line
+    small = statistics.median(float(r["s_per_step"]) for r in upd
+                              if r["minibatch"] == "2" and r["threads"] == "1"
+                              and r["loss"] == "trainer")
+    line = next(t for t in text.splitlines() if t.startswith("# threads 1: a gradient step"))
+    assert f"takes {small * 1e3:.2f} ms" in line and "2: 100%" in line
+    assert (tmp_path / "update_cost.png").exists()
+    with pytest.raises(SystemExit):  # no iteration after the first to time
+        mod.main(["--iters", "1", "--out", str(tmp_path)])
+
+
 def test_bench_train_profile_second_thread_changes_timing_only():
     """The profile's busy second thread (compiled, memory or Python work) runs beside the training
     and stops with it, and the run trains as it does alone (it draws nothing from the
