@@ -135,8 +135,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "choose where the runs of --seeds train)")
     many.add_argument("--workers", type=positive_int, default=1, metavar="K",
                       help="runs trained at once on this machine, each in its own process "
-                           "with one thread per thread pool, so K runs use K cores "
-                           "(default: 1, one run after another in this process)")
+                           "with one thread per thread pool (an overlapped run keeps up to "
+                           "two cores busy: its collection thread beside its learner; "
+                           "--no-overlap, one) (default: 1, one run after another in this "
+                           "process)")
     many.add_argument("--ray", default=None, metavar="ADDRESS",
                       help="train each run as a Ray task instead: 'local' starts Ray on "
                            "this machine, 'auto' joins the cluster of `ray start` on this "

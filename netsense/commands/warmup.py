@@ -7,7 +7,8 @@ import argparse
 NAME = "warmup"
 HELP = ("Compile (or load from numba's cache) every compiled pass the scenarios use, serial "
         "and threaded, with a progress bar; later first steps then start at once "
-        "(a minute or two on a cold cache, seconds when warm; see docs/first-run.md).")
+        "(about 45 s on a cold cache on a 2-core machine, seconds when warm; see "
+        "docs/first-run.md).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
