@@ -63,6 +63,7 @@ import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -235,7 +236,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     return PPOResult(out, rows, wall, agent_steps, violations, bc)
 
 
-def ppo_loss(config: PPOConfig, actor, critic, **kwargs):
+def ppo_loss(config: PPOConfig, actor: torch.nn.Module, critic: torch.nn.Module,
+             **kwargs: Any) -> torch.nn.Module:
     """TorchRL's PPO loss as the trainer uses it: ``MAPPOLoss`` (``IPPOLoss`` for
     ``algo="ippo"``) over the batch keys of :func:`netsense.rl.advantage.loss_batch`,
     without TorchRL's own advantage standardisation (the batch's advantages are
