@@ -66,7 +66,7 @@ thread settings (so that the thread default of neither backend can flatter the r
 ``bench_train_throughput.csv`` (one row per round and measurement),
 ``bench_train_throughput.txt`` and ``bench_train_throughput.png`` into ``--out``::
 
-    python experiments/bench/train_throughput.py                   # about 13 minutes
+    python experiments/bench/train_throughput.py                   # about 12 minutes
     python experiments/bench/train_throughput.py --rounds 1 --iters 2 --sb3-steps 2000 \\
         --grid 8:16 --defaults-envs 8 --out /tmp/x --tag smoke       # smoke size
 """
