@@ -33,6 +33,7 @@ CPUs with native bfloat16 products). Writes ``update_cost.csv`` (one row per mea
 from __future__ import annotations
 
 import argparse
+import copy
 import csv
 import statistics
 import time
@@ -78,11 +79,14 @@ def main(argv: list[str] | None = None) -> Path:
                 "positive")
     import torch
 
+    from netsense.rl.envs import make_core
+
+    N = make_core(args.scenario, 1).N
     own = torch.get_num_threads()
     threads = sorted({1, own})
     rows: list[dict] = []
     try:
-        rows += _end_to_end(args, threads)
+        rows += _end_to_end(args, threads, N)
         rows += _update_alone(args, threads)
     finally:
         torch.set_num_threads(own)
@@ -92,23 +96,19 @@ def main(argv: list[str] | None = None) -> Path:
         w = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         w.writeheader()
         w.writerows(rows)
-    lines = _report(rows, args, threads, own)
+    lines = _report(rows, args, threads, own, N)
     (out / "update_cost.txt").write_text("\n".join(lines) + "\n")
     _plot(rows, threads, out / "update_cost.png", args.scenario)
     print("\n".join(lines))
     return out / "update_cost.txt"
 
 
-def _end_to_end(args, threads: list[int]) -> list[dict]:
+def _end_to_end(args, threads: list[int], N: int) -> list[dict]:
     """Measurement 1: collection and learning seconds per million agent-steps per grid
-    point and thread count, serial loop."""
-    import torch
-
+    point and thread count, serial loop (``N`` agents)."""
     from netsense.rl.config import PPOConfig
-    from netsense.rl.envs import make_core
     from netsense.rl.ppo import train_ppo
 
-    N = make_core(args.scenario, 1).N
     base = PPOConfig(args.scenario, overlap=False)
 
     def cfg(B: int, mb: int, th: int, iters: int):
@@ -120,8 +120,7 @@ def _end_to_end(args, threads: list[int]) -> list[dict]:
     rows = []
     for r in range(args.rounds):
         for B, mb in args.grid:
-            for th in threads:
-                torch.set_num_threads(threads[-1])
+            for th in threads:  # each run sets its torch threads (torch_threads=th)
                 res = train_ppo(cfg(B, mb, th, args.iters), None, evaluate_every=False)
                 first, last = res.rows[0], res.rows[-1]
                 steps = last["agent_steps"] - first["agent_steps"]
@@ -166,7 +165,8 @@ def _update_alone(args, threads: list[int]) -> list[dict]:
     losses = {}
     for functional in (False, True):
         # each loss trains its own copy of the networks, so that both see the same start
-        a, c = (build_actor(_copy(net), core.nvec), _copy(critic)) if functional \
+        a, c = (build_actor(copy.deepcopy(net), core.nvec), copy.deepcopy(critic)) \
+            if functional \
             else (actor, critic)
         loss = ppo_loss(cfg, a, c, functional=functional)
         losses[functional] = (loss, torch.optim.Adam(loss.parameters(), lr=cfg.lr))
@@ -198,27 +198,18 @@ def _update_alone(args, threads: list[int]) -> list[dict]:
     return rows
 
 
-def _copy(module):
-    import copy
-
-    return copy.deepcopy(module)
-
-
-def _step_s(rows: list[dict], mb: int, th: int, loss: str) -> float:
-    """Median seconds per gradient step of the update alone."""
-    return statistics.median(r["s_per_step"] for r in rows if r["minibatch"] == mb
-                             and r["threads"] == th and r["loss"] == loss)
+def _median(rows: list[dict], key: str, **where) -> float:
+    """Median of ``key`` over the rows whose fields equal ``where``'s values."""
+    return statistics.median(r[key] for r in rows
+                             if all(r[k] == v for k, v in where.items()))
 
 
-def _report(rows: list[dict], args, threads: list[int], own: int) -> list[str]:
+def _report(rows: list[dict], args, threads: list[int], own: int, N: int) -> list[str]:
     import os
     import platform
 
     import torch
 
-    from netsense.rl.envs import make_core
-
-    N = make_core(args.scenario, 1).N
     e2e = [r for r in rows if r["measure"] == "end_to_end"]
     upd = [r for r in rows if r["measure"] == "update"]
     lines = [f"# {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {platform.node()}, "
@@ -232,13 +223,12 @@ def _report(rows: list[dict], args, threads: list[int], own: int) -> list[str]:
     med = {}
     for B, mb in args.grid:
         for th in threads:
-            sel = [r for r in e2e if (r["num_envs"], r["minibatch"], r["threads"])
-                   == (B, mb, th)]
-            c = statistics.median(r["collect_s_per_m"] for r in sel)
-            ln = statistics.median(r["learn_s_per_m"] for r in sel)
-            med[B, mb, th] = ln
+            at = {"num_envs": B, "minibatch": mb, "threads": th}
+            c = _median(e2e, "collect_s_per_m", **at)
+            ln = med[B, mb, th] = _median(e2e, "learn_s_per_m", **at)
+            steps = _median(e2e, "gradient_steps_per_m", **at)  # the same in every round
             lines.append(f"{f'{B}:{mb}':<19} {th:>7}  {c:>10.2f}  {ln:>8.2f}  "
-                         f"{sel[0]['gradient_steps_per_m']:>10.0f}")
+                         f"{steps:>10.0f}")
     big = args.grid[-1]
     for th in threads:
         lines.append(f"# learning per agent-step at threads {th}, against {big[0]}:{big[1]}: "
@@ -253,25 +243,24 @@ def _report(rows: list[dict], args, threads: list[int], own: int) -> list[str]:
               f"the trainer's seconds per million agent-steps (one epoch)",
               "minibatch  threads  trainer's loss  TorchRL functional  "
               "trainer's s per 1M agent-steps"]
-    for mb in sorted({r["minibatch"] for r in upd}):
+    sizes = sorted({r["minibatch"] for r in upd})
+    for mb in sizes:
         for th in threads:
-            m = {loss: statistics.median(r["s_per_step"] for r in upd if r["minibatch"] == mb
-                                         and r["threads"] == th and r["loss"] == loss)
+            m = {loss: _median(upd, "s_per_step", minibatch=mb, threads=th, loss=loss)
                  for loss in ("trainer", "functional")}
-            per_m = statistics.median(r["s_per_m_agent_steps"] for r in upd
-                                      if r["minibatch"] == mb and r["threads"] == th
-                                      and r["loss"] == "trainer")
+            per_m = _median(upd, "s_per_m_agent_steps", minibatch=mb, threads=th,
+                            loss="trainer")
             lines.append(f"{mb:>9}  {th:>7}  {m['trainer'] * 1e3:>14.2f}  "
                          f"{m['functional'] * 1e3:>18.2f}  {per_m:>10.2f}")
-    small = min(r["minibatch"] for r in upd)
     for th in threads:
-        fixed = _step_s(upd, small, th, "trainer")
-        share = ", ".join(f"{mb}: {fixed / _step_s(upd, mb, th, 'trainer'):.0%}"
-                          for mb in sorted({r["minibatch"] for r in upd}))
-        lines.append(f"# threads {th}: a gradient step on {small} env-steps ({small * N} "
-                     f"agent rows, next to no arithmetic) takes {fixed * 1e3:.2f} ms, the "
-                     f"per-step overhead (Python, TensorDict, autograd, optimiser); its share "
-                     f"of a step by minibatch: {share}")
+        step = {mb: _median(upd, "s_per_step", minibatch=mb, threads=th, loss="trainer")
+                for mb in sizes}
+        fixed = step[sizes[0]]
+        share = ", ".join(f"{mb}: {fixed / step[mb]:.0%}" for mb in sizes)
+        lines.append(f"# threads {th}: a gradient step on {sizes[0]} env-steps "
+                     f"({sizes[0] * N} agent rows, next to no arithmetic) takes "
+                     f"{fixed * 1e3:.2f} ms, the per-step overhead (Python, TensorDict, "
+                     f"autograd, optimiser); its share of a step by minibatch: {share}")
     return lines
 
 
@@ -285,8 +274,7 @@ def _plot(rows: list[dict], threads: list[int], path: Path, scenario: str) -> No
     sizes = sorted({r["minibatch"] for r in upd})
     fig, ax = plt.subplots(figsize=(6.4, 3.8))
     for th in threads:
-        ax.plot(sizes, [statistics.median(r["s_per_m_agent_steps"] for r in upd
-                                          if r["minibatch"] == m and r["threads"] == th)
+        ax.plot(sizes, [_median(upd, "s_per_m_agent_steps", minibatch=m, threads=th)
                         for m in sizes], "o-", label=f"{th} torch thread{'s' * (th > 1)}")
     ax.set_xscale("log")
     ax.set_yscale("log")
