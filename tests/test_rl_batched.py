@@ -462,6 +462,35 @@ def test_bench_train_throughput_smoke(tmp_path):
         mod.main(["--iters", "1", "--out", str(tmp_path)])
 
 
+def test_bench_train_throughput_comm_control(tmp_path, monkeypatch, capsys):
+    """``--comm-control`` reaches the TorchRL -tx paths (the -full ones keep full control)
+    and is named in the report; with it the SB3 -tx paths, which train the scenario's own
+    control, are refused before anything runs."""
+    from experiment_loader import load_experiment
+
+    mod = load_experiment("bench/train_throughput")
+    seen = []
+
+    def fake(scenario, control, B, minibatch, iters, **fields):
+        seen.append((scenario, control))
+        return {"agent_steps": 100, "wall_s": 1.0, "whole_agent_steps_per_s": 100.0,
+                "collect_s": 0.1, "learn_s": 0.9, "num_envs": B, "minibatch": minibatch}
+
+    monkeypatch.setattr(mod, "_torchrl", fake)
+    mod.main(["--comm-scenario", "message_cost-v0", "--comm-control", "transmit",
+              "--paths", "torchrl-defaults-tx", "torchrl-defaults-full", "--rounds", "1",
+              "--out", str(tmp_path), "--tag", "ctl"])
+    assert set(seen) == {("message_cost-v0", "transmit"), ("message_cost-v1", "full")}
+    assert "message_cost-v0 (-tx: communication only, control transmit)" in (
+        tmp_path / "ctl.txt").read_text()
+    seen.clear()
+    with pytest.raises(SystemExit):
+        mod.main(["--comm-control", "transmit", "--paths", "torchrl-defaults-tx",
+                  "sb3-supersuit-tx", "--out", str(tmp_path / "no")])
+    assert "leave the sb3-*-tx paths out" in capsys.readouterr().err
+    assert not seen and not (tmp_path / "no").exists()
+
+
 def test_bench_update_cost_smoke(tmp_path):
     """The update-cost benchmark measures every grid point, size, thread count and loss,
     restores torch's thread count, and its report's ratios are those of its own CSV."""

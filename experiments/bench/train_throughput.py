@@ -44,8 +44,9 @@ path                              what runs
 ``sb3-supersuit-cores-full``      thread (its default) and with torch on every core
 ================================  =============================================================
 
-The ``-tx`` paths run ``--comm-scenario`` (default ``comm_process_noise-v0``, N = 10), the
-``-full`` ones ``--scenario`` (default ``message_cost-v1``, N = 10). Every measurement is
+The ``-tx`` paths run ``--comm-scenario`` (default ``comm_process_noise-v0``, N = 10; its own
+control mode, or ``--comm-control``'s), the ``-full`` ones ``--scenario`` (default
+``message_cost-v1``, N = 10). Every measurement is
 repeated in ``--rounds`` interleaved rounds (every path once per round, in turn, so that load
 from other processes falls on all paths alike); each path is warmed up once first (numba
 compilation, torch initialisation). The wall time is that of the training loop (building
@@ -142,7 +143,7 @@ def measure(path: str, args, scratch: Path, *, warm: bool = False) -> list[dict]
     torch.set_num_threads(args.start_threads)  # what a path set does not leak into the next
     full = path.endswith("-full")
     scenario = args.scenario if full else args.comm_scenario
-    control = "full" if full else None
+    control = "full" if full else args.comm_control
     cores = os.cpu_count() or 1
     if path.startswith("sb3"):
         every = {"torch_threads": cores} if "cores" in path else {}
@@ -177,6 +178,10 @@ def main(argv: list[str] | None = None) -> Path:
                    help="scenario of the full-control paths")
     p.add_argument("--comm-scenario", default="comm_process_noise-v0",
                    help="scenario of the communication-only (-tx) paths")
+    p.add_argument("--comm-control", default=None, choices=("transmit", "substates"),
+                   help="control mode of the TorchRL -tx paths (default: the communication "
+                        "scenario's own); SB3 trains the scenario's own, so its -tx paths "
+                        "are refused with it")
     p.add_argument("--paths", nargs="+", default=list(PATHS), choices=PATHS)
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--iters", type=int, default=4,
@@ -197,6 +202,10 @@ def main(argv: list[str] | None = None) -> Path:
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--tag", default="bench_train_throughput", help="output file stem")
     args = p.parse_args(argv)
+    if args.comm_control and any(x.startswith("sb3") and x.endswith("-tx")
+                                 for x in args.paths):
+        p.error("--comm-control: the SB3 paths train the scenario's own control mode; leave "
+                "the sb3-*-tx paths out with --paths")
     if args.iters < 2:
         p.error(f"--iters must be at least 2 (the rate is taken after the first iteration), "
                 f"got {args.iters}")
@@ -297,7 +306,9 @@ def _report(rows: list[dict], args, path: Path) -> None:
              f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end, "
              f"torch {torch.__version__} with {args.start_threads} threads by default, "
              f"TorchRL learner on {args.device}",
-             f"# {args.comm_scenario} (-tx: communication only) and {args.scenario} (-full); "
+             f"# {args.comm_scenario} (-tx: communication only"
+             f"{f', control {args.comm_control}' if args.comm_control else ''}) and "
+             f"{args.scenario} (-full); "
              f"TorchRL: PPOConfig defaults, {args.iters} iterations per measurement (rate after "
              f"the first), tuned over "
              f"num_envs:minibatch {args.grid}; SB3 + SuperSuit: TrainConfig defaults, "
