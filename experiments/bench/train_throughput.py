@@ -61,8 +61,10 @@ TorchRL paths run torch's own thread count (``PPOConfig``'s default: one thread 
 unless ``OMP_NUM_THREADS`` says otherwise) and one numba thread, SB3 one torch thread (its
 default), unless the path says otherwise; torch's setting is restored before every
 measurement, so that a path that sets its threads does not leak into the next.
-The summary gives medians and the ratios the project tracks: defaults / tuned (target
->= 0.8) and defaults / SB3 + SuperSuit per control mode, against the faster of SB3's two
+The summary gives medians and the ratios the project tracks: defaults / tuned (the fastest
+grid point by agent-steps/s; ``time_to_return.py`` ranks the same grid by the return reached
+in equal time, the ranking the target of >= 0.8 is held to) and defaults / SB3 + SuperSuit
+per control mode, against the faster of SB3's two
 thread settings (so that the thread default of neither backend can flatter the ratio). Writes
 ``bench_train_throughput.csv`` (one row per round and measurement),
 ``bench_train_throughput.txt`` and ``bench_train_throughput.png`` into ``--out``::
