@@ -102,6 +102,25 @@ def test_time_to_return_when_the_defaults_win(made_up):
         out / "time_to_return.txt").read_text()
 
 
+def test_time_to_return_a_learner_not_yet_evaluated_has_no_return(made_up):
+    """A learner whose first evaluation comes after a budget has no return there (NaN,
+    never the best), rather than being credited with a later evaluation."""
+    runs, thr, out = made_up
+    mod = load_experiment("bench/time_to_return")
+    for k in range(5):  # 1000 agent-steps/s, evaluated at 5 s and 12 s
+        _run(runs, "t", "late", k, (16, 64), [(5000, -1.0), (12000, -1.0)])
+    with thr.open("a", newline="") as fh:
+        fh.write("0,torchrl-tuned-tx,16,64,1000\n")
+    path = mod.main(["--runs", str(runs), "--throughput", f"t={thr}", "--defaults", "slow",
+                     "--out", str(out)])
+    rows = {(r["learner"], float(r["budget"])): r for r in csv.DictReader(path.open())}
+    assert rows["late", 0.25]["iqm"] == "nan" and rows["late", 0.25]["best"] == "False"
+    assert rows["late", 0.5]["best"] == "True"  # at 5 s: -1 against slow's -75, fast's -60
+    assert int(rows["late", 1.0]["agent_steps"]) == 5000
+    text = (out / "time_to_return.txt").read_text()
+    assert "no evaluation of every seed within the budget" in text
+
+
 def test_time_to_return_rejects_bad_input(made_up, capsys):
     runs, thr, out = made_up
     mod = load_experiment("bench/time_to_return")

@@ -13,7 +13,7 @@ import pytest
 from netsense.benchmark import protocol as pr
 from netsense.benchmark.bounds import BoundConfig, LookaheadBound, parse_bound
 from netsense.benchmark.headroom import headroom
-from netsense.benchmark.intervals import bootstrap_ci, paired_percent
+from netsense.benchmark.intervals import bootstrap_ci, paired_percent, seeded_global_rng
 from netsense.engine.core import BatchedCore
 from netsense.engine.fork import fork
 from netsense.env.comm_policies import make_comm_policy
@@ -301,6 +301,25 @@ def test_bound_configuration_is_checked():
 
 
 # --------------------------------------------------------------------------- protocol
+def test_seeded_global_rng_repeats_and_restores():
+    """The same draws from NumPy's global generator in every block of one seed (what makes
+    rliable's stratified bootstrap reproducible), and the caller's state back afterwards,
+    also when the block raises."""
+    np.random.seed(123)  # noqa: NPY002
+    before = np.random.get_state()[1].copy()  # noqa: NPY002
+    with seeded_global_rng():
+        a = np.random.rand(3)  # noqa: NPY002
+    assert np.array_equal(np.random.get_state()[1], before)  # noqa: NPY002
+    with seeded_global_rng():
+        b = np.random.rand(3)  # noqa: NPY002
+    with seeded_global_rng(1):
+        c = np.random.rand(3)  # noqa: NPY002
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    with pytest.raises(RuntimeError), seeded_global_rng():
+        raise RuntimeError
+    assert np.array_equal(np.random.get_state()[1], before)  # noqa: NPY002
+
+
 def test_paired_intervals():
     rng = np.random.default_rng(1)
     ref = rng.normal(-100, 10, 40)

@@ -50,7 +50,6 @@ message_cost-v0``).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import csv
 import json
 import statistics
@@ -176,28 +175,31 @@ def _refs(folder: Path) -> dict:
 
 
 # %% the comparison
-@contextlib.contextmanager
-def _seeded_global_rng(seed: int = 0):
-    """rliable's stratified bootstrap draws from NumPy's global generator: seed it, so that
-    the intervals are the same on every run, and restore it afterwards."""
-    state = np.random.get_state()  # noqa: NPY002 (the legacy global generator is the point)
-    np.random.seed(seed)  # noqa: NPY002
-    try:
-        yield
-    finally:
-        np.random.set_state(state)  # noqa: NPY002
+def _intervals(scores: dict, func, reps: int) -> tuple[dict, dict]:
+    """rliable's point estimates and 95 % stratified-bootstrap intervals, the same on every
+    run (NumPy's global generator seeded: ``seeded_global_rng``)."""
+    from rliable import library as rly
+
+    from netsense.benchmark.intervals import seeded_global_rng
+
+    with seeded_global_rng(), warnings.catch_warnings():
+        # arch deprecates random_state; the resamples come from the seeded global
+        # generator either way
+        warnings.simplefilter("ignore", FutureWarning)
+        return rly.get_interval_estimates(scores, func, reps=reps,
+                                          random_state=np.random.RandomState(0))
 
 
-def latest_within(evals: list[tuple[int, float]], steps: float) -> tuple[int, float]:
-    """The last evaluation at or before ``steps`` agent-steps (the first one if none is)."""
+def latest_within(evals: list[tuple[int, float]], steps: float) -> tuple[int, float] | None:
+    """The last evaluation at or before ``steps`` agent-steps (``None`` if there is none)."""
     before = [e for e in evals if e[0] <= steps]
-    return before[-1] if before else evals[0]
+    return before[-1] if before else None
 
 
 def budgets(runs: dict, rates: dict, defaults: str) -> list[dict]:
     """Per task, learner and budget ``f * W``: the learner's seeds' latest evaluations within
-    the budget, their IQM with a 95 % interval, and P(defaults > learner)."""
-    from rliable import library as rly
+    the budget, their IQM with a 95 % interval, and P(defaults > learner). A learner with a
+    seed not yet evaluated by the budget has no return there (NaN, never the best)."""
     from rliable import metrics
 
     rows = []
@@ -208,26 +210,26 @@ def budgets(runs: dict, rates: dict, defaults: str) -> list[dict]:
             at = {}
             for ln, lr in learners.items():
                 got = [latest_within(e, f * W * rate[ln]) for e in lr["evals"]]
-                at[ln] = (np.array([g[1] for g in got])[:, None], [g[0] for g in got])
+                if None not in got:
+                    at[ln] = (np.array([g[1] for g in got])[:, None], [g[0] for g in got])
             best = max(at, key=lambda ln: metrics.aggregate_iqm(at[ln][0]))
-            for ln, (scores, steps) in at.items():
-                with _seeded_global_rng(), warnings.catch_warnings():
-                    # arch deprecates random_state; the draws come from the seeded global
-                    # generator either way (see _seeded_global_rng)
-                    warnings.simplefilter("ignore", FutureWarning)
-                    point, ci = rly.get_interval_estimates(
-                        {"x": scores}, lambda s: np.array([metrics.aggregate_iqm(s)]),
-                        reps=2000, random_state=np.random.RandomState(0))
-                    p_better = metrics.probability_of_improvement(at[defaults][0], scores)
-                b, m = learners[ln]["point"]
-                rows.append({"task": task, "learner": ln, "num_envs": b, "minibatch": m,
-                             "lr": learners[ln]["lr"], "agent_steps_per_s": rate[ln],
-                             "budget": f, "seconds": round(f * W, 2),
-                             "agent_steps": int(np.mean(steps)), "seeds": len(steps),
-                             "iqm": float(point["x"][0]), "ci_low": float(ci["x"][0, 0]),
-                             "ci_high": float(ci["x"][1, 0]),
-                             "p_defaults_better": float(p_better) if ln != defaults else "",
-                             "defaults": ln == defaults, "best": ln == best})
+            for ln, lr in learners.items():
+                row = {"task": task, "learner": ln, "num_envs": lr["point"][0],
+                       "minibatch": lr["point"][1], "lr": lr["lr"],
+                       "agent_steps_per_s": rate[ln], "budget": f, "seconds": round(f * W, 2),
+                       "agent_steps": 0, "seeds": len(lr["evals"]), "iqm": float("nan"),
+                       "ci_low": float("nan"), "ci_high": float("nan"),
+                       "p_defaults_better": "", "defaults": ln == defaults, "best": ln == best}
+                if ln in at:
+                    scores, steps = at[ln]
+                    point, ci = _intervals({"x": scores},
+                                           lambda s: np.array([metrics.aggregate_iqm(s)]), 2000)
+                    row.update(agent_steps=int(np.mean(steps)), iqm=float(point["x"][0]),
+                               ci_low=float(ci["x"][0, 0]), ci_high=float(ci["x"][1, 0]))
+                    if ln != defaults and defaults in at:
+                        row["p_defaults_better"] = float(
+                            metrics.probability_of_improvement(at[defaults][0], scores))
+                rows.append(row)
     return rows
 
 
@@ -240,9 +242,12 @@ def _rel(path: Path) -> str:
 def _line(r: dict) -> str:
     tag = (" (defaults)" if r["defaults"] else "") + (" best" if r["best"] else "")
     p_ = "" if r["p_defaults_better"] == "" else f"{r['p_defaults_better']:.2f}"
+    head = (f"    {r['learner']:<13}{r['num_envs']:>8}:{r['minibatch']:<6}"
+            f"{r['agent_steps_per_s']:>15,.0f}")
+    if not np.isfinite(r["iqm"]):
+        return f"{head}   no evaluation of every seed within the budget{tag}"
     ci = f"[{r['ci_low']:.1f}, {r['ci_high']:.1f}]"
-    return (f"    {r['learner']:<13}{r['num_envs']:>8}:{r['minibatch']:<6}"
-            f"{r['agent_steps_per_s']:>15,.0f}{r['agent_steps'] / 1e6:>12.2f}M   "
+    return (f"{head}{r['agent_steps'] / 1e6:>12.2f}M   "
             f"{r['iqm']:>7.1f} {ci:<18}{p_:>5}{tag}")
 
 
@@ -283,7 +288,6 @@ def plot(runs: dict, rates: dict, rows: list[dict], refs: dict, path: Path) -> N
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from rliable import library as rly
     from rliable import metrics
 
     tasks = list(runs)
@@ -294,12 +298,8 @@ def plot(runs: dict, rates: dict, rows: list[dict], refs: dict, path: Path) -> N
             n = min(len(e) for e in lr["evals"])
             x = np.array([p[0] for p in lr["evals"][0][:n]]) / rates[task][lr["point"]]
             y = np.array([[p[1] for p in e[:n]] for e in lr["evals"]])
-            with _seeded_global_rng(), warnings.catch_warnings():
-                warnings.simplefilter("ignore", FutureWarning)
-                point, ci = rly.get_interval_estimates(
-                    {"y": y}, lambda s: np.array([metrics.aggregate_iqm(s[:, [j]])
-                                                  for j in range(s.shape[1])]),
-                    reps=500, random_state=np.random.RandomState(0))
+            point, ci = _intervals({"y": y}, lambda s: np.array(
+                [metrics.aggregate_iqm(s[:, [j]]) for j in range(s.shape[1])]), 500)
             b, m = lr["point"]
             line, = ax.plot(x, point["y"], "-", lw=1.4, label=f"{ln} ({b}:{m})")
             ax.fill_between(x, ci["y"][0], ci["y"][1], color=line.get_color(), alpha=0.15,

@@ -81,7 +81,6 @@ gap).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import csv
 import json
 import math
@@ -257,26 +256,14 @@ def evaluate_all(tasks: dict[str, dict], folders: dict, episodes: int) -> list[d
 
 
 # %% aggregates (rliable)
-@contextlib.contextmanager
-def _seeded_global_rng(seed: int = 0):
-    """rliable's stratified bootstrap draws its resamples from NumPy's global generator
-    (``np.random.choice`` in ``StratifiedBootstrap.update_indices``; its ``random_state``
-    only seeds arch's own generator), so the intervals are reproducible only with the
-    global generator seeded; its state is restored afterwards."""
-    state = np.random.get_state()  # noqa: NPY002 (the legacy global generator is the point)
-    np.random.seed(seed)  # noqa: NPY002
-    try:
-        yield
-    finally:
-        np.random.set_state(state)  # noqa: NPY002
-
-
 def _iqm_ci(matrix: np.ndarray, reps: int = 2000) -> tuple[float, float, float]:
     """IQM of ``matrix (runs, tasks)`` with rliable's stratified bootstrap 95 % CI."""
     from rliable import library as rly
     from rliable import metrics
 
-    with _seeded_global_rng():
+    from netsense.benchmark.intervals import seeded_global_rng
+
+    with seeded_global_rng():
         point, ci = rly.get_interval_estimates({"x": matrix}, lambda s: np.array(
             [metrics.aggregate_iqm(s)]), reps=reps, random_state=np.random.RandomState(0))
     return float(point["x"][0]), float(ci["x"][0, 0]), float(ci["x"][1, 0])
@@ -412,12 +399,14 @@ def plot_aggregate(norm: dict, path: Path) -> None:
     from rliable import library as rly
     from rliable import metrics, plot_utils
 
+    from netsense.benchmark.intervals import seeded_global_rng
+
     tasks = sorted({t for d in norm.values() for t in d})
     if not tasks:
         return
     scores = {k: np.stack([d[t] for t in tasks], 1) for k, d in norm.items()
               if all(t in d for t in tasks)}
-    with _seeded_global_rng():
+    with seeded_global_rng():
         point, ci = rly.get_interval_estimates(
             scores, lambda s: np.array([metrics.aggregate_iqm(s), metrics.aggregate_mean(s)]),
             reps=2000, random_state=np.random.RandomState(0))
@@ -449,6 +438,8 @@ def learning_curves(folders: dict, learners: list[str]) -> dict:
     from rliable import library as rly
     from rliable import metrics
 
+    from netsense.benchmark.intervals import seeded_global_rng
+
     out: dict = {}
     for task in dict.fromkeys(t for t, _, _ in folders):
         for learner in learners:
@@ -461,7 +452,7 @@ def learning_curves(folders: dict, learners: list[str]) -> dict:
             n = min(len(e) for e in ev)
             x = np.array([p[0] for p in ev[0][:n]])
             y = np.array([[p[1] for p in e[:n]] for e in ev])  # (seeds, points)
-            with _seeded_global_rng():
+            with seeded_global_rng():
                 point, ci = rly.get_interval_estimates(
                     {"y": y}, lambda s: np.array([metrics.aggregate_iqm(s[:, [j]])
                                                   for j in range(s.shape[1])]),

@@ -3,16 +3,18 @@
 Every interval of :mod:`netsense.benchmark.protocol` and :mod:`netsense.benchmark.headroom`
 is a 95 % percentile bootstrap interval from ``scipy.stats.bootstrap`` with
 :data:`RESAMPLES` resamples and a generator seeded with 0, so the same values always give
-the same interval.
+the same interval. :func:`seeded_global_rng` does the same for rliable's stratified
+bootstrap (the aggregates over training seeds of ``experiments/``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
-__all__ = ["CONFIDENCE", "RESAMPLES", "bootstrap_ci", "paired_percent"]
+__all__ = ["CONFIDENCE", "RESAMPLES", "bootstrap_ci", "paired_percent", "seeded_global_rng"]
 
 CONFIDENCE = 0.95
 RESAMPLES = 9999
@@ -67,3 +69,20 @@ def paired_percent(values: Sequence[float], reference: Sequence[float], seed: in
                           method="percentile", random_state=np.random.default_rng(seed))
     ci = res.confidence_interval
     return value, float(ci.low), float(ci.high)
+
+
+@contextlib.contextmanager
+def seeded_global_rng(seed: int = 0) -> Iterator[None]:
+    """NumPy's global generator seeded with ``seed`` inside the block, its state restored
+    afterwards.
+
+    rliable's stratified bootstrap draws its resamples from the global generator
+    (``np.random.choice`` in ``StratifiedBootstrap.update_indices``; its ``random_state``
+    only seeds arch's own generator), so its intervals are reproducible only with the global
+    generator seeded."""
+    state = np.random.get_state()  # noqa: NPY002 (the legacy global generator is the point)
+    np.random.seed(seed)  # noqa: NPY002
+    try:
+        yield
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
