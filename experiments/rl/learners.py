@@ -824,11 +824,13 @@ def channel_rules(args) -> None:
     :func:`channel_use`."""
     from netsense.benchmark.intervals import bootstrap_ci
     from netsense.benchmark.protocol import eval_seeds
+    from netsense.rl.envs import make_core
 
     seeds = eval_seeds(args.episodes)
+    S = int(np.sum(make_core(CHANNEL_TASK, 1).is_source))  # the rules' frame: the sources
     rows = [{"policy": label, **channel_use(label, seeds, actor=actor, returns=True)}
             for label, actor in [("tdma:1", None)] + [
-                (f"agent-frame slots (t - i) mod 5 in {{{', '.join(map(str, ph))}}}",
+                (f"agent-frame slots (t - i) mod {S} in {{{', '.join(map(str, ph))}}}",
                  agent_frame_slots(ph)) for ph in CHANNEL_RULES]]
     tdma = rows[0]["returns"]
     for r in rows:
