@@ -44,6 +44,11 @@ def made_up(tmp_path):
         _run(runs, "t", "fast", k, (8, 32),
              [(x, -100 + x / 50 + k / 10) for x in range(400, 8001, 400)])
     _run(runs, "t", "slow", 9, (4, 8), [(100, 1000.0)], finished=False)  # still training
+    with (runs / "curves.csv").open("w", newline="") as fh:  # learners.py's curves (plotted)
+        w = csv.writer(fh)
+        w.writerow(["task", "learner", "agent_steps", "iqm", "ci_low", "ci_high"])
+        w.writerows(["t", "slow", x, -100 + x / 20, -101 + x / 20, -99 + x / 20]
+                    for x in range(100, 1001, 100))
     thr = tmp_path / "thr.csv"
     with thr.open("w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=["round", "path", "num_envs", "minibatch",
@@ -133,6 +138,12 @@ def test_time_to_return_rejects_bad_input(made_up, capsys):
         with pytest.raises(SystemExit):
             mod.main(["--runs", str(runs), "--out", str(out), *argv])
         assert words in capsys.readouterr().err
+    (runs / "curves.csv").rename(runs / "curves.csv.away")
+    with pytest.raises(SystemExit):
+        mod.main(["--runs", str(runs), "--throughput", f"t={thr}", "--defaults", "slow",
+                  "--out", str(out)])
+    assert "no curves.csv" in capsys.readouterr().err
+    (runs / "curves.csv.away").rename(runs / "curves.csv")
     thr.write_text("\n".join(line for line in thr.read_text().splitlines()
                              if ",8,32," not in line or "defaults" in line) + "\n")
     with pytest.raises(SystemExit):

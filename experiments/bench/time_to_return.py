@@ -33,9 +33,10 @@ and the probability that the defaults' learner returns more than the other (rlia
 best settings at a budget are the learner with the highest IQM there.
 
 Writes ``time_to_return.csv`` (one row per task, learner and budget),
-``time_to_return.txt`` and ``time_to_return.png`` (IQM against seconds, with the best
-decentralised scripted policy on the same validation episodes and the causal bound on the
-test episodes, from the runs folder's ``curve_refs.csv``) into ``--out``::
+``time_to_return.txt`` and ``time_to_return.png`` (the runs folder's learning curves,
+``curves.csv``: IQM against agent-steps with its band, which ``learners.py`` computes, here
+against seconds; with the best decentralised scripted policy on the same validation episodes
+and the causal bound on the test episodes, from its ``curve_refs.csv``) into ``--out``::
 
     python experiments/bench/time_to_return.py          # about 10 seconds
 
@@ -99,6 +100,9 @@ def main(argv: list[str] | None = None) -> Path:
         if not rates[task]:
             p.error(f"--throughput {task}: {path} has no rows of path {args.path!r}")
     runs = read_runs(args.runs, list(rates))
+    if not (args.runs / "curves.csv").is_file():
+        p.error(f"--runs: no curves.csv in {args.runs} (python experiments/rl/learners.py "
+                f"summary --out {args.runs} writes it)")
     for task in rates:
         if args.defaults not in runs.get(task, {}):
             p.error(f"--runs: no runs of learner {args.defaults!r} on {task} in {args.runs}")
@@ -116,7 +120,8 @@ def main(argv: list[str] | None = None) -> Path:
     text = report(rows, args)
     (args.out / "time_to_return.txt").write_text(text)
     print(text, end="")
-    plot(runs, rates, rows, _refs(args.runs), args.out / "time_to_return.png")
+    plot(runs, rates, rows, _curves(args.runs), _refs(args.runs),
+         args.out / "time_to_return.png")
     return csv_path
 
 
@@ -160,6 +165,17 @@ def read_runs(folder: Path, tasks: list[str]) -> dict:
             out[task] = dict(sorted(out[task].items(),
                                     key=lambda kv: (kv[1]["point"], kv[1]["lr"], kv[0])))
     return out
+
+
+def _curves(folder: Path) -> dict:
+    """``{task: {learner: (agent_steps, iqm, ci_low, ci_high)}}`` (arrays) of the learning
+    curves in ``curves.csv``."""
+    got: dict = {}
+    with (folder / "curves.csv").open() as fh:
+        for r in csv.DictReader(fh):
+            got.setdefault(r["task"], {}).setdefault(r["learner"], []).append(
+                [float(r[k]) for k in ("agent_steps", "iqm", "ci_low", "ci_high")])
+    return {t: {ln: tuple(np.array(v).T) for ln, v in d.items()} for t, d in got.items()}
 
 
 def _refs(folder: Path) -> dict:
@@ -281,29 +297,28 @@ def report(rows: list[dict], args) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot(runs: dict, rates: dict, rows: list[dict], refs: dict, path: Path) -> None:
-    """IQM of the greedy validation return against seconds of training, per task, with its
-    95 % stratified-bootstrap band (runs cut to their shortest count of evaluations)."""
+def plot(runs: dict, rates: dict, rows: list[dict], curves: dict, refs: dict,
+         path: Path) -> None:
+    """The learning curves (IQM of the greedy validation return with its 95 %
+    stratified-bootstrap band, :func:`_curves`) against seconds of training, per task; a
+    learner without a curve is left out of the plot."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from rliable import metrics
 
     tasks = list(runs)
     fig, axes = plt.subplots(1, len(tasks), figsize=(5.6 * len(tasks), 4.0), squeeze=False)
     for ax, task in zip(axes[0], tasks, strict=True):
         W = max(r["seconds"] for r in rows if r["task"] == task)
         for ln, lr in runs[task].items():
-            n = min(len(e) for e in lr["evals"])
-            x = np.array([p[0] for p in lr["evals"][0][:n]]) / rates[task][lr["point"]]
-            y = np.array([[p[1] for p in e[:n]] for e in lr["evals"]])
-            point, ci = _intervals({"y": y}, lambda s: np.array(
-                [metrics.aggregate_iqm(s[:, [j]]) for j in range(s.shape[1])]), 500)
+            if ln not in curves.get(task, {}):
+                continue
+            steps, iqm, lo, hi = curves[task][ln]
+            x = steps / rates[task][lr["point"]]
             b, m = lr["point"]
-            line, = ax.plot(x, point["y"], "-", lw=1.4, label=f"{ln} ({b}:{m})")
-            ax.fill_between(x, ci["y"][0], ci["y"][1], color=line.get_color(), alpha=0.15,
-                            lw=0)
+            line, = ax.plot(x, iqm, "-", lw=1.4, label=f"{ln} ({b}:{m})")
+            ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
         for (policy, episodes), (spec, ret) in refs.get(task, {}).items():
             if policy == "best_decentralised" and episodes == "validation":
                 ax.axhline(ret, color="k", ls="--", lw=1.1,

@@ -172,6 +172,7 @@ def main(argv: list[str] | None = None) -> Path:
     """Measure; returns the CSV path."""
     from tqdm.auto import tqdm
 
+    from netsense.engine.control import MODES
     from netsense.rl.config import PPOConfig
 
     defaults = PPOConfig("comm_process_noise-v0")
@@ -180,7 +181,7 @@ def main(argv: list[str] | None = None) -> Path:
                    help="scenario of the full-control paths")
     p.add_argument("--comm-scenario", default="comm_process_noise-v0",
                    help="scenario of the communication-only (-tx) paths")
-    p.add_argument("--comm-control", default=None, choices=("transmit", "substates"),
+    p.add_argument("--comm-control", default=None, choices=[m for m in MODES if m != "full"],
                    help="control mode of the TorchRL -tx paths (default: the communication "
                         "scenario's own); SB3 trains the scenario's own, so its -tx paths "
                         "are refused with it")
