@@ -1,6 +1,7 @@
-"""The lookahead bounds (netsense.benchmark.bounds): an exhaustive-search oracle on a tiny
-task, sequential improvement over every continuation, determinism, and a causal bound that
-never reads the realised future; their place in the protocol (rows, headroom, plot)."""
+"""The full-information reference schedulers (netsense.benchmark.lookahead): an
+exhaustive-search oracle on a tiny task, sequential improvement over every continuation,
+determinism, and a causal reference that never reads the realised future; their place in
+the protocol (rows, headroom, plot)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ import numpy as np
 import pytest
 
 from netsense.benchmark import protocol as pr
-from netsense.benchmark.bounds import BoundConfig, LookaheadBound, parse_bound
 from netsense.benchmark.headroom import headroom
 from netsense.benchmark.intervals import bootstrap_ci, paired_percent, seeded_global_rng
+from netsense.benchmark.lookahead import LookaheadConfig, LookaheadReference, parse_reference
 from netsense.engine.core import BatchedCore
 from netsense.engine.fork import fork
 from netsense.env.comm_policies import make_comm_policy
@@ -73,9 +74,9 @@ def test_clairvoyant_exhaustive_lookahead_equals_the_exhaustive_optimum():
     its episode return is the optimum."""
     H, seed = 3, 1000003
     model = tiny(H)
-    cfg = BoundConfig(kind="clairvoyant", horizon=H, candidates="exhaustive", depth=H,
+    cfg = LookaheadConfig(kind="clairvoyant", horizon=H, candidates="exhaustive", depth=H,
                       continuation=("always",))
-    ret, bits = _run(model, [seed], lambda core: LookaheadBound(core, cfg, [seed]).act)
+    ret, bits = _run(model, [seed], lambda core: LookaheadReference(core, cfg, [seed]).act)
     taken = [tuple(int(v) for v in bits[0, k, :, 0]) for k in range(H)]
     every = _returns_of_sequences(model, seed, [], H)
     for k in range(H):
@@ -91,32 +92,32 @@ def test_clairvoyant_exhaustive_lookahead_equals_the_exhaustive_optimum():
 @pytest.mark.parametrize("kind", ["clairvoyant", "causal"])
 def test_one_step_exhaustive_choice_at_the_last_step_is_optimal(kind):
     """At the last step the bits only cost (they would be sent after the episode): both
-    bounds pick a pattern that is optimal among all 2^N by the replayed oracle."""
+    references pick a pattern that is optimal among all 2^N by the replayed oracle."""
     H, seed = 4, 1000001
     model = tiny(H)
-    cfg = BoundConfig(kind=kind, horizon=1, futures=3, candidates="exhaustive",
+    cfg = LookaheadConfig(kind=kind, horizon=1, futures=3, candidates="exhaustive",
                       continuation=("always",))
     core = BatchedCore(model, 1, chunk=1)
     obs, mask = core.reset([seed])
     prefix = [(1, 0, 1), (0, 1, 1), (1, 1, 0)]
     for bits in prefix:
         obs, mask = core.step(np.array(bits, dtype=np.int64).reshape(1, 3, 1))[:2]
-    choice = tuple(int(v) for v in LookaheadBound(core, cfg, [seed]).act(obs, mask)[0, :, 0])
+    choice = tuple(int(v) for v in LookaheadReference(core, cfg, [seed]).act(obs, mask)[0, :, 0])
     values = _returns_of_sequences(model, seed, prefix, 1)
     assert values[(choice,)] == pytest.approx(max(values.values()), abs=1e-12)
     assert choice == (0, 0, 0)
 
 
-def test_clairvoyant_bound_beats_every_continuation_episode_by_episode():
+def test_clairvoyant_reference_beats_every_continuation_episode_by_episode():
     """Sequential improvement: realised future, horizon to the end of the episode, each
-    continuation's own action among the candidates -> the bound's return is at least each
+    continuation's own action among the candidates -> the reference's return is at least each
     continuation policy's, on every episode."""
     H = 12
     model = tiny(H)
     seeds = [1000000 + i for i in range(4)]
     conts = ("event:1", "always", "never", "periodic:2", "oldest:1")
-    cfg = BoundConfig(kind="clairvoyant", horizon=H, continuation=conts)
-    ret, _ = _run(model, seeds, lambda core: LookaheadBound(core, cfg, seeds).act)
+    cfg = LookaheadConfig(kind="clairvoyant", horizon=H, continuation=conts)
+    ret, _ = _run(model, seeds, lambda core: LookaheadReference(core, cfg, seeds).act)
     for spec in conts:
         base, _ = _run(model, seeds, lambda core, spec=spec: make_comm_policy(spec, core).act)
         assert np.all(ret >= base - 1e-9), (spec, ret, base)
@@ -127,16 +128,16 @@ def test_clairvoyant_bound_beats_every_continuation_episode_by_episode():
 
 
 @pytest.mark.parametrize("kind", ["causal", "clairvoyant"])
-def test_bounds_are_deterministic_for_a_seed(kind):
+def test_references_are_deterministic_for_a_seed(kind):
     model = tiny(10)
     seeds = [1000000, 1000007]
-    cfg = BoundConfig(kind=kind, horizon=4, futures=3, continuation=("event:1",), seed=5)
-    r1, b1 = _run(model, seeds, lambda core: LookaheadBound(core, cfg, seeds).act)
-    r2, b2 = _run(model, seeds, lambda core: LookaheadBound(core, cfg, seeds).act)
+    cfg = LookaheadConfig(kind=kind, horizon=4, futures=3, continuation=("event:1",), seed=5)
+    r1, b1 = _run(model, seeds, lambda core: LookaheadReference(core, cfg, seeds).act)
+    r2, b2 = _run(model, seeds, lambda core: LookaheadReference(core, cfg, seeds).act)
     np.testing.assert_array_equal(b1, b2)
     np.testing.assert_array_equal(r1, r2)
     if kind == "causal":  # a member's decisions depend on its own evaluation seed only
-        r3, b3 = _run(model, seeds[1:], lambda core: LookaheadBound(core, cfg, seeds[1:]).act)
+        r3, b3 = _run(model, seeds[1:], lambda core: LookaheadReference(core, cfg, seeds[1:]).act)
         np.testing.assert_array_equal(b3[0], b1[1])
 
 
@@ -160,23 +161,23 @@ def _perturb_future(core, rng):
     return twin
 
 
-def test_the_causal_bound_never_reads_the_realised_future(monkeypatch):
-    """At every step, the causal bound decides the same on a copy whose realised future
+def test_the_causal_reference_never_reads_the_realised_future(monkeypatch):
+    """At every step, the causal reference decides the same on a copy whose realised future
     was replaced; the clairvoyant one does not (so the replacement matters)."""
     model = tiny(16)
     seeds = [1000002, 1000004]
     rng = np.random.default_rng(0)
-    causal = BoundConfig(kind="causal", horizon=4, futures=2, continuation=("event:1",))
-    seer = BoundConfig(kind="clairvoyant", horizon=4, continuation=("event:1",))
+    causal = LookaheadConfig(kind="causal", horizon=4, futures=2, continuation=("event:1",))
+    seer = LookaheadConfig(kind="clairvoyant", horizon=4, continuation=("event:1",))
     core = BatchedCore(model, 2, chunk=1)
     obs, mask = core.reset(seeds)
     differs = 0
     for _ in range(model.horizon):
         twin = _perturb_future(core, rng)
-        act = LookaheadBound(core, causal, seeds).act(obs, mask)
-        np.testing.assert_array_equal(LookaheadBound(twin, causal, seeds).act(obs, mask), act)
-        differs += not np.array_equal(LookaheadBound(core, seer, seeds).act(obs, mask),
-                                      LookaheadBound(twin, seer, seeds).act(obs, mask))
+        act = LookaheadReference(core, causal, seeds).act(obs, mask)
+        np.testing.assert_array_equal(LookaheadReference(twin, causal, seeds).act(obs, mask), act)
+        differs += not np.array_equal(LookaheadReference(core, seer, seeds).act(obs, mask),
+                                      LookaheadReference(twin, seer, seeds).act(obs, mask))
         obs, mask = core.step(act)[:2]
     assert differs > 0
     # the test has teeth: a fork that kept the graph state (G[k+1] of the window) would
@@ -190,8 +191,8 @@ def test_the_causal_bound_never_reads_the_realised_future(monkeypatch):
     leaked = 0
     for _ in range(model.horizon):
         twin = _perturb_future(core, rng)
-        act = LookaheadBound(core, causal, seeds).act(obs, mask)
-        leaked += not np.array_equal(LookaheadBound(twin, causal, seeds).act(obs, mask), act)
+        act = LookaheadReference(core, causal, seeds).act(obs, mask)
+        leaked += not np.array_equal(LookaheadReference(twin, causal, seeds).act(obs, mask), act)
         obs, mask = core.step(act)[:2]
     assert leaked > 0
 
@@ -203,8 +204,8 @@ def test_selection_with_a_confidence_margin():
     core = BatchedCore(model, 1, chunk=1)
     core.reset(0)
     q = np.array([[0.0, 12.0, 1.0], [0.0, -2.0, 1.2], [0.0, -2.5, 0.9], [0.0, -1.0, 1.1]])
-    plain = LookaheadBound(core, BoundConfig(confidence=0.0), [0])
-    careful = LookaheadBound(core, BoundConfig(confidence=1.0), [0])
+    plain = LookaheadReference(core, LookaheadConfig(confidence=0.0), [0])
+    careful = LookaheadReference(core, LookaheadConfig(confidence=1.0), [0])
     assert plain._choose(q) == 1 and careful._choose(q) == 2
     assert careful._choose(q[:, :2]) == 0  # nothing reliably better: keep the base
     assert careful._choose(q[:1]) == 1  # one future: the plain argmax
@@ -214,16 +215,16 @@ def test_second_round_combines_every_improving_single_flip():
     model = tiny(5)
     core = BatchedCore(model, 1, chunk=1)
     core.reset(0)
-    bound = LookaheadBound(core, BoundConfig(kind="clairvoyant"), [0])
+    look = LookaheadReference(core, LookaheadConfig(kind="clairvoyant"), [0])
     base = np.array([[1], [0], [1]])
     pats = np.stack([base, 1 - base, base ^ [[1], [0], [0]], base ^ [[0], [1], [0]],
                      base ^ [[0], [0], [1]]])
     conts = np.zeros(5, dtype=np.int64)
     q = np.array([[0.0, 5.0, 1.0, 2.0, -1.0]])  # flips of agents 0 and 1 gain, 2 loses
-    np.testing.assert_array_equal(bound._combination(pats, conts, q), [[0], [1], [1]])
-    assert bound._combination(pats, conts, np.array([[0.0, 5.0, 1.0, -2.0, -1.0]])) is None
+    np.testing.assert_array_equal(look._combination(pats, conts, q), [[0], [1], [1]])
+    assert look._combination(pats, conts, np.array([[0.0, 5.0, 1.0, -2.0, -1.0]])) is None
     with pytest.raises(ValueError, match="rounds"):
-        BoundConfig(rounds=3)
+        LookaheadConfig(rounds=3)
 
 
 def test_terminal_estimate_counts_the_last_step_again():
@@ -236,10 +237,10 @@ def test_terminal_estimate_counts_the_last_step_again():
         obs, mask = core.step(np.ones((2, 3, 1), dtype=np.int64))[:2]
     scores = {}
     for h, t in ((1, 0), (2, 0), (2, 5)):
-        bound = LookaheadBound(core, BoundConfig(kind="clairvoyant", horizon=h, terminal=t,
+        look = LookaheadReference(core, LookaheadConfig(kind="clairvoyant", horizon=h, terminal=t,
                                                  continuation=("event:1",)), [5, 6])
-        bound.act(obs, mask)
-        scores[h, t] = bound.scores
+        look.act(obs, mask)
+        scores[h, t] = look.scores
     for b in range(2):
         q1, q2, q25 = scores[1, 0][b], scores[2, 0][b], scores[2, 5][b]
         np.testing.assert_allclose(q25, q2 + 5 * (q2 - q1), rtol=1e-12)
@@ -249,8 +250,8 @@ def test_channel_candidates_swap_senders():
     model = load_model("comm_channel_k2-v0", horizon=10)[0]
     core = BatchedCore(model, 1, chunk=1)
     obs, mask = core.reset([3])
-    bound = LookaheadBound(core, BoundConfig(continuation=("whittle:2",)), [3])
-    pats, _ = bound.candidates(obs, mask)
+    look = LookaheadReference(core, LookaheadConfig(continuation=("whittle:2",)), [3])
+    pats, _ = look.candidates(obs, mask)
     base = pats[0][0, 0, :, 0]
     senders = {tuple(np.flatnonzero(p[0, :, 0])) for p in pats[0]}
     on = np.flatnonzero(base)
@@ -262,42 +263,51 @@ def test_channel_candidates_swap_senders():
 def test_substates_mode_and_channel():
     for sid, over in (("comm_substates-v0", {}), ("comm_channel_k2-v0", {})):
         seeds = [1000000, 1000001]
-        cfg = BoundConfig(kind="causal", horizon=3, futures=2, continuation=("event:1",))
-        vals = pr.evaluate(sid, "bound:causal", seeds, {"horizon": 8, **over}, bound=cfg)
+        cfg = LookaheadConfig(kind="causal", horizon=3, futures=2, continuation=("event:1",))
+        vals = pr.evaluate(sid, "reference:causal", seeds, {"horizon": 8, **over}, reference=cfg)
         base = pr.evaluate(sid, "event:1", seeds, {"horizon": 8, **over})
         assert np.isfinite(vals["reward"]).all()
         assert vals["reward"].shape == base["reward"].shape == (2,)
 
 
-def test_bound_configuration_is_checked():
+def test_reference_configuration_is_checked():
     for bad in ({"kind": "oracle"}, {"horizon": 0}, {"futures": 0}, {"depth": 2},
                 {"candidates": "all"}, {"continuation": ()}, {"continuation": "event:2"},
                 {"continuation": ("bernoulli:0.5",)}, {"continuation": ("telepathy",)},
                 {"seed": -1}, {"known_ahead": -1},
                 {"candidates": "exhaustive", "depth": 3, "horizon": 2}):
         with pytest.raises(ValueError):
-            BoundConfig(**bad)
-    assert parse_bound("bound:causal:sources:0").continuation == ("sources:0",)
-    assert parse_bound("bound:clairvoyant").kind == "clairvoyant"
-    with pytest.raises(ValueError, match="bound spec"):
-        parse_bound("bound:psychic")
+            LookaheadConfig(**bad)
+    assert parse_reference("reference:causal:sources:0").continuation == ("sources:0",)
+    assert parse_reference("reference:clairvoyant").kind == "clairvoyant"
+    with pytest.raises(ValueError, match="reference spec"):
+        parse_reference("reference:psychic")
+    for old in ("bound:causal", "bound:clairvoyant:event:2"):  # the former spelling
+        with pytest.raises(ValueError, match="write 'reference:"):
+            parse_reference(old)
+        with pytest.raises(ValueError, match="not bounds"):
+            pr.evaluate(SID, old, [0], {"horizon": 4, **TINY})
+    for random_base in ("aloha:1,1", "acked(bernoulli:0.5)"):
+        with pytest.raises(ValueError, match="random bits"):
+            LookaheadConfig(continuation=(random_base,))
+    assert LookaheadConfig(continuation=("acked(event:2)",)).continuation == ("acked(event:2)",)
     model = tiny(5)
     core = BatchedCore(model, 1, chunk=4)
     core.reset(0)
     with pytest.raises(ValueError, match="chunk=1"):
-        LookaheadBound(core, BoundConfig(), [0])
+        LookaheadReference(core, LookaheadConfig(), [0])
     with pytest.raises(ValueError, match="one evaluation seed"):
-        LookaheadBound(core, BoundConfig(kind="clairvoyant"), [0, 1])
-    with pytest.raises(TypeError, match="BoundConfig"):
-        LookaheadBound(core, {"kind": "causal"}, [0])
+        LookaheadReference(core, LookaheadConfig(kind="clairvoyant"), [0, 1])
+    with pytest.raises(TypeError, match="LookaheadConfig"):
+        LookaheadReference(core, {"kind": "causal"}, [0])
     full = BatchedCore(load_model("fig1_scalar-v0")[0], 1, chunk=1)
     full.reset(0)
     with pytest.raises(ValueError, match="communication-only"):
-        LookaheadBound(full, BoundConfig(), [0])
+        LookaheadReference(full, LookaheadConfig(), [0])
     big = BatchedCore(load_model("comm_substates-v0")[0], 1, chunk=1)
     big.reset(0)
     with pytest.raises(ValueError, match="exhaustive"):
-        LookaheadBound(big, BoundConfig(candidates="exhaustive"), [0])
+        LookaheadReference(big, LookaheadConfig(candidates="exhaustive"), [0])
 
 
 # --------------------------------------------------------------------------- protocol
@@ -333,41 +343,42 @@ def test_paired_intervals():
         paired_percent(bound, ref[:3])
 
 
-def test_frontier_with_bounds_rows_headroom_and_plot(tmp_path):
+def test_frontier_with_references_rows_headroom_and_plot(tmp_path):
     fams = {"periodic": (1, 3), "whittle": (1,)}
     rows = pr.run_frontier([SID], tmp_path, episodes=4, families=fams,
                            overrides={"horizon": 10, **TINY}, progress=False,
-                           bounds=("causal", "clairvoyant"), bound_episodes=2,
-                           bound_config=BoundConfig(horizon=3, futures=2))
+                           references=("causal", "clairvoyant"), reference_episodes=2,
+                           reference_config=LookaheadConfig(horizon=3, futures=2))
     kinds = {r["policy"]: r["kind"] for r in rows}
     assert kinds["periodic:1"] == kinds["always"] == "decentralised"
     assert kinds["whittle:1"] == "centralised"
-    assert kinds["bound:causal"] == kinds["bound:clairvoyant"] == "bound"
-    bounds = [r for r in rows if r["kind"] == "bound"]
-    assert all(r["episodes"] == 2 and r["pareto"] == "" for r in bounds)
+    assert kinds["reference:causal"] == kinds["reference:clairvoyant"] == "reference"
+    refs = [r for r in rows if r["kind"] == "reference"]
+    assert all(r["episodes"] == 2 and r["pareto"] == "" for r in refs)
     best = pr.best_scripted(rows, deterministic=True)["policy"]
-    assert bounds[0]["knob"].split(" + ")[0] == best
-    # the bound's values are those of evaluate() on the first two seeds
-    again = pr.evaluate(SID, "bound:causal", pr.eval_seeds(2), {"horizon": 10, **TINY},
-                        bound=bounds[0]["bound_config"])
-    np.testing.assert_array_equal(again["reward"], bounds[0]["values"]["reward"])
+    assert refs[0]["knob"].split(" + ")[0] == best
+    # the reference's values are those of evaluate() on the first two seeds
+    again = pr.evaluate(SID, "reference:causal", pr.eval_seeds(2), {"horizon": 10, **TINY},
+                        reference=refs[0]["reference_config"])
+    np.testing.assert_array_equal(again["reward"], refs[0]["values"]["reward"])
     with (tmp_path / "frontier.csv").open() as fh:
         table = list(csv.DictReader(fh))
-    assert [r["kind"] for r in table][-2:] == ["bound", "bound"]
+    assert [r["kind"] for r in table][-2:] == ["reference", "reference"]
     assert table[-1]["episodes"] == "2" and table[0]["episodes"] == "4"
     heads = headroom(rows)
-    assert {(h["bound"], h["reference_kind"]) for h in heads} == {
-        (b, k) for b in ("bound:causal", "bound:clairvoyant")
+    assert {(h["reference"], h["best_kind"]) for h in heads} == {
+        (b, k) for b in ("reference:causal", "reference:clairvoyant")
         for k in ("decentralised", "centralised")}
     for h in heads:
+        best_row = next(r for r in rows if r["policy"] == h["best"])
         ref = next(r for r in rows if r["policy"] == h["reference"])
-        b = next(r for r in rows if r["policy"] == h["bound"])
-        d = b["values"]["reward"] - ref["values"]["reward"][:2]
+        d = ref["values"]["reward"] - best_row["values"]["reward"][:2]
         assert h["headroom_mean"] == pytest.approx(d.mean())
         assert h["headroom_ci_low"] <= h["headroom_mean"] <= h["headroom_ci_high"]
-        assert ref["kind"] == h["reference_kind"]
+        assert best_row["kind"] == h["best_kind"]
     md = (tmp_path / "headroom.md").read_text()
-    assert "bound:clairvoyant" in md and "(decentralised)" in md
+    assert "full-information reference (clairvoyant)" in md and "(decentralised)" in md
+    assert "bound" not in md + (tmp_path / "frontier.md").read_text()
     assert (tmp_path / f"frontier_{SID}.png").stat().st_size > 10_000
 
 
@@ -384,7 +395,10 @@ def test_plot_gives_every_series_its_own_legend_entry(tmp_path):
     rows = [row("decentralised", "always", "always"), row("decentralised", "never", "never"),
             row("decentralised", "periodic", "periodic:2", 2),
             row("centralised", "whittle", "whittle:1", 1),
-            row("bound", "bound", "bound:causal", "event:2", "lookahead"),
+            row("privileged", "oracle", "oracle(event:2)", "event:2"),
+            row("decentralised", "gated", "gated(event:2)", "event:2"),
+            row("reference", "reference", "reference:causal", "event:2", "lookahead"),
+            row("upper_bound", "upper_bound", "upper_bound", "", "relaxation"),
             row("learned", "learned", "learned:a/s1/policy.pt", "a/s1/policy.pt", "greedy",
                 "ppo"),
             row("learned", "learned", "learned:a/s2/policy.pt", "a/s2/policy.pt", "greedy",
@@ -399,17 +413,20 @@ def test_plot_gives_every_series_its_own_legend_entry(tmp_path):
     assert [k for k, _, _ in _series(old)] == [k for k, _, _ in series]
 
 
-def test_frontier_command_with_bounds(tmp_path, capsys):
+def test_frontier_command_with_references(tmp_path, capsys):
     from netsense.cli import main
 
     assert main(["benchmark", SID, "--frontier", "--seeds", "3", "--families", "sources",
-                 "--bounds", "clairvoyant", "--bound-episodes", "2", "--bound-horizon", "2",
+                 "--references", "clairvoyant", "--reference-episodes", "2",
+                 "--reference-horizon", "2",
                  "--override", "horizon=6", "--out", str(tmp_path), "--no-progress"]) == 0
     printed = capsys.readouterr().out
-    assert "bound:clairvoyant" in printed and "(decentralised)" in printed
+    assert "full-information reference (clairvoyant)" in printed
+    assert "(decentralised)" in printed
     with (tmp_path / "headroom.csv").open() as fh:
         heads = list(csv.DictReader(fh))
-    assert {h["reference_kind"] for h in heads} == {"decentralised"}  # no scheduler ran
+    assert {h["best_kind"] for h in heads} == {"decentralised"}  # no scheduler ran
+    assert {h["reference"] for h in heads} == {"reference:clairvoyant"}
     assert heads[0]["episodes"] == "2"
 
 
@@ -429,7 +446,7 @@ def test_comm_bounds_experiment_smoke(tmp_path):
     with (tmp_path / "tradeoff.csv").open() as fh:
         trade = list(csv.DictReader(fh))
     assert len(trade) == len(mod.TRADEOFF)
-    default = [t for t in trade if t["bound"] == "bound:causal" and t["horizon"] == "8"
+    default = [t for t in trade if t["reference"] == "reference:causal" and t["horizon"] == "8"
                and t["futures"] == "8" and t["confidence"] == "1" and t["rounds"] == "2"]
     assert len(default) == 1 and float(default[0]["gain_vs_default"]) == 0
 
@@ -450,10 +467,10 @@ def test_a_scenario_that_announces_the_next_graph_keeps_it_in_the_futures():
         seen.update(kwargs)
         return fork(*args, **kwargs)
 
-    bound = LookaheadBound(core, BoundConfig(horizon=2, futures=2), [7])
-    assert bound.known_ahead == 1
+    ref = LookaheadReference(core, LookaheadConfig(horizon=2, futures=2), [7])
+    assert ref.known_ahead == 1
     import unittest.mock
 
     with unittest.mock.patch.object(fork_module, "fork", spy):
-        bound.act(obs, mask)
+        ref.act(obs, mask)
     assert seen["known_ahead"] == 1 and seen["future"] == "resampled"

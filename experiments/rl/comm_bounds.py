@@ -1,26 +1,30 @@
-"""Lookahead bounds on the communication tasks: headroom over the scripted frontier, and
-what the bounds' search settings buy.
+"""Full-information reference schedulers on the communication tasks: headroom over the
+scripted frontier, and what the references' search settings buy.
 
-The bounds (:mod:`netsense.benchmark.bounds`) are centralised full-information references,
-not deployable policies: ``bound:causal`` (rollouts on futures resampled from the current
-state) and ``bound:clairvoyant`` (the realised future; a loose bound). This script
+The references (:mod:`netsense.benchmark.lookahead`) are centralised full-information
+lookahead schedulers, not deployable policies, and their returns are achieved, not bounds:
+``reference:causal`` (rollouts on futures resampled from the current state) and
+``reference:clairvoyant`` (the realised future). This script
 
-1. runs the protocol's frontier of every task (all scripted families on ``--episodes``
-   evaluation seeds) with both bounds on the first ``--bound-episodes`` of those seeds, at
-   the bounds' default search settings: ``frontier.csv``/``.md``, ``frontier_<task>.png``,
-   ``headroom.csv``/``.md`` (bound minus the best decentralised and the best centralised
-   scripted point, paired bootstrap intervals), ``episodes.csv`` (the bounds' return per
-   episode);
+1. runs the protocol's frontier of every task (all scripted families, the informed and
+   privileged rules that apply, on ``--episodes`` evaluation seeds) with both references on
+   the first ``--reference-episodes`` of those seeds, at the default search settings:
+   ``frontier.csv``/``.md``, ``frontier_<task>.png``, ``headroom.csv``/``.md`` (reference
+   minus the best decentralised and the best centralised scripted point, paired bootstrap
+   intervals), ``episodes.csv`` (the references' return per episode);
 2. measures the trade-off of the search on one task (``--tradeoff-task``): the causal
-   bound's return and cost against the lookahead ``h`` and the number of futures ``F``,
-   the clairvoyant bound's against ``h``, each on the first ``--tradeoff-episodes`` seeds,
-   continuing with the policies the frontier chose for that task: ``tradeoff.csv``,
-   ``tradeoff.png``, ``tradeoff.md``.
+   reference's return and cost against the lookahead ``h`` and the number of futures
+   ``F``, the clairvoyant one's against ``h``, each on the first ``--tradeoff-episodes``
+   seeds, continuing with the policies the frontier chose for that task:
+   ``tradeoff.csv``, ``tradeoff.png``, ``tradeoff.md``.
 
-Writes into ``experiments/results/rl/comm_bounds/``. Run (about 20 minutes on two cores;
-``--smoke`` for a seconds-long check)::
+Writes into ``experiments/results/rl/comm_bounds/``. Run (the references cost about 60 s
+of one core per episode summed over the nine tasks, the causal one 85 % of it: about 25
+minutes of one core for the frontier part with 20 reference episodes, plus 5 minutes for
+the trade-off; ``--workers 2`` runs the tasks in two processes; ``--smoke`` for a
+seconds-long check)::
 
-    NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py
+    NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py --workers 2
 """
 
 # %%
@@ -35,16 +39,17 @@ from pathlib import Path
 import numpy as np
 
 from netsense.benchmark import protocol as pr
-from netsense.benchmark.bounds import BoundConfig
 from netsense.benchmark.headroom import headroom, markdown_headroom
+from netsense.benchmark.kinds import reference_label
+from netsense.benchmark.lookahead import LookaheadConfig
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "rl" / "comm_bounds"
 TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
          "message_cost-v0", "message_cost-v1", "comm_announced-v0", "comm_fading-v0",
          "comm_schedule-v0", "comm_schedule-v1")
-_D = BoundConfig()
+_D = LookaheadConfig()
 #: (kind, h, F, z, rounds) points of the trade-off study around the defaults (the
-#: clairvoyant bound has one future, so F and z do not apply to it)
+#: clairvoyant reference has one future, so F and z do not apply to it)
 TRADEOFF = tuple(dict.fromkeys(
     [("causal", h, _D.futures, _D.confidence, _D.rounds) for h in (2, 4, 8, 16)]
     + [("causal", _D.horizon, f, _D.confidence, _D.rounds) for f in (1, 2, 4, 8, 16)]
@@ -52,30 +57,33 @@ TRADEOFF = tuple(dict.fromkeys(
        ("causal", _D.horizon, _D.futures, _D.confidence, 1)]
     + [("clairvoyant", h, 1, 0.0, _D.rounds) for h in (2, 4, 8, 16)]
     + [("clairvoyant", _D.horizon, 1, 0.0, 1)]))
-TRADEOFF_COLUMNS = ("task", "bound", "horizon", "futures", "confidence", "rounds",
+TRADEOFF_COLUMNS = ("task", "reference", "horizon", "futures", "confidence", "rounds",
                     "continuation", "episodes", "reward_mean", "reward_ci_low",
                     "reward_ci_high", "gain_vs_default", "gain_ci_low", "gain_ci_high",
                     "seconds_per_episode", "lane_steps_per_decision")
 
 
-# %% The frontier with bounds
-def run_frontiers(tasks: Sequence[str], out: Path, episodes: int, bound_episodes: int,
-                  overrides: dict | None = None) -> list[dict]:
-    """:func:`netsense.benchmark.protocol.run_frontier` of ``tasks`` with both bounds."""
+# %% The frontier with the references
+def run_frontiers(tasks: Sequence[str], out: Path, episodes: int, reference_episodes: int,
+                  overrides: dict | None = None, workers: int = 1) -> list[dict]:
+    """:func:`netsense.benchmark.protocol.run_frontier` of ``tasks`` with both
+    references."""
     return pr.run_frontier(tasks, out, episodes=episodes, overrides=overrides,
-                           bounds=("causal", "clairvoyant"), bound_episodes=bound_episodes,
-                           bound_config=BoundConfig())
+                           references=("causal", "clairvoyant"),
+                           reference_episodes=reference_episodes,
+                           reference_config=LookaheadConfig(), workers=workers)
 
 
-def write_bound_episodes(rows: Sequence[dict], path: Path) -> None:
-    """``episodes.csv``: the bounds' return on each of their episodes (the first
-    ``--bound-episodes`` evaluation seeds), for paired comparisons elsewhere (the learners'
-    normalised scores in ``experiments/rl/learners.py``)."""
+def write_reference_episodes(rows: Sequence[dict], path: Path) -> None:
+    """``episodes.csv``: the references' return on each of their episodes (the first
+    ``--reference-episodes`` evaluation seeds), for paired comparisons elsewhere (the
+    learners' normalised scores in ``experiments/rl/learners.py``); ``policy`` is
+    ``reference:causal`` or ``reference:clairvoyant``."""
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(("scenario", "policy", "episode", "seed", "reward"))
         for r in rows:
-            if r["kind"] != "bound":
+            if r["kind"] != "reference":
                 continue
             for e, v in enumerate(r["values"]["reward"]):
                 w.writerow((r["scenario"], r["policy"], e, int(r["seed_first"]) + e,
@@ -86,7 +94,7 @@ def write_bound_episodes(rows: Sequence[dict], path: Path) -> None:
 def tradeoff(task: str, continuation: tuple[str, ...], episodes: int,
              points: Sequence[tuple[str, int, int, float, int]] = TRADEOFF,
              overrides: dict | None = None) -> list[dict]:
-    """Return and cost of the bounds at each ``(kind, h, F, z, rounds)`` of ``points`` on
+    """Return and cost of the references at each ``(kind, h, F, z, rounds)`` of ``points`` on
     the first
     ``episodes`` evaluation seeds; the gain is paired against the default settings of the
     same kind (which ``points`` must hold)."""
@@ -98,15 +106,15 @@ def tradeoff(task: str, continuation: tuple[str, ...], episodes: int,
                "clairvoyant": ("clairvoyant", _D.horizon, 1, 0.0, _D.rounds)}
     runs = {}
     for kind, h, f, z, n in tqdm(points, desc=f"trade-off {task}"):
-        cfg = BoundConfig(kind=kind, horizon=h, futures=f, confidence=z, rounds=n,
+        cfg = LookaheadConfig(kind=kind, horizon=h, futures=f, confidence=z, rounds=n,
                           continuation=continuation)
-        runs[kind, h, f, z, n] = pr._evaluate(task, f"bound:{kind}", seeds, over, cfg)
+        runs[kind, h, f, z, n] = pr._evaluate(task, f"reference:{kind}", seeds, over, cfg)
     rows = []
     for (kind, h, f, z, n), (vals, cost) in runs.items():
         ref = runs[default[kind]][0]
         mean, lo, hi = pr.bootstrap_ci(vals["reward"])
         g, glo, ghi = pr.bootstrap_ci(vals["reward"] - ref["reward"])
-        rows.append({"task": task, "bound": f"bound:{kind}", "horizon": h, "futures": f,
+        rows.append({"task": task, "reference": f"reference:{kind}", "horizon": h, "futures": f,
                      "confidence": z, "rounds": n, "continuation": " + ".join(continuation),
                      "episodes": episodes, "reward_mean": mean, "reward_ci_low": lo,
                      "reward_ci_high": hi, "gain_vs_default": g, "gain_ci_low": glo,
@@ -128,10 +136,10 @@ def write_tradeoff(rows: Sequence[dict], out: Path) -> None:
         for r in rows:
             w.writerow([f"{r[c]:.6g}" if isinstance(r[c], float) else r[c]
                         for c in TRADEOFF_COLUMNS])
-    lines = ["| bound | h | F | z | rounds | return | vs the defaults (paired) | "
+    lines = ["| reference | h | F | z | rounds | return | vs the defaults (paired) | "
              "s / episode | lane-steps / decision |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['bound']} | {r['horizon']} | {r['futures']} | "
+        lines.append(f"| {reference_label(r['reference'])} | {r['horizon']} | {r['futures']} | "
                      f"{r['confidence']:g} | {r['rounds']} | "
                      f"{r['reward_mean']:.2f} [{r['reward_ci_low']:.2f}, "
                      f"{r['reward_ci_high']:.2f}] | {r['gain_vs_default']:+.2f} "
@@ -141,18 +149,20 @@ def write_tradeoff(rows: Sequence[dict], out: Path) -> None:
         f"{rows[0]['task']}, {rows[0]['episodes']} episodes, continuation "
         f"{rows[0]['continuation']}\n\n" + "\n".join(lines) + "\n")
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for kind, colour in (("bound:causal", "#b2182b"), ("bound:clairvoyant", "#762a83")):
-        rs = [r for r in rows if r["bound"] == kind and r["rounds"] == _D.rounds and (
-            kind == "bound:clairvoyant" or (r["futures"] == _D.futures
+    for kind, colour in (("reference:causal", "#b2182b"), ("reference:clairvoyant", "#762a83")):
+        rs = [r for r in rows if r["reference"] == kind and r["rounds"] == _D.rounds and (
+            kind == "reference:clairvoyant" or (r["futures"] == _D.futures
                                             and r["confidence"] == _D.confidence))]
         rs.sort(key=lambda r: r["horizon"])
         _errorbar(axes[0], [r["horizon"] for r in rs], rs, colour,
-                  kind if kind == "bound:clairvoyant" else f"{kind}, F = {_D.futures}")
-    rs = sorted((r for r in rows if r["bound"] == "bound:causal" and r["rounds"] == _D.rounds
-                 and r["horizon"] == _D.horizon and r["confidence"] == _D.confidence),
+                  reference_label(kind) if kind == "reference:clairvoyant"
+                  else f"{reference_label(kind)}, F = {_D.futures}")
+    rs = sorted((r for r in rows if r["reference"] == "reference:causal"
+                 and r["rounds"] == _D.rounds and r["horizon"] == _D.horizon
+                 and r["confidence"] == _D.confidence),
                 key=lambda r: r["futures"])
     _errorbar(axes[1], [r["futures"] for r in rs], rs, "#b2182b",
-              f"bound:causal, h = {_D.horizon}")
+              f"{reference_label('reference:causal')}, h = {_D.horizon}")
     axes[0].set_xlabel("lookahead h (steps)")
     axes[1].set_xlabel("resampled futures F")
     for ax in axes:
@@ -160,7 +170,7 @@ def write_tradeoff(rows: Sequence[dict], out: Path) -> None:
         ax.set_ylabel("episode return (mean over agents)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle(f"{rows[0]['task']}: bounds vs their search settings, "
+    fig.suptitle(f"{rows[0]['task']}: full-information references vs their search settings, "
                  f"{rows[0]['episodes']} episodes, 95 % bootstrap CI", fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "tradeoff.png", dpi=110)
@@ -178,24 +188,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--tasks", nargs="+", default=list(TASKS))
     p.add_argument("--episodes", type=int, default=pr.DEFAULT_EPISODES)
-    p.add_argument("--bound-episodes", type=int, default=pr.DEFAULT_BOUND_EPISODES)
+    p.add_argument("--reference-episodes", type=int, default=pr.DEFAULT_REFERENCE_EPISODES)
     p.add_argument("--tradeoff-task", default="comm_process_noise-v0")
     p.add_argument("--tradeoff-episodes", type=int, default=10)
     p.add_argument("--out", type=Path, default=RESULTS)
     p.add_argument("--smoke", action="store_true",
-                   help="horizon 12, 3 episodes, 2 for the bounds and the trade-off")
+                   help="horizon 12, 3 episodes, 2 for the references and the trade-off")
+    p.add_argument("--workers", type=int, default=1,
+                   help="run the tasks' frontiers in this many processes")
     args = p.parse_args(argv)
     over = None
     if args.smoke:
         over = {"horizon": 12}
-        args.episodes, args.bound_episodes, args.tradeoff_episodes = 3, 2, 2
+        args.episodes, args.reference_episodes, args.tradeoff_episodes = 3, 2, 2
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = run_frontiers(args.tasks, args.out, args.episodes, args.bound_episodes, over)
-    write_bound_episodes(rows, args.out / "episodes.csv")
+    rows = run_frontiers(args.tasks, args.out, args.episodes, args.reference_episodes, over,
+                         args.workers)
+    write_reference_episodes(rows, args.out / "episodes.csv")
     print(markdown_headroom(headroom(rows)))
     if args.tradeoff_task:
         cont = next(r["knob"] for r in rows if r["scenario"] == args.tradeoff_task
-                    and r["policy"] == "bound:causal")
+                    and r["policy"] == "reference:causal")
         trade = tradeoff(args.tradeoff_task, tuple(cont.split(" + ")),
                          args.tradeoff_episodes, overrides=over)
         write_tradeoff(trade, args.out)

@@ -1,17 +1,17 @@
 """Learnability of the causal bound's decisions: how much of its headroom a decentralised
 policy can see from its own observation.
 
-``bound:causal`` (:mod:`netsense.benchmark.bounds`) reads the whole simulation state and
-beats the best decentralised scripted policy. This script asks how much of that a policy
+``reference:causal`` (:mod:`netsense.benchmark.lookahead`) reads the whole simulation state
+and beats the best decentralised scripted policy. This script asks how much of that a policy
 that reads only one agent's observation could reproduce. Per communication task:
 
-1. **Record.** The causal bound at its default :class:`~netsense.benchmark.bound_config.
-   BoundConfig`, continuing with the policies the committed frontier chose for it (the
-   ``knob`` of the task's ``bound:causal`` row of ``--frontier``), acts on ``--episodes``
+1. **Record.** The causal bound at its default :class:`~netsense.benchmark.lookahead_config.
+   LookaheadConfig`, continuing with the policies the committed frontier chose for it (the
+   ``knob`` of the task's ``reference:causal`` row of ``--frontier``), acts on ``--episodes``
    training episodes seeded ``TRAIN_SEED0 + e`` (below the protocol's
    ``TRAIN_SEED_LIMIT``, disjoint from its evaluation seeds; checked), built exactly as
    :func:`netsense.benchmark.protocol.evaluate` builds it (``BatchedCore(model, B,
-   chunk=1)``, ``LookaheadBound``, ``core.reset(seeds)``, ``core.step(bound.act(obs,
+   chunk=1)``, ``LookaheadReference``, ``core.reset(seeds)``, ``core.step(bound.act(obs,
    mask))``) in batches of :data:`BATCH` episodes. Recorded per step and agent: the
    agent's own flat observation (``core.layout``), its action mask and the bound's bits
    (one per agent, or per agent and substate in ``substates`` mode). ``message_cost-v0/v1``
@@ -62,7 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from netsense.benchmark import protocol as pr
-from netsense.benchmark.bound_config import BoundConfig
+from netsense.benchmark.lookahead_config import LookaheadConfig
 
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "rl" / "learnability"
 FRONTIER = RESULTS.parent / "comm_bounds" / "frontier.csv"
@@ -74,7 +74,7 @@ HISTORY = 4
 #: First training seed: below the protocol's TRAIN_SEED_LIMIT, so never an evaluation seed.
 TRAIN_SEED0 = 900_000
 #: Episodes the bound runs at once (the frontier's bound_episodes, whose cost is measured).
-BATCH = pr.DEFAULT_BOUND_EPISODES
+BATCH = pr.DEFAULT_REFERENCE_EPISODES
 #: Training episodes per task by default: the causal bound costs about 70 s per episode of
 #: all nine tasks together on one core of the two-core machine (comm_substates-v0 and
 #: comm_announced-v0 most), so with the classifiers and the clones about 30 min.
@@ -106,7 +106,7 @@ def references(task: str, rows: Sequence[dict]) -> dict:
     and the best decentralised scripted point (highest ``reward_mean``); NaN and
     ``continuation = None`` where the frontier lacks them."""
     mine = [r for r in rows if r["scenario"] == task]
-    bound = next((r for r in mine if r["policy"] == "bound:causal"), None)
+    bound = next((r for r in mine if r["policy"] == "reference:causal"), None)
     dec = [r for r in mine if r["kind"] == "decentralised"]
     best = max(dec, key=lambda r: float(r["reward_mean"])) if dec else None
     nan = float("nan")
@@ -121,7 +121,7 @@ def references(task: str, rows: Sequence[dict]) -> dict:
 
 
 # %% Recording the bound
-def record(task: str, seeds: Sequence[int], config: BoundConfig,
+def record(task: str, seeds: Sequence[int], config: LookaheadConfig,
            overrides: dict | None = None, batch: int = BATCH, progress: bool = True
            ) -> dict[str, np.ndarray]:
     """Roll the causal bound out on ``seeds`` and record every step.
@@ -138,7 +138,7 @@ def record(task: str, seeds: Sequence[int], config: BoundConfig,
     """
     from tqdm.auto import tqdm
 
-    from netsense.benchmark.bounds import LookaheadBound
+    from netsense.benchmark.lookahead import LookaheadReference
     from netsense.engine.core import BatchedCore
     from netsense.env.vector import load_model
 
@@ -151,7 +151,7 @@ def record(task: str, seeds: Sequence[int], config: BoundConfig,
     bar = None
     for group in groups:
         core = BatchedCore(model, len(group), chunk=1)  # (a resampled fork needs chunk=1)
-        bound = LookaheadBound(core, config, group)
+        bound = LookaheadReference(core, config, group)
         obs, mask = core.reset(group)
         if bar is None:
             horizon = core.horizon
@@ -347,13 +347,13 @@ def run_task(task: str, frontier: Sequence[dict], episodes: int, eval_episodes: 
     ref = references(task, frontier)
     if ref["continuation"] is None:
         if horizon is None:
-            raise ValueError(f"the frontier has no bound:causal row for {task}: run "
+            raise ValueError(f"the frontier has no reference:causal row for {task}: run "
                              "experiments/rl/comm_bounds.py first")
-        ref["continuation"] = BoundConfig().continuation  # smoke run only
+        ref["continuation"] = LookaheadConfig().continuation  # smoke run only
     if horizon is not None:  # the frontier's returns are of full-length episodes
         ref.update(bound_return=float("nan"), bound_msgs=float("nan"),
                    best_decentralised_return=float("nan"))
-    config = BoundConfig(continuation=ref["continuation"])
+    config = LookaheadConfig(continuation=ref["continuation"])
     train_seeds = list(range(TRAIN_SEED0, TRAIN_SEED0 + episodes))
     seeds = pr.eval_seeds(eval_episodes)
     pr.check_disjoint(train_seeds, seeds)
@@ -466,7 +466,8 @@ def write_markdown(rows: Sequence[dict], path: Path, command: str, seconds: floa
                    frontier: str | Path = FRONTIER) -> None:
     """``learnability.md``: what was run, the tables and how to read them."""
     r0 = rows[0]
-    head = (f"Learnability of `bound:causal`'s decisions (`experiments/rl/learnability.py`).\n\n"
+    head = (f"Learnability of `reference:causal`'s decisions "
+            f"(`experiments/rl/learnability.py`).\n\n"
             f"Command: `{command}` ({seconds / 60:.1f} min).\n\n"
             f"Training episodes: seeds {r0['train_seed_first']}.. (disjoint from the "
             f"evaluation seeds), split by episode into training / validation / test "
@@ -478,7 +479,7 @@ def write_markdown(rows: Sequence[dict], path: Path, command: str, seconds: floa
             f"accuracy. Clone returns: the kept classifier acting for every agent on its own "
             f"observation, {r0['eval_episodes']} evaluation seeds {r0['eval_seed_first']}–"
             f"{r0['eval_seed_last']}, mean [95 % bootstrap CI]. Bound return: "
-            f"`bound:causal` in the frontier `{_shown(frontier)}; the first "
+            f"`reference:causal` in the frontier `{_shown(frontier)}; the first "
             f"{r0['bound_episodes']} evaluation seeds); best decentralised: its best "
             f"decentralised scripted point (100 evaluation seeds). Headroom recovered: "
             f"(clone - best decentralised) / (bound - best decentralised).\n\n")
@@ -521,13 +522,13 @@ def plot(rows: Sequence[dict], path: Path) -> None:
     axes[0].set_ylim(0, 1)
     axes[0].set_ylabel("balanced accuracy on held-out episodes")
     axes[1].axhline(0.0, color="k", lw=0.8)
-    axes[1].axhline(1.0, color="#b2182b", lw=0.8, ls="--", label="bound:causal")
+    axes[1].axhline(1.0, color="#b2182b", lw=0.8, ls="--", label="reference:causal")
     axes[1].set_ylabel("headroom recovered by the clone\n(0: best decentralised, 1: bound)")
     for ax in axes:
         ax.set_xticks(x, tasks, rotation=30, ha="right", fontsize=8)
         ax.grid(axis="y", alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle("Cloning bound:causal's bits from one agent's observation "
+    fig.suptitle("Cloning reference:causal's bits from one agent's observation "
                  "(clone interval: 95 % bootstrap of its return)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -543,7 +544,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict]:
                    help="training episodes of the bound per task")
     p.add_argument("--eval-episodes", type=int, default=pr.DEFAULT_EPISODES)
     p.add_argument("--frontier", type=Path, default=FRONTIER,
-                   help="frontier CSV with the bound:causal rows (experiments/rl/"
+                   help="frontier CSV with the reference:causal rows (experiments/rl/"
                         "comm_bounds.py)")
     p.add_argument("--out", type=Path, default=RESULTS)
     p.add_argument("--smoke", action="store_true",

@@ -108,12 +108,13 @@ __all__ = [
 def make_jobs(scenarios: Sequence[str], policies: Sequence[str], seeds: Sequence[int], *,
               overrides: dict | None = None, eps: float = 1e-2) -> list[Job]:
     """Cartesian product of scenarios x policies x seeds (unknown policy names raise)."""
+    from netsense.env.comm_policies import spec_family
     from netsense.kernels import checks  # (seeds and eps checked: 1.5 is not a seed)
 
     seeds = [checks.seed_value("seeds[]", s) for s in seeds]
     checks.number("eps", eps, 0, lo_open=True)
     for p in policies:
-        if p.split(":", 1)[0] not in POLICY_NAMES:
+        if spec_family(p) not in POLICY_NAMES:
             raise ValueError(f"unknown policy {p!r}; choose from {', '.join(POLICY_NAMES)} "
                              "(learned may be written learned:PATH)")
     if not scenarios or not policies or not seeds:

@@ -83,6 +83,7 @@ def run_batched(jobs: Sequence[Job], *, runner: Callable[[Job], dict | None] = r
         (estimates up to the last bits of the matrix products).
     """
     from netsense.benchmark.batched import BATCHABLE_POLICIES, rollout_seeds
+    from netsense.env.comm_policies import spec_family
     from netsense.env.vector import load_model
 
     jobs = list(jobs)
@@ -98,7 +99,7 @@ def run_batched(jobs: Sequence[Job], *, runner: Callable[[Job], dict | None] = r
         else:
             groups.append((key, [i]))
     for (scenario, policy, overrides), idx in groups:
-        if policy.partition(":")[0] not in BATCHABLE_POLICIES:
+        if spec_family(policy) not in BATCHABLE_POLICIES:
             for i in idx:
                 results[i] = runner(jobs[i])
                 done(1)

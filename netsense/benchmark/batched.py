@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from netsense.engine.core import BatchedCore, CoreModel
-from netsense.env.comm_policies import COMM_POLICIES
+from netsense.env.comm_policies import COMM_POLICIES, spec_family
 from netsense.env.policies import SCRIPTED_POLICIES
 from netsense.env.vector import load_model
 
@@ -65,7 +65,7 @@ def rollout_seeds(scenario: str | CoreModel, policy: str, seeds: Sequence[int],
     from netsense.benchmark.rollouts import scripted_policy
     from netsense.estimators.oracle import CentralizedKF
 
-    if policy.partition(":")[0] not in BATCHABLE_POLICIES:
+    if spec_family(policy) not in BATCHABLE_POLICIES:
         raise ValueError(f"policy {policy!r} cannot run batched; choose one of "
                          f"{', '.join(BATCHABLE_POLICIES)} (learned policies run episode by "
                          "episode in netsense.benchmark)")

@@ -10,11 +10,17 @@ kind                drawn as
 ==================  ============================================================
 decentralised       a curve per family through its knob settings (solid line,
                     hollow marker of the family's own shape, knob values written
-                    beside the points); ``always`` and ``never`` as black hollow
-                    square and cross
+                    beside the points; an informed rule's curve runs through its
+                    base rules, dash-dotted); ``always`` and ``never`` as black
+                    hollow square and cross
+privileged          a dotted grey curve per rule through its base rules, filled
+                    small markers ("reads what no agent observes")
 centralised         a dashed curve per scheduler, hollow triangles
-bound               a large filled diamond per bound, and on the return panel a
-                    dotted horizontal line at its mean return ("not deployable")
+reference           a large filled diamond per full-information reference
+                    scheduler, and on the return panel a dotted horizontal line at
+                    its mean return ("achieved, not deployable")
+upper_bound         a large filled upward triangle per bound, and on the return
+                    panel a solid horizontal line at its mean return
 learned             a star per run and evaluation, each run its own colour
                     (greedy filled, sampled hollow)
 ==================  ============================================================
@@ -31,26 +37,28 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.benchmark.kinds import family_kind
+from netsense.benchmark.kinds import INFORMED_FAMILIES, family_kind, reference_label
 
 __all__ = ["plot_frontier"]
 
 #: Hollow marker shapes of the decentralised families, in order of appearance.
 _SHAPES = ("o", "v", "<", ">", "p", "h", "8", "P", "d", "H")
 _GROUPS = (("decentralised", "decentralised policies"),
-           ("centralised", "centralised references"),
-           ("bound", "bounds (full-information lookahead, not deployable)"),
+           ("privileged", "privileged rules (read what no agent observes)"),
+           ("centralised", "centralised schedulers"),
+           ("reference", "full-information reference schedulers (achieved, not deployable)"),
+           ("upper_bound", "upper bounds (certified)"),
            ("learned", "learned policies"))
-_BOUND_COLOURS = {"bound:causal": "#b2182b", "bound:clairvoyant": "#762a83"}
-#: Colours of the decentralised curves (none of the bounds' reds and purples, the
-#: centralised teals or the learned oranges).
+_REFERENCE_COLOURS = {"reference:causal": "#b2182b", "reference:clairvoyant": "#762a83"}
+#: Colours of the decentralised curves (none of the references' reds and purples, the
+#: centralised teals, the privileged greys or the learned oranges).
 _DECENTRALISED = ("#1f77b4", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf",
                   "#393b79", "#637939", "#843c39", "#7b4173")
 
 
 def _series(rows: Sequence[dict]) -> list[tuple[str, str, list[dict]]]:
     """``(kind, legend label, rows)`` per series: a family's knob curve, an endpoint, a
-    bound, or one learned run under one evaluation."""
+    reference or bound, or one learned run under one evaluation."""
     out: dict[tuple[str, str], list[dict]] = {}
     seen: dict[str, int] = {}
     for r in rows:
@@ -60,8 +68,11 @@ def _series(rows: Sequence[dict]) -> list[tuple[str, str, list[dict]]]:
             label = f"{run} ({r['evaluation']})"
             n = seen[label] = seen.get(label, 0) + 1
             label = label if n == 1 else f"{run} #{n} ({r['evaluation']})"
-        elif kind == "bound":
-            label = f"{r['policy']} (continues {r['knob']})" if r["knob"] else r["policy"]
+        elif kind == "reference":
+            label = reference_label(r["policy"])
+            label = f"{label} (continues {r['knob']})" if r["knob"] else label
+        elif kind == "upper_bound":
+            label = str(r["policy"])
         else:
             label = r["family"]
         out.setdefault((kind, label), []).append(r)
@@ -77,14 +88,21 @@ def _style(kind: str, label: str, rs: list[dict], index: dict[str, int]) -> dict
             return dict(color="k", marker="x", ms=7, ls="none")
         i = index["decentralised"] = index.get("decentralised", -1) + 1
         return dict(color=_DECENTRALISED[i % len(_DECENTRALISED)],
-                    marker=_SHAPES[i % len(_SHAPES)], mfc="none", ms=6, ls="-")
+                    marker=_SHAPES[i % len(_SHAPES)], mfc="none", ms=6,
+                    ls="-." if label in INFORMED_FAMILIES else "-")
+    if kind == "privileged":
+        i = index["privileged"] = index.get("privileged", -1) + 1
+        return dict(color=("#525252", "#969696", "#252525")[i % 3],
+                    marker=("X", "P", "*")[i % 3], ms=6, ls=":")
     if kind == "centralised":
         i = index["centralised"] = index.get("centralised", -1) + 1
         return dict(color=("#01665e", "#35978f", "#003c30")[i % 3],
                     marker="^" if i % 2 == 0 else "v", mfc="none", ms=7, ls="--")
-    if kind == "bound":
-        return dict(color=_BOUND_COLOURS.get(rs[0]["policy"], "#444444"), marker="D", ms=9,
-                    ls="none")
+    if kind == "reference":
+        return dict(color=_REFERENCE_COLOURS.get(rs[0]["policy"], "#444444"), marker="D",
+                    ms=9, ls="none")
+    if kind == "upper_bound":
+        return dict(color="#000000", marker="^", ms=10, ls="none")
     run = label.rsplit(" (", 1)[0]
     i = index.setdefault(f"run:{run}", len([k for k in index if k.startswith("run:")]))
     sampled = rs[0]["evaluation"] == "sampled"
@@ -117,12 +135,13 @@ def plot_frontier(rows: Sequence[dict], path: str | Path) -> Path:
                           - x)
             yerr = np.abs(np.array([[r[f"{ym}_ci_low"], r[f"{ym}_ci_high"]] for r in rs]).T
                           - y)
-            z = {"bound": 5, "learned": 4, "centralised": 3}.get(kind, 2)
+            z = {"upper_bound": 6, "reference": 5, "learned": 4, "centralised": 3}.get(kind, 2)
             ax.errorbar(x, y, xerr=xerr, yerr=yerr, lw=1.2, capsize=2, elinewidth=0.8,
                         zorder=z, **st)
-            if kind == "bound" and ym == "reward":
-                ax.axhline(y[0], color=st["color"], ls=":", lw=1.0, zorder=1)
-            if kind in ("decentralised", "centralised") and st["ls"] != "none":
+            if kind in ("reference", "upper_bound") and ym == "reward":
+                ax.axhline(y[0], color=st["color"], ls=":" if kind == "reference" else "-",
+                           lw=1.0, zorder=1)
+            if kind in ("decentralised", "privileged", "centralised") and st["ls"] != "none":
                 for r, xi, yi in zip(rs, x, y, strict=True):
                     ax.annotate(str(r["knob"]), (xi, yi), fontsize=6, xytext=(2, 2),
                                 textcoords="offset points", color=st["color"])
@@ -142,9 +161,9 @@ def plot_frontier(rows: Sequence[dict], path: str | Path) -> Path:
         for label, st in members:
             handles.append(Line2D([], [], label=label, lw=1.2, **st))
     fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=7, frameon=False)
-    r0 = next((r for r in rows if r.get("kind") != "bound"), rows[0])
+    r0 = next((r for r in rows if r.get("kind") not in ("reference", "upper_bound")), rows[0])
     note = "".join(f"; {r['policy']}: {r['episodes']} episodes" for r in rows
-                   if r.get("kind") == "bound")
+                   if r.get("kind") in ("reference", "upper_bound"))
     fig.suptitle(f"{r0['scenario']} ({r0['control']} control): {r0['episodes']} episodes, "
                  f"seeds from {r0['seed_first']}{note}; 95 % bootstrap CI", fontsize=10)
     rows_needed = int(np.ceil(len(handles) / 4))

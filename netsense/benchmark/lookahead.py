@@ -1,10 +1,13 @@
-"""Upper-bound references of the communication tasks: centralised full-information lookahead.
+"""Full-information reference schedulers of the communication tasks: centralised lookahead.
 
-Two references that say how far any policy is from the best possible, **not deployable
-policies**: they read the whole state of the simulation (plant, every estimate and index,
-the current graph) and simulate the future on forked copies of the evaluated core
-(:func:`netsense.engine.fork.fork`; there is no second simulator). Their policy names are
-``bound:causal`` and ``bound:clairvoyant`` (family and kind ``bound`` in the frontier).
+Two reference schedulers, **not deployable policies**: they read the whole state of the
+simulation (plant, every estimate and index, the current graph) and simulate the future on
+forked copies of the evaluated core (:func:`netsense.engine.fork.fork`; there is no second
+simulator). Their returns are *achieved*: they say what is reachable with full
+information, not what is possible (they are no upper bounds; a policy may beat them).
+Their policy names are ``reference:causal`` and ``reference:clairvoyant`` (family and kind
+``reference`` in the frontier; labelled "full-information reference (causal)" and
+"(clairvoyant)").
 
 Receding-horizon lookahead (a rollout algorithm in the sense of Bertsekas, *Rollout,
 Policy Iteration, and Distributed Reinforcement Learning*, 2020, ch. 2). At every step
@@ -21,23 +24,23 @@ the return (reward per step averaged over agents, as the protocol's ``reward``) 
 at ``k + 1 .. k + h - 1``, over ``F`` futures; the evaluated core takes the best
 candidate: with one future ``argmax_c Q(c)`` (ties: the earliest candidate, the base
 policy's own action first); with ``F > 1`` the candidate of the largest lower confidence
-bound ``mean_f d_f(c) - z sd_f(d(c)) / sqrt(F)`` of its paired gain ``d_f(c) = Q_f(c) -
-Q_f(c_0)`` over the base action ``c_0``, and ``c_0`` when no bound is positive (the
+confidence bound ``mean_f d_f(c) - z sd_f(d(c)) / sqrt(F)`` of its paired gain ``d_f(c) = Q_f(c) -
+Q_f(c_0)`` over the base action ``c_0``, and ``c_0`` when none is positive (the
 futures are shared by all candidates, common random numbers, and the maximum of many
 noisy estimates is biased upwards). By default no terminal value is added (a truncated
 rollout); steps past the episode end count nothing.
 
-* ``bound:causal`` -- the futures are **resampled** from the state at ``k``
+* ``reference:causal`` -- the futures are **resampled** from the state at ``k``
   (``future="resampled"`` forks: the plant state, estimates, indices, ``G[k]``, ``y[k]``
   and the messages of ``k`` are known; the noise of ``k -> k + 1``, ``G[k+1]`` and
   everything later are redrawn, see :mod:`netsense.engine.fork`). It never reads the
   realised future: the best a centralised scheduler that knows the present exactly could
   do, up to the search.
-* ``bound:clairvoyant`` -- the one **realised** future (``F = 1``): the lookahead knows
-  the future noise and graphs (who will receive a message sent now). A loose bound, above
-  anything causal.
+* ``reference:clairvoyant`` -- the one **realised** future (``F = 1``): the lookahead knows
+  the future noise and graphs (who will receive a message sent now). Above anything causal
+  in general (it knows what no causal scheduler can).
 
-Search (:class:`BoundConfig`):
+Search (:class:`LookaheadConfig`):
 
 * candidates ``"flips"`` (default): the action of every continuation policy (paired with
   that policy as its continuation), then, paired with the first continuation (the base):
@@ -53,21 +56,21 @@ Search (:class:`BoundConfig`):
   every pattern of allowed bits (``2^(N W)``) at each of the first ``depth`` steps (for
   small tasks and the tests), then the base.
 * continuation: scripted communication policies of :mod:`netsense.env.comm_policies` (any
-  family, decentralised or centralised: the bound is centralised anyway) that act on the
+  family, decentralised or centralised: the reference is centralised anyway) that act on the
   current observation only; ``bernoulli`` (random) is refused. With the realised future,
   a horizon reaching the episode end and each continuation's own action among the
   candidates, the lookahead's return is at least every continuation policy's, episode by
   episode (sequential improvement of rollout with several base heuristics; tested).
 * futures: member ``b``'s future ``f`` at step ``k`` is drawn from
   ``SeedSequence([seed, s_b, k, f])`` with ``s_b`` the member's evaluation seed, so a
-  bound's result depends on (configuration, evaluation seeds) only.
+  reference's result depends on (configuration, evaluation seeds) only.
 
 Cost: one fork per decision step holding every member x candidate x future as a lane,
 stepped ``h`` times: ``sum_b C_b F h`` core lane-steps per step of the evaluated core
 (plus ``2 F h`` per member that has a combination to try in the second round;
-:attr:`LookaheadBound.lane_steps`). ``docs/communication.md`` gives the measured figures.
-The settings are :class:`~netsense.benchmark.bound_config.BoundConfig`
-(:mod:`netsense.benchmark.bound_config`).
+:attr:`LookaheadReference.lane_steps`). ``docs/communication.md`` gives the measured figures.
+The settings are :class:`~netsense.benchmark.lookahead_config.LookaheadConfig`
+(:mod:`netsense.benchmark.lookahead_config`).
 """
 
 from __future__ import annotations
@@ -78,19 +81,20 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from netsense.benchmark.bound_config import (
-    BOUND_KINDS,
+from netsense.benchmark.lookahead_config import (
     CANDIDATES,
     MAX_EXHAUSTIVE,
-    BoundConfig,
-    parse_bound,
+    REFERENCE_KINDS,
+    LookaheadConfig,
+    parse_reference,
 )
 from netsense.kernels import checks
 
-__all__ = ["BOUND_KINDS", "CANDIDATES", "BoundConfig", "LookaheadBound", "parse_bound"]
+__all__ = ["CANDIDATES", "REFERENCE_KINDS", "LookaheadConfig", "LookaheadReference",
+           "parse_reference"]
 
 
-class LookaheadBound:
+class LookaheadReference:
     """The lookahead as a policy of the core it evaluates.
 
     Parameters
@@ -98,7 +102,7 @@ class LookaheadBound:
     core : BatchedCore
         The evaluated core (a communication-only mode; built with ``chunk=1`` for
         ``causal``), stepped by the caller with the bits :meth:`act` returns.
-    config : BoundConfig
+    config : LookaheadConfig
     seeds : sequence of int
         The evaluation seed of every member (seeds the futures).
 
@@ -115,20 +119,20 @@ class LookaheadBound:
         of :meth:`candidates`).
     """
 
-    def __init__(self, core, config: BoundConfig, seeds: Sequence[int]) -> None:
+    def __init__(self, core, config: LookaheadConfig, seeds: Sequence[int]) -> None:
         from netsense.env.comm_policies import make_comm_policy
 
         if core.comm is None:
-            raise ValueError("the bounds act in a communication-only control mode "
+            raise ValueError("the references act in a communication-only control mode "
                              "(scenario [control] mode = 'transmit' or 'substates')")
-        if not isinstance(config, BoundConfig):
-            raise TypeError(f"config must be a BoundConfig, got {type(config).__name__}")
+        if not isinstance(config, LookaheadConfig):
+            raise TypeError(f"config must be a LookaheadConfig, got {type(config).__name__}")
         seeds = [checks.seed_value(f"seeds[{b}]", s) for b, s in enumerate(seeds)]
         if len(seeds) != core.B:
             raise ValueError(f"seeds must hold one evaluation seed per member ({core.B}), "
                              f"got {len(seeds)}")
         if config.kind == "causal" and core.chunk != 1:
-            raise ValueError("bound:causal forks with resampled futures: build the evaluated "
+            raise ValueError("reference:causal forks with resampled futures: build the evaluated "
                              "core with chunk=1")
         self.core, self.config, self.seeds = core, config, seeds
         #: graphs after G[k] known at k: the configuration's, or the scenario's own
@@ -296,8 +300,8 @@ class LookaheadBound:
             tail = np.minimum(cfg.terminal, np.maximum(lanes.horizon - lanes.k, 0))
             total[live] += (tail * last)[live]
         self.lane_steps += len(member) * steps
-        bounds = np.r_[0, np.cumsum(sizes * F)]
-        return [total[bounds[i]:bounds[i + 1]].reshape(F, sizes[i])  # (future, cand.)
+        edges = np.r_[0, np.cumsum(sizes * F)]
+        return [total[edges[i]:edges[i + 1]].reshape(F, sizes[i])  # (future, cand.)
                 for i in range(len(members))]
 
     def _choose(self, q: np.ndarray) -> int:

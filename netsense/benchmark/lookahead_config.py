@@ -1,8 +1,9 @@
-"""Settings of the lookahead bounds (:mod:`netsense.benchmark.bounds`) and their policy specs.
+"""Settings of the full-information reference schedulers (:mod:`netsense.benchmark.lookahead`)
+and their policy specs.
 
-A bound is named ``bound:causal`` or ``bound:clairvoyant``, optionally followed by its
-continuation policy (``bound:causal:sources:0``); everything else about its search is a
-:class:`BoundConfig`, whose defaults are the settings measured in ``docs/communication.md``
+A reference is named ``reference:causal`` or ``reference:clairvoyant``, optionally followed by its
+continuation policy (``reference:causal:sources:0``); everything else about its search is a
+:class:`LookaheadConfig`, whose defaults are the settings measured in ``docs/communication.md``
 (section 8): lookahead ``h = 8``, ``F = 8`` resampled futures, a one-standard-error margin
 over the base action, two rounds.
 """
@@ -13,10 +14,10 @@ from dataclasses import dataclass
 
 from netsense.kernels import checks
 
-__all__ = ["BOUND_KINDS", "CANDIDATES", "DEFAULT_CONTINUATION", "MAX_EXHAUSTIVE",
-           "BoundConfig", "parse_bound"]
+__all__ = ["CANDIDATES", "DEFAULT_CONTINUATION", "MAX_EXHAUSTIVE", "REFERENCE_KINDS",
+           "LookaheadConfig", "parse_reference"]
 
-BOUND_KINDS = ("causal", "clairvoyant")
+REFERENCE_KINDS = ("causal", "clairvoyant")
 CANDIDATES = ("flips", "exhaustive")
 #: Continuation used when none is named (overridden per task by the frontier: the best
 #: scripted point of the same run).
@@ -26,8 +27,8 @@ MAX_EXHAUSTIVE = 4096
 
 
 @dataclass(frozen=True)
-class BoundConfig:
-    """Search settings of a lookahead bound (module docstring).
+class LookaheadConfig:
+    """Search settings of a full-information reference scheduler (module docstring).
 
     Attributes
     ----------
@@ -58,7 +59,7 @@ class BoundConfig:
     confidence : float
         ``z >= 0``: leave the base policy's action (candidate 0) only for a candidate
         whose paired gain over it, less ``z`` standard errors over the futures, is
-        positive (0: the plain argmax; the clairvoyant bound has one future and ignores
+        positive (0: the plain argmax; the clairvoyant reference has one future and ignores
         it). Guards against picking a candidate for its lucky futures.
     rounds : {1, 2}
         ``2`` (``flips``): a second fork scores the base action with every single-bit
@@ -79,7 +80,7 @@ class BoundConfig:
     rounds: int = 2
 
     def __post_init__(self) -> None:
-        checks.choice("kind", self.kind, BOUND_KINDS)
+        checks.choice("kind", self.kind, REFERENCE_KINDS)
         checks.choice("candidates", self.candidates, CANDIDATES)
         checks.integer("horizon", self.horizon, 1)
         checks.integer("futures", self.futures, 1)
@@ -100,11 +101,13 @@ class BoundConfig:
         if isinstance(cont, str) or not cont or not all(isinstance(c, str) for c in cont):
             raise ValueError(f"continuation must be a non-empty tuple of policy specs, got "
                              f"{cont!r}")
-        from netsense.env.comm_policies import parse_spec
+        from netsense.env.comm_policies import WRAPPERS, parse_spec
 
         for spec in cont:
-            name, _ = parse_spec(spec)  # raises for unknown names and bad knobs
-            if name == "bernoulli":
+            name, knob = parse_spec(spec)  # raises for unknown names and bad knobs
+            if name in WRAPPERS:
+                name, _ = parse_spec(knob[1])
+            if name in ("bernoulli", "aloha"):
                 raise ValueError("a continuation must be a deterministic function of the "
                                  f"observation; {spec!r} draws random bits")
         object.__setattr__(self, "continuation", tuple(cont))
@@ -115,22 +118,27 @@ class BoundConfig:
         return self.futures if self.kind == "causal" else 1
 
 
-def parse_bound(spec: str, config: BoundConfig | None = None) -> BoundConfig:
-    """The configuration of a policy spec ``bound:KIND`` or ``bound:KIND:CONTINUATION``
-    (e.g. ``bound:causal:sources:0``), on top of ``config`` (default settings otherwise)."""
+def parse_reference(spec: str, config: LookaheadConfig | None = None) -> LookaheadConfig:
+    """The configuration of a policy spec ``reference:KIND`` or
+    ``reference:KIND:CONTINUATION`` (e.g. ``reference:causal:sources:0``), on top of
+    ``config`` (default settings otherwise). The former spelling ``bound:KIND`` raises a
+    ``ValueError`` naming the new one (they are achieved references, not bounds)."""
     name, _, rest = spec.partition(":")
     kind, _, cont = rest.partition(":")
-    if name != "bound" or kind not in BOUND_KINDS:
-        raise ValueError(f"a bound spec is 'bound:causal' or 'bound:clairvoyant', optionally "
-                         f"followed by ':CONTINUATION' (e.g. bound:causal:event:2); got "
-                         f"{spec!r}")
-    base = config or BoundConfig()
+    if name == "bound":
+        raise ValueError(f"{spec!r}: the lookahead schedulers are full-information "
+                         f"references, not bounds; write 'reference:{rest}'")
+    if name != "reference" or kind not in REFERENCE_KINDS:
+        raise ValueError("a full-information reference spec is 'reference:causal' or "
+                         "'reference:clairvoyant', optionally followed by ':CONTINUATION' "
+                         f"(e.g. reference:causal:event:2); got {spec!r}")
+    base = config or LookaheadConfig()
     kwargs = {f: getattr(base, f) for f in ("horizon", "futures", "candidates", "depth",
                                             "continuation", "seed", "known_ahead",
                                             "terminal", "confidence", "rounds")}
     kwargs["kind"] = kind
     if cont:
         kwargs["continuation"] = (cont,)
-    return BoundConfig(**kwargs)
+    return LookaheadConfig(**kwargs)
 
 

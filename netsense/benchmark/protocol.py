@@ -32,26 +32,37 @@ What a number from ``netsense benchmark --frontier`` means (cite this module's d
   for bit). Every (policy, knob) is one :class:`netsense.engine.core.BatchedCore` run of
   all the seeds (member ``b`` = seed ``b``).
 
-* **Kinds.** Every row has a ``kind``: ``decentralised`` (what an agent could run from
-  its own observations: the scripted families but
-  :data:`~netsense.benchmark.kinds.CENTRALISED_FAMILIES`, and the
-  endpoints), ``centralised`` (schedulers that read every agent's state), ``learned``, and
-  ``bound`` (the lookahead references of :mod:`netsense.benchmark.bounds`: not
-  deployable, they say how far any policy is from the best possible).
-* **Bounds** (``bounds=("causal", "clairvoyant")``, ``--bounds``): policies
-  ``bound:causal`` / ``bound:clairvoyant`` on the first ``bound_episodes`` of the same
-  seeds (they cost far more than a scripted run; the ``episodes`` column says how many),
-  continuing with the best scripted point of the same run and the best decentralised one
-  (:func:`best_scripted`). :func:`netsense.benchmark.headroom.headroom` compares them with
-  the best decentralised (and centralised) scripted point on the common seeds, with a
-  paired bootstrap interval.
+* **Informed and privileged rules.** Besides :data:`FAMILIES`, the frontier runs the
+  informed rules of :mod:`netsense.env.comm_informed` (``gated``, ``acked``, ``phased``)
+  over each base rule of :data:`INFORMED_BASES`, on the scenarios whose observation
+  carries the fields they read (``next_out``, ``acks``; ``phased`` also needs a periodic
+  link schedule), and the privileged rules of :mod:`netsense.env.comm_privileged`
+  (``oracle`` everywhere, ``oracle_channel`` where messages can be dropped) over the
+  same bases. Their rows have ``family`` = the rule, ``knob`` = the base spec.
+* **Kinds.** Every row has a ``kind`` (:data:`~netsense.benchmark.kinds.KINDS`, the score
+  ladder): ``decentralised`` (what an agent could run from its own observation history:
+  every scripted family but the schedulers and the privileged rules, the informed rules
+  included, and the endpoints), ``privileged`` (reads what no agent observes: evidence
+  of what information is worth, never a reference for the decentralised rows),
+  ``centralised`` (schedulers that read every agent's state), ``learned`` and
+  ``reference`` (the full-information reference schedulers of
+  :mod:`netsense.benchmark.lookahead`: achieved returns, not deployable). "Best
+  decentralised" (:func:`best_scripted`) is the best of every decentralised row.
+* **Full-information references** (``references=("causal", "clairvoyant")``,
+  ``--references``): policies ``reference:causal`` / ``reference:clairvoyant`` on the
+  first ``reference_episodes`` of the same seeds (they cost far more than a scripted run;
+  the ``episodes`` column says how many), continuing with the best scripted point of the
+  same run and the best decentralised one (:func:`best_scripted`, deterministic rules
+  only). :func:`netsense.benchmark.headroom.headroom` compares them with the best
+  decentralised (and centralised) scripted point on the common seeds, with a paired
+  bootstrap interval.
 
 Outputs (:func:`write_frontier`): ``frontier_<scenario>.csv`` (one row per policy and
 knob: the mean and interval of every metric, the wall time of the run and whether the
 point is on the Pareto front of error vs load), ``frontier_<scenario>.png``
 (:func:`netsense.benchmark.frontier_plot.plot_frontier`: error vs messages per agent-step
 and reward vs messages, one marker and legend group per kind) and ``frontier.md`` (the
-table); with bounds, ``headroom.csv`` and ``headroom.md``.
+table); with references, ``headroom.csv`` and ``headroom.md``.
 """
 
 from __future__ import annotations
@@ -66,10 +77,10 @@ import numpy as np
 
 from netsense.benchmark.headroom import best_scripted, headroom, write_headroom
 from netsense.benchmark.intervals import CONFIDENCE, RESAMPLES, bootstrap_ci
-from netsense.benchmark.kinds import CENTRALISED_FAMILIES, KINDS, family_kind
+from netsense.benchmark.kinds import CENTRALISED_FAMILIES, KINDS, family_kind, reference_label
 from netsense.benchmark.rollouts import is_batched_policy, learned_overrides
 
-__all__ = ["CENTRALISED_FAMILIES", "CONFIDENCE", "CSV_COLUMNS", "DEFAULT_BOUND_EPISODES",
+__all__ = ["CENTRALISED_FAMILIES", "CONFIDENCE", "CSV_COLUMNS", "DEFAULT_REFERENCE_EPISODES",
            "DEFAULT_EPISODES", "EVAL_SEED0", "FAMILIES", "KINDS", "PROTOCOL_METRICS",
            "RESAMPLES", "TRAIN_SEED_LIMIT", "best_scripted", "bootstrap_ci", "check_disjoint",
            "evaluate", "eval_seeds", "family_kind", "frontier", "frontier_overrides",
@@ -97,6 +108,10 @@ FAMILIES: dict[str, tuple] = {
     "whittle": (1, 2, 3, 4, 6),
 }
 ENDPOINTS = ("always", "never")
+#: Base rules the informed and privileged rules wrap in the frontier (a handful of the
+#: families' points: the frontier stays affordable).
+INFORMED_BASES = ("always", "sources:0", "event:1", "event:2", "event:3", "event:4",
+                  "until:40")
 CSV_COLUMNS = (("scenario", "control", "kind", "family", "policy", "knob", "evaluation",
                 "episodes", "seed_first", "seed_last", "pareto", "seconds")
                + tuple(f"{m}_{s}" for m in PROTOCOL_METRICS
@@ -186,16 +201,16 @@ def _learned_actor(path: str, deterministic: bool, seed: int, core=None):
 
 
 def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None = None,
-             *, actor=None, bound=None, on_step=None) -> dict[str, np.ndarray]:
+             *, actor=None, reference=None, on_step=None) -> dict[str, np.ndarray]:
     """Per-episode :data:`PROTOCOL_METRICS` of ``policy`` on ``seeds``, as one batched run.
 
     ``policy``: a communication baseline spec (``periodic:4``, ...), a scripted policy name
     of :mod:`netsense.env.policies` (``freshness``, ...), ``learned:PATH`` (greedy),
-    ``learned_sampled:PATH``, or a bound ``bound:causal`` / ``bound:clairvoyant``
-    (optionally ``bound:KIND:CONTINUATION``; search settings from ``bound``, a
-    :class:`~netsense.benchmark.bounds.BoundConfig`). Member ``b`` is seeded with
-    ``seeds[b]``; members that terminate early (``divergence_limit``) are scored over their
-    own steps.
+    ``learned_sampled:PATH``, or a full-information reference ``reference:causal`` /
+    ``reference:clairvoyant`` (optionally ``reference:KIND:CONTINUATION``; search settings
+    from ``reference``, a :class:`~netsense.benchmark.lookahead.LookaheadConfig`). Member
+    ``b`` is seeded with ``seeds[b]``; members that terminate early (``divergence_limit``)
+    are scored over their own steps.
     ``actor``: a callable ``(core, seeds) -> act`` that builds the acting function on the
     evaluated :class:`~netsense.engine.core.BatchedCore` instead (``policy`` is then only
     its label): a rule that is no registered policy, scored exactly like one.
@@ -203,13 +218,14 @@ def evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict |
     their episode (``live``, before this step's ends), to record what the metrics do not
     (the channel's collisions, say).
     """
-    return _evaluate(scenario, policy, seeds, overrides, bound, actor, on_step)[0]
+    return _evaluate(scenario, policy, seeds, overrides, reference, actor, on_step)[0]
 
 
 def _evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict | None,
-              bound=None, actor=None, on_step=None) -> tuple[dict[str, np.ndarray], dict]:
-    """:func:`evaluate` and the run's cost: ``seconds`` and, for a bound, its
-    :meth:`~netsense.benchmark.bounds.LookaheadBound.cost`."""
+              reference=None, actor=None, on_step=None
+              ) -> tuple[dict[str, np.ndarray], dict]:
+    """:func:`evaluate` and the run's cost: ``seconds`` and, for a reference, its
+    :meth:`~netsense.benchmark.lookahead.LookaheadReference.cost`."""
     import time
 
     from netsense.engine.core import BatchedCore
@@ -228,12 +244,12 @@ def _evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict 
     model, _ = load_model(scenario, **dict(overrides or {}))
     B = len(seeds)
     lookahead = None
-    if actor is None and name == "bound":
-        from netsense.benchmark.bounds import LookaheadBound, parse_bound
+    if actor is None and name in ("reference", "bound"):  # (bound: refused, renamed)
+        from netsense.benchmark.lookahead import LookaheadReference, parse_reference
 
-        config = parse_bound(policy, bound)
+        config = parse_reference(policy, reference)
         core = BatchedCore(model, B, chunk=1)  # (a resampled fork needs chunk=1)
-        lookahead = LookaheadBound(core, config, seeds)
+        lookahead = LookaheadReference(core, config, seeds)
         act = lookahead.act
     else:
         core = BatchedCore(model, B)
@@ -276,10 +292,10 @@ def _evaluate(scenario: str, policy: str, seeds: Sequence[int], overrides: dict 
 
 
 def _scripted(policy: str, core, seeds: Sequence[int]):
-    from netsense.env.comm_policies import COMM_POLICIES, make_comm_policy
+    from netsense.env.comm_policies import COMM_POLICIES, make_comm_policy, spec_family
     from netsense.env.policies import make_policy
 
-    if policy.partition(":")[0] in COMM_POLICIES:
+    if spec_family(policy) in COMM_POLICIES:
         return make_comm_policy(policy, core, seed=list(seeds))
     kwargs = {"seed": list(seeds)} if policy == "random" else {}
     return make_policy(policy, core, **kwargs)
@@ -307,10 +323,12 @@ def pareto_front(rows: Sequence[dict], x: str = "load_per_agent_step",
 def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EVAL_SEED0,
              families: dict[str, Sequence] | None = None, learned: Sequence[str] = (),
              overrides: dict | None = None, progress: bool = True,
-             bounds: Sequence[str] = (), bound_episodes: int | None = None,
-             bound_config=None, bound_continuation: str | Sequence[str] = "best"
+             informed_bases: Sequence[str] = INFORMED_BASES, privileged: bool = True,
+             references: Sequence[str] = (), reference_episodes: int | None = None,
+             reference_config=None, reference_continuation: str | Sequence[str] = "best"
              ) -> list[dict]:
-    """Rows of the scripted frontier, the learned points and the bounds of one scenario.
+    """Rows of the scripted frontier, the informed and privileged rules, the learned points
+    and the full-information references of one scenario.
 
     Parameters
     ----------
@@ -328,17 +346,24 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
         Scenario overrides (the learned policies run with exactly these).
     progress : bool
         A tqdm bar over the runs.
-    bounds : sequence of {"causal", "clairvoyant"}
-        Lookahead bounds to run (:mod:`netsense.benchmark.bounds`).
-    bound_episodes : int, optional
-        The bounds run on the first ``bound_episodes`` seeds (default
-        :data:`DEFAULT_BOUND_EPISODES`, at most ``episodes``).
-    bound_config : BoundConfig, optional
-        Search settings of the bounds (default :class:`~netsense.benchmark.bounds.
-        BoundConfig`); its ``kind`` and ``continuation`` are set here.
-    bound_continuation : "best" or sequence of str
-        The bounds' continuation policies: ``"best"`` takes the best scripted point of this
-        run and the best decentralised one (:func:`best_scripted`, deterministic families
+    informed_bases : sequence of str
+        Base rules of the informed rules that apply to the scenario
+        (:func:`netsense.env.comm_informed.applicable`; default :data:`INFORMED_BASES`;
+        empty: none) and of the privileged rules.
+    privileged : bool
+        Run the privileged rules that apply (:func:`netsense.env.comm_privileged.
+        applicable`) over ``informed_bases`` (kind ``privileged``).
+    references : sequence of {"causal", "clairvoyant"}
+        Full-information reference schedulers to run (:mod:`netsense.benchmark.lookahead`).
+    reference_episodes : int, optional
+        The references run on the first ``reference_episodes`` seeds (default
+        :data:`DEFAULT_REFERENCE_EPISODES`, at most ``episodes``).
+    reference_config : LookaheadConfig, optional
+        Search settings of the references (default :class:`~netsense.benchmark.lookahead.
+        LookaheadConfig`); its ``kind`` and ``continuation`` are set here.
+    reference_continuation : "best" or sequence of str
+        The references' continuation policies: ``"best"`` takes the best scripted point of
+        this run and the best decentralised one (:func:`best_scripted`, deterministic rules
         only), else the specs given.
 
     Returns
@@ -349,43 +374,61 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
     """
     from tqdm.auto import tqdm
 
-    from netsense.benchmark.bounds import BOUND_KINDS, BoundConfig
+    from netsense.benchmark.lookahead import REFERENCE_KINDS, LookaheadConfig
+    from netsense.env import comm_informed, comm_privileged
+    from netsense.env.comm_policies import parse_spec
+    from netsense.env.vector import load_model
 
     seeds = eval_seeds(episodes, seed0)
-    for kind in bounds:
-        if kind not in BOUND_KINDS:
-            raise ValueError(f"bounds must be among {BOUND_KINDS}, got {kind!r}")
-    E = min(DEFAULT_BOUND_EPISODES if bound_episodes is None else bound_episodes, episodes)
+    for kind in references:
+        if kind not in REFERENCE_KINDS:
+            raise ValueError(f"references must be among {REFERENCE_KINDS}, got {kind!r}")
+    E = min(DEFAULT_REFERENCE_EPISODES if reference_episodes is None else reference_episodes,
+            episodes)
     if isinstance(E, bool) or int(E) != E or E < 1:
-        raise ValueError(f"bound_episodes must be an integer >= 1, got {bound_episodes!r}")
-    if bound_config is not None and not isinstance(bound_config, BoundConfig):
-        raise TypeError(f"bound_config must be a BoundConfig, got {type(bound_config).__name__}")
+        raise ValueError(f"reference_episodes must be an integer >= 1, got "
+                         f"{reference_episodes!r}")
+    if reference_config is not None and not isinstance(reference_config, LookaheadConfig):
+        raise TypeError(f"reference_config must be a LookaheadConfig, got "
+                        f"{type(reference_config).__name__}")
+    if isinstance(informed_bases, str):
+        raise ValueError(f"informed_bases must be a sequence of specs, got {informed_bases!r}")
+    for base in informed_bases:  # a bad base fails before minutes of runs
+        parse_spec(f"gated({base})")
     for path in learned:  # a missing or refused file, or training seeds among the
         # evaluation seeds, fail before the scripted runs (minutes) rather than after
         check_disjoint(_train_seeds(Path(path.replace("{scenario}", scenario))), seeds)
     fams = dict(FAMILIES if families is None else families)
     comm_over = frontier_overrides(scenario, overrides)
     control = _mode(scenario, comm_over)
+    model, _ = load_model(scenario, **comm_over)
+    wrappers = comm_informed.applicable(model)
+    if privileged:
+        wrappers += comm_privileged.applicable(model)
     runs = [(name, None, name, "scripted", comm_over) for name in ENDPOINTS]
     runs += [(fam, knob, f"{fam}:{knob}", "scripted", comm_over)
              for fam, knobs in fams.items() for knob in knobs]
+    runs += [(rule, base, f"{rule}({base})", "scripted", comm_over)
+             for rule in wrappers for base in informed_bases]
     for path in learned:
         path = path.replace("{scenario}", scenario)
         runs += [("learned", path, f"learned:{path}", "greedy", dict(overrides or {})),
                  ("learned", path, f"learned_sampled:{path}", "sampled",
                   dict(overrides or {}))]
-    runs += [("bound", kind, f"bound:{kind}", "lookahead", comm_over) for kind in bounds]
+    runs += [("reference", kind, f"reference:{kind}", "lookahead", comm_over)
+             for kind in references]
     rows = []
     for fam, knob, spec, how, over in tqdm(runs, desc=f"frontier {scenario}",
                                            disable=not progress):
         run_seeds, config = seeds, None
-        if fam == "bound":
+        if fam == "reference":
             run_seeds = seeds[:int(E)]
-            cont = (_continuation(rows) if bound_continuation == "best"
-                    else tuple([bound_continuation] if isinstance(bound_continuation, str)
-                               else bound_continuation))
-            base = bound_config or BoundConfig()
-            config = BoundConfig(**{**_fields(base), "kind": knob, "continuation": cont})
+            cont = (_continuation(rows) if reference_continuation == "best"
+                    else tuple([reference_continuation]
+                               if isinstance(reference_continuation, str)
+                               else reference_continuation))
+            base = reference_config or LookaheadConfig()
+            config = LookaheadConfig(**{**_fields(base), "kind": knob, "continuation": cont})
             knob = " + ".join(cont)
         vals, cost = _evaluate(scenario, spec, run_seeds, over, config)
         mode = (_mode(scenario, learned_overrides(scenario, knob, over)) if fam == "learned"
@@ -396,9 +439,10 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
                "seed_last": run_seeds[-1], "seconds": cost["seconds"], **_summary(vals),
                "values": vals}
         if config is not None:
-            row["bound_config"], row["cost"] = config, cost
+            row["reference_config"], row["cost"] = config, cost
         rows.append(row)
-    front = [r for r in rows if r["kind"] != "bound"]  # bounds are not points to reach
+    # points an agent or a coordinator could reach (not privileged rules nor references)
+    front = [r for r in rows if r["kind"] in ("decentralised", "centralised", "learned")]
     for r, p in zip(front, pareto_front(front), strict=True):
         r["pareto"] = p
     for r in rows:
@@ -406,8 +450,9 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
     return rows
 
 
-#: Episodes of the bounds in :func:`frontier` unless told (they cost far more per episode).
-DEFAULT_BOUND_EPISODES = 20
+#: Episodes of the references in :func:`frontier` unless told (they cost far more per
+#: episode).
+DEFAULT_REFERENCE_EPISODES = 20
 
 
 def _fields(config) -> dict:
@@ -454,7 +499,9 @@ def _plot(rows: Sequence[dict], path: Path) -> None:
 
 
 def markdown_frontier(rows: Sequence[dict]) -> str:
-    """The rows as a Markdown table: mean [95 % CI] of error, messages and reward."""
+    """The rows as a Markdown table: mean [95 % CI] of error, messages and reward; per
+    scenario, the kinds in the order of :data:`~netsense.benchmark.kinds.KINDS` (each its
+    own group of rows)."""
 
     def f(r, m, digits=3):
         mean, lo, hi = r[f"{m}_mean"], r[f"{m}_ci_low"], r[f"{m}_ci_high"]
@@ -467,8 +514,10 @@ def markdown_frontier(rows: Sequence[dict]) -> str:
     lines = ["| scenario | kind | policy | evaluation | episodes | mean rel. error | "
              "msgs / agent-step | load / agent-step | reward | Pareto |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        policy = r["policy"] if r.get("kind") != "bound" else f"{r['policy']} ({r['knob']})"
+    for r in _by_kind(rows):
+        policy = r["policy"]
+        if r.get("kind") == "reference":
+            policy = f"{reference_label(policy)}: {policy} (continues {r['knob']})"
         lines.append(f"| {r['scenario']} | {r.get('kind', '')} | {policy} | "
                      f"{r['evaluation']} | {r['episodes']} | "
                      f"{f(r, 'mean_rel_error')} | {f(r, 'msgs_per_agent_step')} | "
@@ -477,15 +526,40 @@ def markdown_frontier(rows: Sequence[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_frontier(scenarios: Sequence[str], out: str | Path, **kwargs) -> list[dict]:
+def _by_kind(rows: Sequence[dict]) -> list[dict]:
+    """The rows per scenario (first-seen order), kinds in :data:`KINDS` order."""
+    scen = {s: i for i, s in enumerate(dict.fromkeys(r["scenario"] for r in rows))}
+    rank = {k: i for i, k in enumerate(KINDS)}
+    return sorted(rows, key=lambda r: (scen[r["scenario"]], rank.get(r.get("kind"), len(rank))))
+
+
+def run_frontier(scenarios: Sequence[str], out: str | Path, *, workers: int = 1,
+                 **kwargs) -> list[dict]:
     """:func:`frontier` of every scenario, written by :func:`write_frontier`, plus
-    ``frontier.csv`` (all rows) and ``frontier.md``; with bounds, ``headroom.csv`` and
-    ``headroom.md`` (:mod:`netsense.benchmark.headroom`)."""
+    ``frontier.csv`` (all rows) and ``frontier.md``; with references, ``headroom.csv`` and
+    ``headroom.md`` (:mod:`netsense.benchmark.headroom`).
+
+    ``workers > 1`` runs the scenarios in that many processes at once (each scenario in
+    one process, the same rows as one by one; no progress bars).
+    """
+    if isinstance(workers, bool) or int(workers) != workers or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    scenarios = list(dict.fromkeys(scenarios))
+    if workers > 1 and len(scenarios) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        from functools import partial
+
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(int(workers), len(scenarios)), mp_context=ctx) as pool:
+            per = list(pool.map(partial(frontier, **{**kwargs, "progress": False}),
+                                scenarios))
+    else:
+        per = [frontier(sc, **kwargs) for sc in scenarios]
     rows = []
-    for sc in dict.fromkeys(scenarios):
-        rs = frontier(sc, **kwargs)
+    for rs in per:
         write_frontier(rs, out)
         rows += rs
     with (out / "frontier.csv").open("w", newline="") as fh:
@@ -494,6 +568,6 @@ def run_frontier(scenarios: Sequence[str], out: str | Path, **kwargs) -> list[di
         for r in rows:
             w.writerow([_cell(r[c]) for c in CSV_COLUMNS])
     (out / "frontier.md").write_text(markdown_frontier(rows))
-    if any(r["kind"] == "bound" for r in rows):
+    if any(r["kind"] == "reference" for r in rows):
         write_headroom(headroom(rows), out)
     return rows

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from netsense.benchmark.records import EpisodeRecord, EpisodeRecorder
-from netsense.env.comm_policies import COMM_POLICIES
+from netsense.env.comm_policies import COMM_POLICIES, spec_family
 from netsense.env.policies import SCRIPTED_POLICIES
 from netsense.estimators.oracle import CentralizedKF
 
@@ -83,7 +83,7 @@ def scripted_policy(name: str, env, seed: int | Sequence[int]):
     from netsense.env.comm_policies import make_comm_policy
     from netsense.env.policies import make_policy
 
-    if name.partition(":")[0] in COMM_POLICIES:
+    if spec_family(name) in COMM_POLICIES:
         try:
             return make_comm_policy(name, env, seed)
         except ValueError as exc:

@@ -1,6 +1,7 @@
 """``netsense benchmark``: scenarios x policies x seeds -> CSV, Markdown table, PNG plots;
-``--frontier``: the scripted communication frontier, learned points and (``--bounds``) the
-lookahead bounds per scenario under the evaluation protocol of
+``--frontier``: the scripted communication frontier (informed and privileged rules
+included), learned points and (``--references``) the full-information reference schedulers
+per scenario under the evaluation protocol of
 :mod:`netsense.benchmark.protocol` (Pareto PNG + CSV, headroom table)."""
 
 from __future__ import annotations
@@ -18,10 +19,10 @@ HELP = ("Benchmark learned and scripted policies and a centralized KF oracle on 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from netsense.benchmark import BACKENDS, DEFAULT_POLICIES, POLICY_NAMES
-    from netsense.benchmark.bounds import BOUND_KINDS, BoundConfig
+    from netsense.benchmark.lookahead import REFERENCE_KINDS, LookaheadConfig
     from netsense.benchmark.protocol import (
-        DEFAULT_BOUND_EPISODES,
         DEFAULT_EPISODES,
+        DEFAULT_REFERENCE_EPISODES,
         EVAL_SEED0,
         FAMILIES,
     )
@@ -51,24 +52,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--backend torchrl` (run in the control mode it was trained in) "
                              "or a MaskablePPO policy.zip ({scenario} is replaced by the "
                              "scenario id); repeatable")
-    parser.add_argument("--bounds", nargs="+", default=[], metavar="KIND",
-                        choices=list(BOUND_KINDS),
-                        help="--frontier: lookahead bounds to add (causal, clairvoyant; "
-                             "centralised full-information references, not deployable)")
-    parser.add_argument("--bound-episodes", type=positive_int, default=DEFAULT_BOUND_EPISODES,
-                        help="--bounds: run them on the first N evaluation seeds (default: "
-                             f"{DEFAULT_BOUND_EPISODES}; they cost far more per episode)")
-    parser.add_argument("--bound-horizon", type=positive_int, default=BoundConfig.horizon,
-                        help=f"--bounds: lookahead steps h (default: {BoundConfig.horizon})")
-    parser.add_argument("--bound-futures", type=positive_int, default=BoundConfig.futures,
-                        help="--bounds: resampled futures F of the causal bound (default: "
-                             f"{BoundConfig.futures})")
-    parser.add_argument("--bound-continuation", nargs="+", default=None, metavar="POLICY",
-                        help="--bounds: continuation policies (default: the best scripted "
-                             "point of the run and the best decentralised one)")
-    parser.add_argument("--bound-seed", type=nonnegative_int, default=BoundConfig.seed,
-                        help=f"--bounds: seed of the resampled futures (default: "
-                             f"{BoundConfig.seed})")
+    parser.add_argument("--references", nargs="+", default=[], metavar="KIND",
+                        choices=list(REFERENCE_KINDS),
+                        help="--frontier: full-information reference schedulers to add "
+                             "(causal, clairvoyant: centralised lookahead searches, not "
+                             "deployable; achieved returns, not bounds)")
+    parser.add_argument("--reference-episodes", type=positive_int,
+                        default=DEFAULT_REFERENCE_EPISODES,
+                        help="--references: run them on the first N evaluation seeds "
+                             f"(default: {DEFAULT_REFERENCE_EPISODES}; they cost far more "
+                             "per episode)")
+    parser.add_argument("--reference-horizon", type=positive_int,
+                        default=LookaheadConfig.horizon,
+                        help="--references: lookahead steps h (default: "
+                             f"{LookaheadConfig.horizon})")
+    parser.add_argument("--reference-futures", type=positive_int,
+                        default=LookaheadConfig.futures,
+                        help="--references: resampled futures F of the causal reference "
+                             f"(default: {LookaheadConfig.futures})")
+    parser.add_argument("--reference-continuation", nargs="+", default=None,
+                        metavar="POLICY",
+                        help="--references: continuation policies (default: the best "
+                             "scripted point of the run and the best decentralised one)")
+    parser.add_argument("--reference-seed", type=nonnegative_int,
+                        default=LookaheadConfig.seed,
+                        help="--references: seed of the resampled futures (default: "
+                             f"{LookaheadConfig.seed})")
     parser.add_argument("--eps", type=positive_float, default=None,
                         help="relative-error threshold of 'steps to eps' (default: 0.01; "
                              "not a --frontier metric)")
@@ -95,6 +104,7 @@ def _check_inputs(scenarios: list[str], policies: list[str], overrides: dict) ->
     from pathlib import Path
 
     from netsense.benchmark import POLICY_NAMES
+    from netsense.env.comm_policies import COMM_POLICIES, parse_spec, spec_family
     from netsense.env.registry import list_scenarios, unknown_scenario
 
     known = list_scenarios()
@@ -107,9 +117,12 @@ def _check_inputs(scenarios: list[str], policies: list[str], overrides: dict) ->
         load_model(sc, **overrides)  # bad override values name their field here
     for p in policies:
         name, _, path = p.partition(":")
+        name = spec_family(p) if spec_family(p) in COMM_POLICIES else name
         if name not in POLICY_NAMES:
             raise ValueError(f"--policies: unknown policy {p!r}; choose from "
                              f"{', '.join(POLICY_NAMES)}")
+        if name in COMM_POLICIES:
+            parse_spec(p)  # a bad knob or base fails here, by name
         learned = name in ("learned", "learned_sampled")
         if learned and not path:
             raise ValueError(f"--policies {p}: a learned policy needs its file: {name}:PATH")
@@ -214,21 +227,22 @@ def _say_skipped(scenarios, policies, seeds, overrides: dict, results) -> None:
 
 
 def _frontier(args: argparse.Namespace, overrides: dict) -> int:
-    from netsense.benchmark.bounds import BoundConfig
     from netsense.benchmark.headroom import headroom, markdown_headroom
+    from netsense.benchmark.lookahead import LookaheadConfig
     from netsense.benchmark.protocol import FAMILIES, markdown_frontier, run_frontier
 
     families = FAMILIES if args.families is None else {f: FAMILIES[f] for f in args.families}
-    config = BoundConfig(horizon=args.bound_horizon, futures=args.bound_futures,
-                         seed=args.bound_seed)
+    config = LookaheadConfig(horizon=args.reference_horizon, futures=args.reference_futures,
+                             seed=args.reference_seed)
     rows = run_frontier(args.scenarios, args.out, episodes=args.seeds, seed0=args.seed0,
                         families=dict(families), learned=args.learned, overrides=overrides,
-                        progress=not args.no_progress, bounds=args.bounds,
-                        bound_episodes=args.bound_episodes, bound_config=config,
-                        bound_continuation=args.bound_continuation or "best")
+                        progress=not args.no_progress, references=args.references,
+                        reference_episodes=args.reference_episodes,
+                        reference_config=config,
+                        reference_continuation=args.reference_continuation or "best")
     print(markdown_frontier(rows))
-    if args.bounds:
+    if args.references:
         print(markdown_headroom(headroom(rows)))
     print(f"wrote {args.out}/frontier.csv, frontier.md and frontier_<scenario>.csv/.png"
-          + (", headroom.csv and headroom.md" if args.bounds else ""))
+          + (", headroom.csv and headroom.md" if args.references else ""))
     return 0

@@ -36,6 +36,28 @@ spec               knob    rule (``k`` the step whose action is taken, ``H`` the
 ``whittle:m``      m >= 1  centralised: the same with the Whittle index ``h (h + 1) / 2``
 =================  ======  ===================================================================
 
+Rules that wrap a decentralised base rule (``rule(BASE)`` or ``rule:knob(BASE)``, e.g.
+``gated(sources:0)``, ``acked:6(event:2)``; the base is a spec of the table above other
+than the schedulers, and no wrapped spec):
+
+=========================  =======  ==============================================================
+spec                       knob     rule
+=========================  =======  ==============================================================
+``gated(BASE)``            --       informed: the base's bits where the announced next graph
+                                    gives the agent an out-neighbour (field ``next_out``)
+``acked[:T](BASE)``        T >= 1   informed: silent while the last transmission that had
+                                    out-links was lost, probing after ``T`` steps (``acks``)
+``phased[:P](BASE)``       P >= 1   informed: the base's bits where the last transmission at
+                                    the phase ``(k + 1) mod P`` had out-links (``acks``; ``P``
+                                    defaults to the period of a periodic link schedule)
+``oracle(BASE)``           --       privileged: where the next message reaches someone
+``oracle_channel(BASE)``   --       privileged: where the sender's links deliver next step
+=========================  =======  ==============================================================
+
+The informed rules (:mod:`netsense.env.comm_informed`) are decentralised policies that
+read fields only some tasks have; the privileged rules (:mod:`netsense.env.comm_privileged`)
+read the simulation core (the next graph and arrivals), which no agent observes.
+
 The rules from ``until`` to ``tdma`` (memory, randomness, clock; their sources and exact
 rules) are in :mod:`netsense.env.comm_decentralised`; ``K`` is the channel capacity
 (``N`` without a channel). Every rule but the schedulers reads only agent ``i``'s own
@@ -67,11 +89,22 @@ from netsense.env.comm_decentralised import (
     Until,
     int_knob,
 )
+from netsense.env.comm_informed import (
+    FIELDS,
+    INFORMED,
+    OPTIONS,
+    Acked,
+    Gated,
+    Phased,
+    schedule_period,
+)
+from netsense.env.comm_privileged import PRIVILEGED, Oracle
 from netsense.env.policies import CommPolicy, TransmitAll, TransmitNone
 
-__all__ = ["CENTRALISED", "COMM_POLICIES", "AgeScheduler", "Bernoulli", "EventTriggered",
-           "Periodic", "Settle", "SourcesFirst", "Tdma", "ThresholdAloha", "Until",
-           "make_comm_policy", "parse_spec"]
+__all__ = ["CENTRALISED", "COMM_POLICIES", "INFORMED", "PRIVILEGED", "WRAPPERS",
+           "AgeScheduler", "Bernoulli", "EventTriggered", "Periodic", "Settle",
+           "SourcesFirst", "Tdma", "ThresholdAloha", "Until", "make_comm_policy",
+           "parse_spec", "spec_family"]
 
 
 class Periodic(CommPolicy):
@@ -190,7 +223,8 @@ class AgeScheduler(CommPolicy):
 
 #: spec name -> (knob type, default knob); ``always`` and ``never`` take none; families
 #: with two knobs (``name:knob1,knob2``) give a tuple of types and of defaults (a
-#: default ``None`` makes the knob required).
+#: default ``None`` makes the knob required). The rules that wrap a base rule
+#: (:data:`WRAPPERS`) follow.
 COMM_POLICIES = {"always": (None, None), "never": (None, None), "periodic": (int, 2),
                  "bernoulli": (float, 0.5), "sources": (int, 0), "event": (int, 2),
                  "until": ((int, int), (None, 0)), "settle": ((float, int), (None, 5)),
@@ -199,11 +233,66 @@ COMM_POLICIES = {"always": (None, None), "never": (None, None), "periodic": (int
 #: Families that read every agent's observation (a coordinator's reference, not a
 #: decentralised policy).
 CENTRALISED = ("oldest", "whittle")
+#: Rules that wrap a decentralised base rule, ``name[:knob](BASE)``: the informed ones
+#: (decentralised) and the privileged ones (read the core). A knob default ``None`` of
+#: ``phased`` means the scenario's schedule period.
+WRAPPERS = {**INFORMED, **PRIVILEGED}
+COMM_POLICIES.update(WRAPPERS)
+
+
+def spec_family(spec: str) -> str:
+    """The family of a policy spec: ``"periodic:4"`` -> ``"periodic"``,
+    ``"acked:6(event:2)"`` -> ``"acked"``, ``"gated(sources:0)"`` -> ``"gated"``."""
+    return str(spec).split("(", 1)[0].partition(":")[0]
 
 
 def parse_spec(spec: str) -> tuple[str, float | int | tuple | None]:
     """``"periodic:4"`` -> ``("periodic", 4)``, ``"aloha:2.2,4.69"`` -> ``("aloha", (2.2,
-    4.69))``; the default knob(s) when none is given."""
+    4.69))``; the default knob(s) when none is given. A wrapping rule gives ``(knob,
+    base)``: ``"acked(sources:0)"`` -> ``("acked", (6, "sources:0"))``,
+    ``"gated(event:2)"`` -> ``("gated", (None, "event:2"))``."""
+    spec = str(spec)
+    head, paren, rest = spec.partition("(")
+    name = head.partition(":")[0]
+    if name in WRAPPERS or paren:
+        return _parse_wrapped(spec, head, paren, rest)
+    return _parse_plain(spec)
+
+
+def _parse_wrapped(spec: str, head: str, paren: str, rest: str) -> tuple[str, tuple]:
+    name, _, arg = head.partition(":")
+    if name not in WRAPPERS:
+        raise ValueError(f"{spec!r}: only {', '.join(WRAPPERS)} wrap a base rule "
+                         "(rule(BASE))")
+    if not paren or not rest.endswith(")"):
+        raise ValueError(f"{spec!r}: {name} wraps a decentralised base rule: "
+                         f"{name}(BASE), e.g. {name}(sources:0)")
+    base = rest[:-1]
+    if not base:
+        raise ValueError(f"{spec!r}: {name}(BASE) needs a base rule, e.g. {name}(sources:0)")
+    bname = spec_family(base)
+    if "(" in base or bname in WRAPPERS:
+        raise ValueError(f"{spec!r}: the base of {name} must be a plain rule, not a wrapped "
+                         f"one ({base!r})")
+    if bname in CENTRALISED:
+        raise ValueError(f"{spec!r}: the base of {name} must be decentralised; {bname} is a "
+                         "centralised scheduler")
+    _parse_plain(base)  # unknown names and bad knobs of the base raise here
+    kind, default = WRAPPERS[name]
+    if kind is None:
+        if arg:
+            raise ValueError(f"{spec!r}: {name} takes no knob")
+        return name, (None, base)
+    if not arg.strip():
+        return name, (default, base)
+    try:
+        knob = kind(arg)
+    except ValueError as exc:
+        raise ValueError(f"{spec!r}: the knob of {name} must be an {kind.__name__}") from exc
+    return name, (knob, base)
+
+
+def _parse_plain(spec: str) -> tuple[str, float | int | tuple | None]:
     name, _, arg = spec.partition(":")
     if name not in COMM_POLICIES:
         raise ValueError(f"unknown communication policy {name!r}; choose from "
@@ -241,7 +330,9 @@ def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) ->
     :class:`netsense.engine.core.BatchedCore` in a communication-only mode).
 
     ``seed`` seeds ``bernoulli`` and ``aloha`` (a sequence: one generator per batch
-    member).
+    member), also as the base of a wrapping rule. A wrapping rule whose field the
+    scenario's observation lacks, or ``phased`` without a period on a scenario whose link
+    schedule is not periodic, raises a ``ValueError`` naming what is missing.
     """
     core = getattr(env, "core", env)
     comm = getattr(core, "comm", None)
@@ -250,6 +341,8 @@ def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) ->
                          "control mode (scenario [control] mode = 'transmit' or 'substates'; "
                          "override with control={'mode': 'transmit'})")
     name, knob = parse_spec(spec)
+    if name in WRAPPERS:
+        return _wrapped(name, knob, core, seed)
     args = (core.layout, comm.width, core.horizon)
     is_source = core.is_source
     if name == "always":
@@ -274,3 +367,30 @@ def make_comm_policy(spec: str, env, seed: int | Sequence[int] | None = None) ->
     if name == "tdma":
         return Tdma(*args, is_source=is_source, capacity=core.capacity, stretch=knob)
     return AgeScheduler(*args, slots=knob, index=name, columns=~core.comm.empty)
+
+
+def _wrapped(name: str, knob: tuple, core, seed) -> CommPolicy:
+    """The wrapping rule ``name`` with ``knob = (rule knob, base spec)``."""
+    value, base_spec = knob
+    args = (core.layout, core.comm.width, core.horizon)
+    for f in FIELDS.get(name, ()):  # checked before the base is built
+        if getattr(core.layout, f) is None:
+            raise ValueError(
+                f"{name}({base_spec}) reads the observation field {f!r}, which this "
+                f"scenario's observation lacks: set [control] {OPTIONS[f]} = true "
+                f"(override control={{'{OPTIONS[f]}': True}})")
+    if name == "phased" and value is None:
+        value = schedule_period(core.model)
+        if value is None:
+            raise ValueError(f"phased({base_spec}) needs the period P of the link schedule: "
+                             f"this scenario's graph process ({type(core.model.graphs).__name__}"
+                             ") is not periodic ([graph] kind = 'periodic'); give it as "
+                             f"phased:P({base_spec})")
+    base = make_comm_policy(base_spec, core, seed=seed)
+    if name == "gated":
+        return Gated(*args, base=base)
+    if name == "acked":
+        return Acked(*args, base=base, probe=value)
+    if name == "phased":
+        return Phased(*args, base=base, period=value)
+    return Oracle(core, base, channel=name == "oracle_channel")

@@ -5,7 +5,7 @@ already hold randomness about ``G[k+1]`` and later graphs: the link states of th
 (:class:`~netsense.graphs.processes.MarkovLinkFailures`), the agents' next positions
 (mobility), the rest of a window (:class:`~netsense.graphs.processes.RandomJointlyConnected`).
 A simulation that forks a run at step ``k`` and must not know ``G[k+1]`` (the causal
-bound of :mod:`netsense.benchmark.bounds`, through :mod:`netsense.engine.fork`) needs a
+reference of :mod:`netsense.benchmark.lookahead`, through :mod:`netsense.engine.fork`) needs a
 state drawn from the process's law *given what was shown up to* ``k``:
 :meth:`~netsense.graphs.processes.GraphProcess.redraw_state`.
 
