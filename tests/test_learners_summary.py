@@ -48,16 +48,41 @@ def test_gap_closed_and_scores_on_known_returns(learners):
     b_iqm = float(np.mean(np.sort(best)[25:75]))  # 100 episodes: the middle 50
     target = b_iqm + 0.5 * (-30.0 - b_iqm)
     learned = {s: np.full(100, target) for s in range(5)}
-    summary, norm = learners.summarise(_rows(learned, best, causal, never), ["mlp"])
-    (row,) = summary
+    (row,) = learners.summarise(_rows(learned, best, causal, never), ["mlp"])
     assert row["seeds"] == 5 and row["episodes"] == 500
     assert row["iqm"] == pytest.approx(target) and row["iqm_ci_low"] <= target + 1e-9
     assert row["gap_closed"] == pytest.approx(0.5)
     assert row["p_improvement"] == pytest.approx(1.0)  # every learned episode is above
-    # normalised per seed: never = 0, causal bound = 1
-    np.testing.assert_allclose(norm["mlp (greedy)"]["t"], (target + 100) / 70)
-    # the best scripted policy on the same scale, for the aggregate plot
-    np.testing.assert_allclose(norm[learners.SCRIPTED]["t"], (best.mean() + 100) / 70)
+
+
+def test_aggregate_is_the_suites_normalisation(learners, monkeypatch):
+    """The aggregate plot's scores are the suite's: per episode, never = 0 and the
+    certified upper bound of the suite's references = 1."""
+    from netsense.benchmark import references
+    from netsense.benchmark.references import EpisodeValues, TaskReferences
+
+    task = "comm_announced-v0"
+    seeds = tuple(range(10**6, 10**6 + 4))
+    never, bound = np.array([-100.0, -90, -80, -70]), np.array([-20.0, -30, -40, -50])
+    ref = TaskReferences(task, "transmit", EpisodeValues(seeds, never), "event:2",
+                         EpisodeValues(seeds, never + 10), None, None,
+                         EpisodeValues(seeds, bound))
+    monkeypatch.setattr(references, "load_references", lambda path=None: {task: ref})
+    import netsense.benchmark.suite as suite
+
+    monkeypatch.setattr(suite, "load_references", lambda path=None: {task: ref})
+    ret = {0: never + 0.25 * (bound - never), 1: never + 0.75 * (bound - never)}
+    rows = [{"task": task, "policy": "mlp", "spec": "mlp", "seed": s,
+             "evaluation": "greedy", "episode": e, "reward": float(v)}
+            for s, vals in ret.items() for e, v in enumerate(vals)]
+    result = learners.suite_result(rows, ["mlp"])
+    np.testing.assert_allclose(np.sort(result.scores["mlp (greedy)"].ravel()),
+                               [0.25] * 4 + [0.75] * 4)
+    row = next(r for r in result.table if r["task"] == task)
+    assert row["score"] == pytest.approx(0.5)  # the IQM of four 0.25 and four 0.75
+    # four episodes: the IQM trims one from each end
+    assert row["best_decentralised_score"] == pytest.approx(
+        np.sort(10 / (bound - never))[1:3].mean())
 
 
 def test_a_copy_of_the_scripted_policy_closes_no_gap(learners):
@@ -67,8 +92,8 @@ def test_a_copy_of_the_scripted_policy_closes_no_gap(learners):
     rng = np.random.default_rng(1)
     best = -40 - rng.exponential(5.0, 100)
     causal = -30 - rng.exponential(5.0, 20)
-    summary, _ = learners.summarise(_rows({s: best.copy() for s in range(5)}, best, causal,
-                                          np.full(100, -100.0)), ["mlp"])
+    summary = learners.summarise(_rows({s: best.copy() for s in range(5)}, best, causal,
+                                       np.full(100, -100.0)), ["mlp"])
     (row,) = summary
     assert row["iqm"] - best.mean() > 1.0  # the bias a mean reference would credit
     assert row["iqm"] == pytest.approx(row["best_decentralised_iqm"])
@@ -83,8 +108,8 @@ def test_iqm_discards_the_outer_quartiles(learners):
     best = np.full(100, -50.0)
     learned = {s: np.full(100, -40.0) for s in range(7)}
     learned[7] = np.full(100, -1000.0)
-    summary, _ = learners.summarise(_rows(learned, best, np.full(20, -30.0),
-                                          np.full(100, -100.0)), ["mlp"])
+    summary = learners.summarise(_rows(learned, best, np.full(20, -30.0),
+                                       np.full(100, -100.0)), ["mlp"])
     assert summary[0]["iqm"] == pytest.approx(-40.0)
     assert summary[0]["p_improvement"] == pytest.approx(7 / 8)
 
@@ -122,10 +147,12 @@ def test_every_learner_is_a_valid_config_on_every_task(learners):
 def test_intervals_are_reproducible(learners):
     """The same returns give the same interval in every run (rliable resamples from
     NumPy's global generator, which the script seeds around each call)."""
+    from netsense.benchmark.scores import iqm_interval
+
     x = np.random.default_rng(1).normal(size=(300, 1))
-    first = learners._iqm_ci(x)
+    first = iqm_interval(x)
     np.random.random(7)  # noqa: NPY002 (whatever the global generator did in between)
-    assert learners._iqm_ci(x) == first
+    assert iqm_interval(x) == first
 
 
 def test_best_validated_checkpoint_is_the_highest_periodic_evaluation(learners, tmp_path):

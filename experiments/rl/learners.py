@@ -40,10 +40,14 @@ the runs.
   x evaluation episodes with its 95 % bootstrap interval (``rliable``), the probability of
   improvement over the best decentralised scripted policy, whether the interval reaches
   that policy's IQM on the same episodes, the fraction of the gap between that policy and
-  the causal bound the learner closes (every term an IQM: :func:`summarise`); and
-  ``aggregate.png``
-  (normalised scores, ``never`` = 0 and causal bound = 1: IQM over tasks and the
-  performance profile).
+  the causal bound the learner closes (every term an IQM: :func:`summarise`, with the
+  benchmark suite's statistics, :mod:`netsense.benchmark.scores`); and ``aggregate.png``,
+  the suite's figure (:mod:`netsense.benchmark.suite`): scores normalised per episode,
+  ``never`` = 0 and the certified upper bound = 1, per task beside the suite's best
+  decentralised rule and best full-information reference, the IQM over tasks and the
+  performance profiles (drawn once the suite's references hold a bound for every task).
+  The best decentralised scripted policy is the suite's reference
+  (:mod:`netsense.benchmark.references`).
 
 **summary** rebuilds ``summary.{csv,md}``, ``curves.{csv,png}``, ``curve_refs.csv`` and
 ``aggregate.png`` of ``--out`` from its ``episodes.csv`` and its runs' logs, without
@@ -101,8 +105,6 @@ RESULTS = ROOT / "experiments" / "results" / "rl" / "learners"
 BOUNDS = ROOT / "experiments" / "results" / "rl" / "comm_bounds" / "episodes.csv"
 FRONTIER = ROOT / "experiments" / "results" / "rl" / "comm_bounds" / "frontier.csv"
 NONE = "none"  # TOML has no null: "none" in the config means None
-#: the best decentralised scripted policy's row in the aggregate plot
-SCRIPTED = "best decentralised scripted"
 EPISODES = 100
 #: a run's best-validated checkpoint (actor only), kept beside its final ``policy.pt``
 BEST = "policy_best.pt"
@@ -192,10 +194,11 @@ def read_log(folder: Path) -> list[dict]:
 
 # %% references and evaluation
 def best_decentralised(task: str) -> str:
-    """The spec of the task's best decentralised scripted point (mean return) in the
-    frontier the bounds experiment wrote."""
-    return best_frontier_point(task, "decentralised", lambda r: r.get(
-        "kind", "decentralised") == "decentralised")
+    """The spec of the task's best decentralised rule: the benchmark suite's reference
+    (:mod:`netsense.benchmark.references`, the one definition every table reads)."""
+    from netsense.benchmark.references import load_references
+
+    return load_references()[task].best_decentralised
 
 
 def best_frontier_point(task: str, what: str, keep) -> str:
@@ -210,14 +213,16 @@ def best_frontier_point(task: str, what: str, keep) -> str:
 
 
 def bound_episodes(task: str) -> dict[str, np.ndarray]:
-    """``{"bound:causal": returns, "bound:clairvoyant": returns}`` per episode (fewer
-    episodes than the protocol's 100: the first ones of the same seeds)."""
+    """``{"bound:causal": returns, "bound:clairvoyant": returns}`` per episode of the
+    lookahead references (fewer episodes than the protocol's 100: the first ones of the
+    same seeds); policies the file calls ``reference:causal`` are read as ``bound:causal``."""
     out: dict[str, list] = {}
     if BOUNDS.exists():
         with BOUNDS.open() as fh:
             for r in csv.DictReader(fh):
                 if r["scenario"] == task:
-                    out.setdefault(r["policy"], []).append(float(r["reward"]))
+                    name = "bound:" + r["policy"].split(":", 1)[1]
+                    out.setdefault(name, []).append(float(r["reward"]))
     return {k: np.asarray(v) for k, v in out.items()}
 
 
@@ -255,24 +260,11 @@ def evaluate_all(tasks: dict[str, dict], folders: dict, episodes: int) -> list[d
     return rows
 
 
-# %% aggregates (rliable)
-def _iqm_ci(matrix: np.ndarray, reps: int = 2000) -> tuple[float, float, float]:
-    """IQM of ``matrix (runs, tasks)`` with rliable's stratified bootstrap 95 % CI."""
-    from rliable import library as rly
-    from rliable import metrics
-
-    from netsense.benchmark.intervals import seeded_global_rng
-
-    with seeded_global_rng():
-        point, ci = rly.get_interval_estimates({"x": matrix}, lambda s: np.array(
-            [metrics.aggregate_iqm(s)]), reps=reps, random_state=np.random.RandomState(0))
-    return float(point["x"][0]), float(ci["x"][0, 0]), float(ci["x"][1, 0])
-
-
-def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
+# %% aggregates (the benchmark suite's statistics, netsense.benchmark.scores)
+def summarise(rows: list[dict], learners: list[str]) -> list[dict]:
     """Per task and learner: IQM [CI] over seeds x episodes, probability of improvement
     over the best decentralised scripted policy, fraction of the gap to the causal bound
-    closed; plus the normalised score matrices for the aggregate plot.
+    closed (the suite's statistics: :mod:`netsense.benchmark.scores`).
 
     The learner's IQM is compared with the references' IQM over their own episodes (the
     same 100 for the scripted policy, the bound's first ones), one statistic on both sides:
@@ -281,10 +273,11 @@ def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
     did not close (a policy identical to the scripted one would close some). ``reaches``:
     the learner's interval reaches the scripted IQM (its upper end at or above it); the
     reference means are kept beside them."""
-    from rliable import metrics
+    from netsense.benchmark.scores import iqm as aggregate_iqm
+    from netsense.benchmark.scores import iqm_interval, probability_of_improvement
 
     tasks = list(dict.fromkeys(r["task"] for r in rows))
-    out, norm = [], {}
+    out = []
     for task in tasks:
         rs = [r for r in rows if r["task"] == task]
         ref = {p: np.array([r["reward"] for r in rs if r["policy"] == p])
@@ -301,13 +294,13 @@ def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
                                       and r["evaluation"] == kind and r["seed"] == s])
                             for s in seeds]
                 flat = np.concatenate(per_seed)[:, None]  # (seeds x episodes, 1 task)
-                iqm, lo, hi = _iqm_ci(flat)
-                p_imp = float(metrics.probability_of_improvement(flat, best[:, None]))
+                iqm, lo, hi = iqm_interval(flat)
+                p_imp = probability_of_improvement(flat.ravel(), best)
                 b_mean = float(best.mean())
                 c_mean = float(causal.mean()) if causal.size else math.nan
                 n_mean = float(ref["never"].mean())
-                b_iqm = float(metrics.aggregate_iqm(best))
-                c_iqm = float(metrics.aggregate_iqm(causal)) if causal.size else math.nan
+                b_iqm = aggregate_iqm(best)
+                c_iqm = aggregate_iqm(causal) if causal.size else math.nan
                 gap = c_iqm - b_iqm
                 closed = (iqm - b_iqm) / gap if gap > 0 else math.nan
                 out.append({"task": task, "learner": learner, "evaluation": kind,
@@ -322,13 +315,27 @@ def summarise(rows: list[dict], learners: list[str]) -> tuple[list[dict], dict]:
                             "causal_bound": c_mean, "causal_bound_iqm": c_iqm,
                             "never": n_mean, "p_improvement": p_imp,
                             "reaches": bool(hi >= b_iqm), "gap_closed": closed})
-                if math.isfinite(c_mean) and c_mean > n_mean:
-                    norm.setdefault(f"{learner} ({kind})", {})[task] = np.array(
-                        [(v.mean() - n_mean) / (c_mean - n_mean) for v in per_seed])
-                    # the reference on the same scale: one "run", its mean
-                    norm.setdefault(SCRIPTED, {})[task] = np.array(
-                        [(b_mean - n_mean) / (c_mean - n_mean)])
-    return out, norm
+    return out
+
+
+def suite_result(rows: list[dict], learners: list[str]):
+    """The benchmark suite's :class:`~netsense.benchmark.suite.SuiteResult` of the learned
+    policies' returns (each learner and evaluation one policy: ``mlp (greedy)``), under the
+    suite's references (:func:`netsense.benchmark.suite.summarise`): normalised scores per
+    episode, ``never`` = 0 and the certified upper bound = 1, and their aggregate."""
+    from netsense.benchmark.protocol import EVAL_SEED0
+    from netsense.benchmark.references import load_references
+    from netsense.benchmark.suite import reference_rows, summarise
+
+    refs = load_references()
+    pol = [{"task": r["task"], "learner": f"{r['policy']} ({r['evaluation']})",
+            "kind": "policy", "seed": int(r["seed"]),
+            "episode_seed": EVAL_SEED0 + int(r["episode"]), "return": float(r["reward"])}
+           for r in rows if r["policy"] in learners
+           and r["evaluation"] in ("greedy", "sampled", "best-validated")]
+    refs = {t: refs[t] for t in refs if any(r["task"] == t for r in pol)}
+    seeds = sorted({r["episode_seed"] for r in pol})
+    return summarise(reference_rows(refs, seeds) + pol, refs)
 
 
 #: The reference lines of :func:`plot_curves`: ``refs`` key -> (colour, style, width, label).
@@ -390,46 +397,19 @@ def plot_curves(curves: dict, refs: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_aggregate(norm: dict, path: Path) -> None:
-    """IQM of normalised scores over tasks and seeds with CIs, and performance profiles."""
-    import matplotlib
+def plot_aggregate(result, path: Path) -> None:
+    """The benchmark suite's figure of the learned policies
+    (:func:`netsense.benchmark.suite_output.plot_result`): per task the normalised IQM
+    with its interval beside the best decentralised rule and the best full-information
+    reference, the aggregate over tasks and the performance profiles; not drawn (said on
+    the console) while a task has no certified upper bound."""
+    from netsense.benchmark.suite_output import plot_result
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from rliable import library as rly
-    from rliable import metrics, plot_utils
-
-    from netsense.benchmark.intervals import seeded_global_rng
-
-    tasks = sorted({t for d in norm.values() for t in d})
-    if not tasks:
+    if not result.scores:
+        print(f"{path}: not drawn: the suite's references hold no certified upper bound "
+              "for every task (experiments/rl/suite_references.py)")
         return
-    scores = {k: np.stack([d[t] for t in tasks], 1) for k, d in norm.items()
-              if all(t in d for t in tasks)}
-    with seeded_global_rng():
-        point, ci = rly.get_interval_estimates(
-            scores, lambda s: np.array([metrics.aggregate_iqm(s), metrics.aggregate_mean(s)]),
-            reps=2000, random_state=np.random.RandomState(0))
-        taus = np.linspace(-0.5, 1.5, 81)
-        prof, prof_ci = rly.create_performance_profile(scores, taus)
-    fig, (a0, a1) = plt.subplots(1, 2, figsize=(11, 3.8))
-    names = list(scores)
-    colors = {k: f"C{i}" for i, k in enumerate(names)}
-    for i, k in enumerate(names):
-        a0.errorbar([point[k][0]], [i], xerr=[[point[k][0] - ci[k][0, 0]],
-                                             [ci[k][1, 0] - point[k][0]]], fmt="o",
-                    color=f"C{i}", capsize=3)
-    a0.set_yticks(range(len(names)), names, fontsize=8)
-    a0.axvline(0, color="0.5", ls="-.", lw=1)
-    a0.axvline(1, color="C3", ls=":", lw=1)
-    a0.set_xlabel("IQM normalised score (never = 0, causal bound = 1)")
-    a0.set_title(f"{len(tasks)} tasks, 95 % stratified bootstrap CI", fontsize=9)
-    plot_utils.plot_performance_profiles(prof, taus, performance_profile_cis=prof_ci, ax=a1,
-                                         colors=colors, xlabel="normalised score $\\tau$")
-    a1.legend([plt.Line2D([], [], color=colors[k]) for k in names], names, fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plot_result(result, path)
 
 
 def learning_curves(folders: dict, learners: list[str]) -> dict:
@@ -540,7 +520,7 @@ def write_summaries(out: Path, rows: list[dict], folders: dict, tasks: list[str]
                     learners: list[str]) -> None:
     """``summary.{csv,md}``, ``curves.{csv,png}``, ``curve_refs.csv`` and ``aggregate.png``
     from the episode rows of :func:`evaluate_all` and the runs' folders."""
-    summary, norm = summarise(rows, learners)
+    summary = summarise(rows, learners)
     for r in summary:  # the training budget the row's runs had
         r["agent_steps"] = int(np.median([
             json.loads((d / "summary.json").read_text())["agent_steps"]
@@ -569,7 +549,7 @@ def write_summaries(out: Path, rows: list[dict], folders: dict, tasks: list[str]
                                    for t, d in curves.items() for ln, c in d.items()
                                    for x, m, lo, hi in zip(*c, strict=True)])
     plot_curves(curves, refs, out / "curves.png")
-    plot_aggregate(norm, out / "aggregate.png")
+    plot_aggregate(suite_result(rows, learners), out / "aggregate.png")
     print(markdown_summary(summary))
 
 

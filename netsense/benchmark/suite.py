@@ -43,8 +43,8 @@ import numpy as np
 
 from netsense.benchmark.references import SUITE_TASKS, TaskReferences, load_references
 
-__all__ = ["SUITE_TASKS", "Builder", "SuiteResult", "builder", "resolve", "score",
-           "summarise"]
+__all__ = ["SUITE_TASKS", "Builder", "SuiteResult", "builder", "read_episodes", "rescore",
+           "resolve", "runs_folder", "score", "summarise"]
 
 #: Final policy files of a run folder, in the order they are looked for.
 POLICY_FILES = ("policy.npz", "policy.pt", "policy.zip")
@@ -149,7 +149,8 @@ def runs_folder(path: str | Path, tasks: Sequence[str] | None = None
         if tdir.name not in wanted:
             continue
         for run in sorted(tdir.rglob("seed_*")):
-            if not run.is_dir() or not is_run_folder(run):
+            if not run.is_dir() or not (is_run_folder(run) or any(
+                    (run / f).is_file() for f in POLICY_FILES)):
                 continue
             check_finished(run)
             policy = next((run / f for f in POLICY_FILES if (run / f).is_file()), None)
@@ -546,3 +547,52 @@ def _reference_aggregate(rows, references, tasks, kind: str, eps: list[int]) -> 
         vals.append(normalise(np.array([got[e] for e in eps]), ref.never.on(eps),
                               ref.upper_bound.on(eps)))
     return iqm(np.concatenate(vals))
+
+
+def reference_rows(references: Mapping[str, TaskReferences], seeds: Sequence[int]
+                   ) -> list[dict]:
+    """The references' per-episode returns on ``seeds`` as :attr:`SuiteResult.episodes`
+    rows (the stored values; :func:`score` runs the best decentralised rule again)."""
+    rows = []
+    for task, ref in references.items():
+        rows += _rows(task, "best decentralised", "best_decentralised", "", seeds,
+                      ref.best_decentralised_returns.on(seeds))
+        rows += _rows(task, "never", "never", "", seeds, ref.never.on(seeds))
+        if ref.best_reference_returns is not None:
+            rs = [s for s in seeds if s in set(ref.best_reference_returns.seeds)]
+            if rs:
+                rows += _rows(task, "best reference", "best_reference", "", rs,
+                              ref.best_reference_returns.on(rs))
+    return rows
+
+
+def read_episodes(path: str | Path) -> list[dict]:
+    """``episodes.csv`` of :meth:`SuiteResult.write` back as rows."""
+    import csv
+
+    with Path(path).open() as fh:
+        rows = list(csv.DictReader(fh))
+    missing = {"task", "learner", "kind", "seed", "episode_seed", "return"} - set(
+        rows[0] if rows else {})
+    if not rows or missing:
+        raise ValueError(f"{path}: not a suite episodes file (columns {sorted(missing)} "
+                         "missing, or no rows)")
+    return [{"task": r["task"], "learner": r["learner"], "kind": r["kind"],
+             "seed": int(r["seed"]) if r["seed"] != "" else "",
+             "episode_seed": int(r["episode_seed"]), "return": float(r["return"])}
+            for r in rows]
+
+
+def rescore(path: str | Path, references: str | Path | None = None) -> SuiteResult:
+    """The :class:`SuiteResult` of a written ``episodes.csv`` under the current references,
+    without evaluating a policy again: the policies' returns from the file, the
+    references' from the references file (rebuilt references, a new upper bound, change
+    the scores, not the returns)."""
+    refs = load_references(references)
+    rows = [r for r in read_episodes(path) if r["kind"] == "policy"]
+    unknown = sorted({r["task"] for r in rows} - set(refs))
+    if unknown:
+        raise ValueError(f"{path}: tasks {unknown} are not in the references")
+    refs = {t: refs[t] for t in refs if any(r["task"] == t for r in rows)}
+    seeds = sorted({r["episode_seed"] for r in rows})
+    return summarise(reference_rows(refs, seeds) + rows, refs)
