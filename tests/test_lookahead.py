@@ -449,6 +449,13 @@ def test_comm_bounds_experiment_smoke(tmp_path):
     default = [t for t in trade if t["reference"] == "reference:causal" and t["horizon"] == "8"
                and t["futures"] == "8" and t["confidence"] == "1" and t["rounds"] == "2"]
     assert len(default) == 1 and float(default[0]["gain_vs_default"]) == 0
+    # --keep-references: the frontier again, the references carried over unchanged
+    kept = tmp_path / "kept"
+    assert mod.main(["--smoke", "--tasks", "comm_channel_k2-v0", "--tradeoff-task",
+                     "comm_channel_k2-v0", "--out", str(kept), "--keep-references",
+                     str(tmp_path)]) == 0
+    for name in ("episodes.csv", "headroom.csv", "tradeoff.csv"):
+        assert (kept / name).read_text() == (tmp_path / name).read_text(), name
 
 
 def test_a_scenario_that_announces_the_next_graph_keeps_it_in_the_futures():

@@ -74,6 +74,68 @@ def run_frontiers(tasks: Sequence[str], out: Path, episodes: int, reference_epis
                            reference_config=LookaheadConfig(), workers=workers)
 
 
+def kept_references(folder: Path, tasks: Sequence[str]) -> list[dict]:
+    """The reference rows of an earlier run written into ``folder`` (its ``frontier.csv``
+    rows of kind ``reference``, or ``bound`` as they were once called, relabelled
+    ``reference:KIND``; per-episode returns from its ``episodes.csv``; lane-steps per
+    decision from its ``headroom.csv``), for ``--keep-references``: what they were computed
+    with is in their ``knob`` (the continuation) and ``episodes``."""
+    def rel(policy: str) -> str:
+        return "reference:" + policy.partition(":")[2]
+
+    with (folder / "frontier.csv").open() as fh:
+        old = [r for r in csv.DictReader(fh) if r["scenario"] in tasks
+               and r["kind"] in ("reference", "bound")]
+    returns: dict[tuple[str, str], list[float]] = {}
+    with (folder / "episodes.csv").open() as fh:
+        for r in csv.DictReader(fh):
+            returns.setdefault((r["scenario"], rel(r["policy"])), []).append(float(r["reward"]))
+    lanes = {}
+    with (folder / "headroom.csv").open() as fh:
+        for r in csv.DictReader(fh):
+            key = (r["scenario"], rel(r.get("reference", "") if "bound" not in r
+                                      else r["bound"]))
+            lanes[key] = float(r["lane_steps_per_decision"])
+    rows = []
+    for r in old:
+        policy = rel(r["policy"])
+        row = {c: r[c] for c in pr.CSV_COLUMNS}
+        for c in pr.CSV_COLUMNS:
+            if c.endswith(("_mean", "_ci_low", "_ci_high")) or c == "seconds":
+                row[c] = float(r[c])
+        row.update(kind="reference", family="reference", policy=policy, pareto="",
+                   episodes=int(r["episodes"]), seed_first=int(r["seed_first"]),
+                   seed_last=int(r["seed_last"]),
+                   values={"reward": np.asarray(returns[r["scenario"], policy])},
+                   cost={"lane_steps_per_decision": lanes.get((r["scenario"], policy),
+                                                              float("nan"))})
+        if len(row["values"]["reward"]) != row["episodes"]:
+            raise ValueError(f"{folder}: episodes.csv holds {len(row['values']['reward'])} "
+                             f"returns of {policy} on {r['scenario']}, frontier.csv "
+                             f"{row['episodes']}")
+        rows.append(row)
+    return rows
+
+
+def kept_tradeoff(folder: Path) -> list[dict]:
+    """The trade-off rows of an earlier run (``tradeoff.csv``, the column ``bound`` as it
+    was once called read as ``reference``), for ``--keep-references``."""
+    with (folder / "tradeoff.csv").open() as fh:
+        old = list(csv.DictReader(fh))
+    ints = ("horizon", "futures", "rounds", "episodes")
+    rows = []
+    for r in old:
+        ref = r.get("reference") or r["bound"]
+        row = {c: (int(r[c]) if c in ints else r[c]) for c in TRADEOFF_COLUMNS
+               if c != "reference"}
+        for c in TRADEOFF_COLUMNS:
+            if c not in ints + ("task", "reference", "continuation"):
+                row[c] = float(r[c])
+        row["reference"] = "reference:" + ref.partition(":")[2]
+        rows.append(row)
+    return rows
+
+
 def write_reference_episodes(rows: Sequence[dict], path: Path) -> None:
     """``episodes.csv``: the references' return on each of their episodes (the first
     ``--reference-episodes`` evaluation seeds), for paired comparisons elsewhere (the
@@ -196,17 +258,33 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="horizon 12, 3 episodes, 2 for the references and the trade-off")
     p.add_argument("--workers", type=int, default=1,
                    help="run the tasks' frontiers in this many processes")
+    p.add_argument("--keep-references", type=Path, default=None, metavar="DIR",
+                   help="rerun the frontier only: take the reference rows, their episodes "
+                        "and the trade-off from the earlier run in DIR (relabelled), "
+                        "instead of running the lookaheads")
     args = p.parse_args(argv)
     over = None
     if args.smoke:
         over = {"horizon": 12}
         args.episodes, args.reference_episodes, args.tradeoff_episodes = 3, 2, 2
     args.out.mkdir(parents=True, exist_ok=True)
-    rows = run_frontiers(args.tasks, args.out, args.episodes, args.reference_episodes, over,
-                         args.workers)
+    if args.keep_references is not None:
+        kept = kept_references(args.keep_references, args.tasks)
+        trade = kept_tradeoff(args.keep_references) if args.tradeoff_task else None
+        rows = pr.run_frontier(args.tasks, args.out, episodes=args.episodes, overrides=over,
+                               workers=args.workers)
+        rows = [r for t in dict.fromkeys(args.tasks) for r in
+                [x for x in rows if x["scenario"] == t] + [x for x in kept
+                                                            if x["scenario"] == t]]
+        pr.write_frontiers(rows, args.out)
+    else:
+        rows = run_frontiers(args.tasks, args.out, args.episodes, args.reference_episodes,
+                             over, args.workers)
     write_reference_episodes(rows, args.out / "episodes.csv")
     print(markdown_headroom(headroom(rows)))
-    if args.tradeoff_task:
+    if args.keep_references is not None and trade:
+        write_tradeoff(trade, args.out)
+    elif args.tradeoff_task:
         cont = next(r["knob"] for r in rows if r["scenario"] == args.tradeoff_task
                     and r["policy"] == "reference:causal")
         trade = tradeoff(args.tradeoff_task, tuple(cont.split(" + ")),

@@ -84,7 +84,8 @@ __all__ = ["CENTRALISED_FAMILIES", "CONFIDENCE", "CSV_COLUMNS", "DEFAULT_REFEREN
            "DEFAULT_EPISODES", "EVAL_SEED0", "FAMILIES", "KINDS", "PROTOCOL_METRICS",
            "RESAMPLES", "TRAIN_SEED_LIMIT", "best_scripted", "bootstrap_ci", "check_disjoint",
            "evaluate", "eval_seeds", "family_kind", "frontier", "frontier_overrides",
-           "markdown_frontier", "pareto_front", "run_frontier", "write_frontier"]
+           "markdown_frontier", "pareto_front", "run_frontier", "write_frontier",
+           "write_frontiers"]
 
 EVAL_SEED0 = 1_000_000
 TRAIN_SEED_LIMIT = EVAL_SEED0
@@ -558,10 +559,19 @@ def run_frontier(scenarios: Sequence[str], out: str | Path, *, workers: int = 1,
                                 scenarios))
     else:
         per = [frontier(sc, **kwargs) for sc in scenarios]
-    rows = []
-    for rs in per:
-        write_frontier(rs, out)
-        rows += rs
+    rows = [r for rs in per for r in rs]
+    write_frontiers(rows, out)
+    return rows
+
+
+def write_frontiers(rows: Sequence[dict], out: str | Path) -> None:
+    """The outputs of :func:`run_frontier` for ``rows`` (of any scenarios): per scenario
+    :func:`write_frontier`, then ``frontier.csv``, ``frontier.md`` and, with reference
+    rows (their per-episode ``values``), ``headroom.csv`` and ``headroom.md``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for sc in dict.fromkeys(r["scenario"] for r in rows):
+        write_frontier([r for r in rows if r["scenario"] == sc], out)
     with (out / "frontier.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(CSV_COLUMNS)
@@ -570,4 +580,3 @@ def run_frontier(scenarios: Sequence[str], out: str | Path, *, workers: int = 1,
     (out / "frontier.md").write_text(markdown_frontier(rows))
     if any(r["kind"] == "reference" for r in rows):
         write_headroom(headroom(rows), out)
-    return rows
