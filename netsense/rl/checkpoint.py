@@ -22,19 +22,20 @@ Imports: torch and the stages below.
 
 from __future__ import annotations
 
-import os
 from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from netsense.rl.atomic import atomic_path
 from netsense.rl.config import PPOConfig
 from netsense.rl.distributions import MaskedMultiCategorical
 from netsense.rl.envs import make_core
 from netsense.rl.memory import is_recurrent
 from netsense.rl.policy import actor_net
 from netsense.rl.policy_files import check_weights, content_checksum, load_tensors, plain
+from netsense.rl.run_folder import check_finished
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "BatchedPolicy", "load_policy",
            "policy_checksum", "policy_config", "policy_control", "read_policy",
@@ -74,9 +75,8 @@ def write_policy(path: str | Path, state: dict) -> Path:
         if entry in out:
             out[entry] = {k: t.detach().cpu() for k, t in out[entry].items()}
     out["sha256"] = policy_checksum(out)
-    tmp = path.with_name(path.name + ".part")
-    torch.save(out, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(out, tmp)
     return path
 
 
@@ -155,14 +155,16 @@ def read_policy(path: str | Path) -> dict:
     Raises
     ------
     ValueError
-        Naming the file and what is wrong: missing, unreadable, holding objects other
-        than tensors and plain data, not a checkpoint of this trainer, without a
+        Naming the file and what is wrong: missing, in the folder of an unfinished
+        training run (:func:`netsense.rl.run_folder.check_finished`), unreadable,
+        holding objects other than tensors and plain data, not a checkpoint of this trainer, without a
         checksum (written before netsense stored one: :func:`seal_policy`), a checksum
         that does not match (the file changed after it was written), non-finite
         weights, a config this netsense refuses.
     """
     path = Path(path)
     state = _load(path)
+    check_finished(path.parent)  # a killed run's folder holds no final policy
     _check_structure(state, path)
     if "sha256" not in state:
         raise ValueError(f"{path}: the file carries no checksum (written by a netsense "

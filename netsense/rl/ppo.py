@@ -69,6 +69,7 @@ import numpy as np
 import torch
 
 from netsense.rl.advantage import critic_values, decouple, estimate, explained_variance, loss_batch
+from netsense.rl.atomic import atomic_path, write_json
 from netsense.rl.checkpoint import save_checkpoint
 from netsense.rl.cloning import behaviour_clone
 from netsense.rl.config import PPOConfig, device_of, learner_precision, loss_arithmetic
@@ -76,7 +77,14 @@ from netsense.rl.envs import NetSenseBatchedEnv, make_core
 from netsense.rl.evaluation import evaluate, mask_violations
 from netsense.rl.memory import is_recurrent
 from netsense.rl.policy import actor_net, build_actor, critic_module
+from netsense.rl.resume import (
+    RESUME_FILE,
+    numpy_rng_state,
+    read_resume,
+    set_numpy_rng_state,
+)
 from netsense.rl.rollout import CollectAhead, Collector
+from netsense.rl.run_folder import FINISHED, RUNNING, mark, run_status
 from netsense.rl.runlog import RunLog, plot_curve
 
 __all__ = ["PPOResult", "ReturnScaler", "keep_freed_memory", "ppo_loss", "train_ppo"]
@@ -103,11 +111,16 @@ def _schedule(start: float, end: float | None, frac: float) -> float:
 
 
 def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: bool = False,
-              evaluate_every: bool = True) -> PPOResult:
+              evaluate_every: bool = True, resume: bool = False) -> PPOResult:
     """Train one seed; see the module docstring for what is written into ``out``.
 
     ``out=None`` writes nothing (benchmarks). ``evaluate_every=False`` skips the periodic
-    evaluations and checkpoints (benchmarks). Sets, for the process,
+    evaluations and checkpoints (benchmarks). ``resume=True`` continues the run in ``out``
+    from its last checkpoint (:mod:`netsense.rl.resume`; the same ``config`` is required,
+    else ``ValueError`` naming the fields that differ, before anything is written); a
+    folder without a checkpoint yet is trained from the start. ``out`` is marked as a
+    running, then a finished, run (:mod:`netsense.rl.run_folder`); every file is written
+    whole (:mod:`netsense.rl.atomic`). Sets, for the process,
     ``torch.set_flush_denormal(True)`` (a forward and backward pass of a warm-started actor
     took 0.031 s instead of 0.040 s with it) and glibc's allocator to keep the blocks a
     training iteration frees (:func:`keep_freed_memory`).
@@ -127,17 +140,18 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     if config.numba_threads:
         _numba_threads(config.numba_threads)
     out = None if out is None else Path(out)
+    saved = _resume_state(config, out) if resume and out is not None else None
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "config.json").write_text(json.dumps(asdict(config), indent=2, default=list)
-                                         + "\n")
+        mark(out, RUNNING, backend="torchrl", seed=config.seed)
+        write_json(out / "config.json", asdict(config), default=list)
     core = make_core(config.scenario, config.num_envs, control=config.control,
                      **config.overrides)
     env = NetSenseBatchedEnv(core, reward=config.reward, seed=config.seed * config.num_envs)
     N, B, T = core.N, core.B, config.rollout
     net = actor_net(config, core, device)
     bc = (behaviour_clone(net, config, config.bc, device=device, progress=progress)
-          if config.bc else None)
+          if config.bc and saved is None else None)
     actor = build_actor(net, core.nvec).to(device)
     critic = critic_module(config, env, device).to(device)
     value_norm = RunningValueNorm(shape=1, device=device) if config.value_norm else None
@@ -154,23 +168,38 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                           initargs=(config.numba_threads,)) if config.overlap else None)
     sequences = is_recurrent(net)
     iters = max(1, -(-int(config.steps) // (B * T * N)))
-    log = RunLog(out) if out is not None else None
-    violations = agent_steps = 0
-    rows: list[dict] = []
-    t0 = time.perf_counter()
-    collect_s = learn_s = 0.0
-    bar = tqdm(total=iters * B * T * N, desc=f"{config.algo} seed {config.seed}",
-               unit="agent-step", unit_scale=True, disable=not progress)
+    violations = agent_steps = start = 0
+    collect_s = learn_s = before_s = 0.0
+    if saved is not None:  # the learner, the collection and the generators as saved
+        start = int(saved["iteration"])
+        c = saved["counters"]
+        violations, agent_steps = int(c["mask_violations"]), int(c["agent_steps"])
+        collect_s, learn_s, before_s = c["collect_s"], c["learn_s"], c["wall_s"]
+        bc = c.get("bc")
+        _restore(saved, out / RESUME_FILE, net=net, critic=critic, opt=opt,
+                 value_norm=value_norm, scaler=scaler, collector=collector)
+    log = RunLog(out, resume_at=start if saved is not None else None) \
+        if out is not None else None
+    rows: list[dict] = list(log.kept) if log is not None else []
+    t0 = time.perf_counter() - before_s
+    bar = tqdm(total=iters * B * T * N, initial=start * B * T * N,
+               desc=f"{config.algo} seed {config.seed}", unit="agent-step", unit_scale=True,
+               disable=not progress)
     try:
-        for it in range(iters):
+        for it in range(start, iters):
             frac = it / iters
             lr = config.lr * (1.0 - frac) if config.lr_decay else config.lr
             for g in opt.param_groups:
                 g["lr"] = lr
             ent = _schedule(config.entropy_coef, config.entropy_final, frac)
             loss.entropy_coeff.fill_(ent)
-            ro, took = (ahead.next(more=it + 1 < iters) if ahead is not None
-                        else collector.timed_collect())
+            last = it == iters - 1
+            keep = out is not None and evaluate_every and (
+                last or (config.eval_interval and (it + 1) % config.eval_interval == 0))
+            # a checkpoint keeps the collection's state where the next rollout starts
+            # (overlapped: now, before the collection ahead begins)
+            ro, took = (ahead.next(more=it + 1 < iters, snapshot=keep and not last)
+                        if ahead is not None else collector.timed_collect())
             t_collected = time.perf_counter()
             violations += mask_violations(ro.mask, ro.action, core.nvec)
             reward = scaler(ro.reward, ro.done) if scaler is not None else ro.reward
@@ -203,19 +232,26 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
             if ro.returns:
                 row["train_return"] = float(np.mean(ro.returns))
                 row["train_episodes"] = len(ro.returns)
-            last = it == iters - 1
-            if out is not None and evaluate_every and (
-                    last or (config.eval_interval and (it + 1) % config.eval_interval == 0)):
+            if keep:
                 # greedy and sampled: a learned randomised schedule (transmit with some
                 # probability) collapses to all-or-nothing under the greedy action
                 row.update({f"eval_{k}": v for k, v in evaluate(net, config).items()})
                 row.update({f"eval_sampled_{k}": v for k, v in evaluate(
                     net, config, deterministic=False).items()})
-                save_checkpoint(out / f"checkpoint_{it + 1:05d}.pt", config, net, critic, it + 1,
-                                agent_steps, core)
             rows.append(row)
             if log is not None:
                 log.add(row)
+            if keep:  # after the log's row: a resumed run finds every row up to here
+                save_checkpoint(out / f"checkpoint_{it + 1:05d}.pt", config, net, critic, it + 1,
+                                agent_steps, core)
+                if not last:
+                    snap = ahead.snapshot if ahead is not None else (collector.state(), None)
+                    _save_resume(out / RESUME_FILE, config, it + 1, snap, net=net,
+                                 critic=critic, opt=opt, value_norm=value_norm, scaler=scaler,
+                                 counters={"agent_steps": agent_steps,
+                                           "mask_violations": violations,
+                                           "collect_s": collect_s, "learn_s": learn_s,
+                                           "wall_s": time.perf_counter() - t0, "bc": bc})
             bar.set_postfix(r=f"{row['step_reward']:.3g}", ev=f"{row['explained_variance']:.2f}")
     finally:  # an error in the learner leaves no collection running
         if ahead is not None:
@@ -232,8 +268,85 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                 "collect_s": round(collect_s, 2), "learn_s": round(learn_s, 2),
                 "mask_violations": violations, "device": str(device),
                 "precision": precision, "torch_threads": torch.get_num_threads(), "bc": bc}
-        (out / "summary.json").write_text(json.dumps(meta, indent=2) + "\n")
+        write_json(out / "summary.json", meta)
+        mark(out, FINISHED, backend="torchrl", seed=config.seed)  # the last write
+        (out / RESUME_FILE).unlink(missing_ok=True)  # a finished run is not resumed
     return PPOResult(out, rows, wall, agent_steps, violations, bc)
+
+
+def _as_json(config: PPOConfig) -> dict:
+    """``config`` as ``config.json`` holds it (tuples as lists)."""
+    return json.loads(json.dumps(asdict(config), default=list))
+
+
+def _resume_state(config: PPOConfig, out: Path) -> dict | None:
+    """The resume state of the run in ``out`` (``None``: no checkpoint yet, train from
+    the start), checked against ``config`` before anything is written."""
+    if run_status(out) == FINISHED:
+        raise ValueError(f"{out}: the run there has finished; there is nothing to resume "
+                         "(--overwrite trains it again)")
+    path = out / RESUME_FILE
+    if not path.is_file():
+        return None
+    state = read_resume(path)
+    now, then = _as_json(config), state["config"]
+    if now != then:
+        diff = sorted(k for k in set(now) | set(then) if now.get(k) != then.get(k))
+        parts = [f"{k}: {then.get(k)!r} in the run, {now.get(k)!r} now" for k in diff[:5]]
+        raise ValueError(f"{out}: --resume needs the configuration the run was started "
+                         f"with; it differs in {'; '.join(parts)}")
+    return state
+
+
+def _save_resume(path: Path, config: PPOConfig, iteration: int, snapshot, *, net, critic,
+                 opt, value_norm, scaler, counters: dict) -> None:
+    """``resume.pt`` (:mod:`netsense.rl.resume`): the state a run continues from after
+    ``iteration`` iterations. ``snapshot``: the collector's state and, overlapped, its
+    actor's weights (``None``: the learner's)."""
+    collector_state, collector_actor = snapshot
+    cpu = {k: v.detach().cpu() for k, v in net.state_dict().items()}
+    learner = {"actor": cpu, "critic": {k: v.detach().cpu()
+                                        for k, v in critic.state_dict().items()},
+               "optimizer": opt.state_dict(),
+               "collector_actor": collector_actor if collector_actor is not None else cpu}
+    if value_norm is not None:
+        learner["value_norm"] = value_norm.state_dict()
+    if scaler is not None:
+        learner["scaler"] = {"stats": scaler.stats.state_dict(), "ret": scaler.ret}
+    rng = {"torch": torch.get_rng_state(), "numpy": numpy_rng_state()}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        rng["cuda"] = torch.cuda.get_rng_state_all()
+    state = {"format": "netsense-resume", "iteration": int(iteration),
+             "config": _as_json(config), "learner": learner,
+             "collector": torch.frombuffer(bytearray(collector_state), dtype=torch.uint8),
+             "counters": counters, "rng": rng}
+    with atomic_path(path) as tmp:
+        torch.save(state, tmp)
+
+
+def _restore(state: dict, path: Path, *, net, critic, opt, value_norm, scaler,
+             collector) -> None:
+    """Load :func:`_save_resume`'s state into a freshly built run."""
+    learner = state["learner"]
+    try:
+        net.load_state_dict(learner["actor"])
+        critic.load_state_dict(learner["critic"])
+        opt.load_state_dict(learner["optimizer"])
+        if value_norm is not None:
+            value_norm.load_state_dict(learner["value_norm"])
+        if scaler is not None:
+            scaler.stats.load_state_dict(learner["scaler"]["stats"])
+            scaler.ret = learner["scaler"]["ret"]
+        if collector.net is not net:
+            collector.net.load_state_dict(learner["collector_actor"])
+    except (KeyError, RuntimeError, ValueError) as exc:
+        raise ValueError(f"{path}: the saved learner does not fit this run's networks "
+                         f"({type(exc).__name__}: {exc})") from None
+    collector.load_state(state["collector"].numpy().tobytes(), str(path))
+    torch.set_rng_state(state["rng"]["torch"])
+    set_numpy_rng_state(state["rng"]["numpy"])
+    if "cuda" in state["rng"] and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["rng"]["cuda"])
 
 
 def ppo_loss(config: PPOConfig, actor: torch.nn.Module, critic: torch.nn.Module,

@@ -117,6 +117,43 @@ class Collector:
         self._gen = torch.Generator(self.device).manual_seed(
             int(torch.randint(0, 2**62, (), generator=gen)))
 
+    def state(self) -> bytes:
+        """Everything the next :meth:`collect` depends on besides the actor's weights, as
+        bytes (:func:`netsense.rl.resume.dumps_state`): the environments' core (every
+        member mid-episode, its generators), the env's seed stream, the observation and
+        mask acted on next, the running returns, a recurrent actor's state and the
+        actions' generator. Call it only while no collection runs."""
+        from netsense.rl.resume import dumps_state
+
+        env = self.env
+        return dumps_state({
+            "core": env.core, "seed": env._seed, "seed_rng": env._seed_rng,
+            "started": env._started, "obs": self._obs, "mask": self._mask,
+            "first": self._first, "acc": self._acc,
+            "h": None if self._h is None else self._h.cpu().numpy(),
+            "gen": self._gen.get_state().numpy()})
+
+    def load_state(self, data: bytes, where: str = "collector state") -> None:
+        """Continue from :meth:`state`'s ``data`` (the env's core is replaced by the saved
+        one). ``ValueError`` naming ``where`` when it does not fit this collector."""
+        from netsense.rl.resume import loads_state
+
+        st = loads_state(data, where)
+        core = st.get("core") if isinstance(st, dict) else None
+        old = self.env.core
+        if core is None or type(core) is not type(old) or (core.B, core.N) != (old.B, old.N) \
+                or tuple(core.nvec) != tuple(old.nvec):
+            raise ValueError(f"{where}: the saved environments do not fit this run's "
+                             f"({old.B} members of {old.N} agents)")
+        self.env.core = core
+        self.env._seed, self.env._seed_rng = st["seed"], st["seed_rng"]
+        self.env._started = st["started"]
+        self._obs, self._mask, self._first, self._acc = (st["obs"], st["mask"], st["first"],
+                                                         st["acc"])
+        if self._h is not None:
+            self._h = torch.as_tensor(st["h"], device=self.device)
+        self._gen.set_state(torch.from_numpy(st["gen"]))
+
     def _actor(self, o: torch.Tensor) -> torch.Tensor:
         """Logits of the current observations (a recurrent actor advances its state)."""
         if self.recurrent:
@@ -256,16 +293,24 @@ class CollectAhead:
         self._pool = ThreadPoolExecutor(1, "netsense-collect", initializer=initializer,
                                         initargs=initargs)
         self._pending: Future | None = None
+        self.snapshot: tuple[bytes, dict] | None = None
 
-    def next(self, *, more: bool = True) -> tuple[Rollout, float]:
+    def next(self, *, more: bool = True, snapshot: bool = False) -> tuple[Rollout, float]:
         """The next rollout and its collection's seconds; ``more=False``: collect no
-        further one (the last iteration)."""
+        further one (the last iteration). ``snapshot=True`` keeps, in :attr:`snapshot`,
+        the collector's state and its actor's weights as they are when the next
+        collection starts (what a resumed run continues from)."""
         if self._pending is None:
             ro, took = self.collector.timed_collect()
         else:
             ro, took = self._pending.result()
             self._pending = None
         sync(self.learner, self.collector.net)
+        if snapshot:
+            #: ``(Collector.state(), actor state_dict)`` before the collection ahead
+            self.snapshot = (self.collector.state(),
+                             {k: v.detach().cpu().clone()
+                              for k, v in self.collector.net.state_dict().items()})
         if more:
             self._pending = self._pool.submit(self.collector.timed_collect)
         return ro, took
