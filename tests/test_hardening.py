@@ -627,8 +627,8 @@ CLI = [
      "--override reward=: not valid JSON"),  # was "must be a table"
     ("train-override-twice", ["train", "fig1_scalar-v0", "--override", "horizon=5",
                               "--override", "horizon=6"], "--override horizon= is given twice"),
-    ("train-sb3-with-torchrl-option", ["train", "fig1_scalar-v0", "--network", "set",
-                                       "--reward", "team"],
+    ("train-sb3-with-torchrl-option", ["train", "fig1_scalar-v0", "--backend", "sb3",
+                                       "--network", "set", "--reward", "team"],
      "--network, --reward belong to --backend torchrl; the sb3 backend would ignore them"),
     ("train-rollout-zero", ["train", "fig1_scalar-v0", "--backend", "torchrl",
                             "--n-steps", "0"], "argument --rollout/--n-steps: must be >= 1"),

@@ -116,7 +116,8 @@ def test_learned_points_greedy_and_sampled(tmp_path):
     pytest.importorskip("sb3_contrib")
     run = tmp_path / "run"
     over = ["--override", "horizon=10"]
-    assert main(["train", "comm_channel_k2-v0", "--steps", "800", "--out", str(run),
+    assert main(["train", "comm_channel_k2-v0", "--backend", "sb3", "--steps", "800",
+                 "--out", str(run),
                  "--n-steps", "32", "--batch-size", "64", "--num-envs", "2", *over,
                  "--no-progress"]) == 0
     path = str(run / "policy.zip")

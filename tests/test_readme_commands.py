@@ -56,7 +56,8 @@ def needs(argv: list[str]) -> tuple[list[str], str | None]:
     """``(modules the command imports, reason it cannot run here or None)``."""
     mods: list[str] = []
     if argv[1] == "train":
-        torchrl = "--backend" in argv and argv[argv.index("--backend") + 1] == "torchrl"
+        # the batched TorchRL trainer unless --backend sb3
+        torchrl = not ("--backend" in argv and argv[argv.index("--backend") + 1] == "sb3")
         mods += TORCHRL_STACK if torchrl else RL_STACK
     learned = [a.split(":", 1)[1] for a in argv if a.startswith("learned:")]
     learned += [argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--learned"]

@@ -122,7 +122,8 @@ def test_torch_threads_are_set_only_when_given(tmp_path):
 
 def test_train_then_benchmark_fig1(tmp_path):
     out = tmp_path / "run"
-    assert main(["train", "fig1_scalar-v0", "--steps", "1500", "--out", str(out),
+    assert main(["train", "fig1_scalar-v0", "--backend", "sb3", "--steps", "1500",
+                 "--out", str(out),
                  "--n-steps", "64", "--batch-size", "64", "--num-envs", "2",
                  "--override", "horizon=12", "--no-progress"]) == 0
     rows = (out / "training_curve.csv").read_text().strip().splitlines()

@@ -31,7 +31,7 @@ path                              what runs
                                   from torch's other threads at the default batch
 ``torchrl-threads-tx``            the defaults with every core for torch and numba
                                   (``torch_threads = numba_threads = os.cpu_count()``)
-``sb3-supersuit-tx``              ``netsense train`` with its default backend: MaskablePPO
+``sb3-supersuit-tx``              ``netsense train --backend sb3``: MaskablePPO
                                   through SuperSuit (:func:`netsense.rl.sb3.train`,
                                   ``TrainConfig`` defaults, one torch thread), same scenario
 ``sb3-supersuit-cores-tx``        the same with torch on every core

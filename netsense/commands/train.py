@@ -14,10 +14,10 @@ from netsense.commands._args import (
 )
 
 NAME = "train"
-HELP = ("Train a parameter-shared, action-masked policy on a scenario: MaskablePPO through "
-        "SB3 + SuperSuit (--backend sb3, default; 'rl' extra) or batched MAPPO / IPPO on "
-        "TorchRL components (--backend torchrl; 'torchrl' extra). Saves policies, logs and "
-        "curves.")
+HELP = ("Train a parameter-shared, action-masked policy on a scenario: batched MAPPO / IPPO "
+        "on TorchRL components (--backend torchrl, default; 'torchrl' extra) or MaskablePPO "
+        "through SB3 + SuperSuit (--backend sb3; 'rl' extra). Saves policies, logs and "
+        "curves; --resume continues a killed run from its last checkpoint.")
 
 ALGOS = ("maskable_ppo", "mappo", "ippo")
 BACKENDS = ("sb3", "torchrl")
@@ -25,9 +25,10 @@ BACKENDS = ("sb3", "torchrl")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", help="scenario id, e.g. fig1_scalar-v0 (see `netsense list`)")
-    parser.add_argument("--backend", choices=BACKENDS, default="sb3",
-                        help="sb3: MaskablePPO through SuperSuit (default); torchrl: batched "
-                             "MAPPO / IPPO over BatchedCore (netsense.rl.ppo)")
+    parser.add_argument("--backend", choices=BACKENDS, default=None,
+                        help="torchrl: batched MAPPO / IPPO over BatchedCore (netsense.rl.ppo; "
+                             "default, needs the 'torchrl' extra); sb3: MaskablePPO through "
+                             "SuperSuit ('rl' extra)")
     parser.add_argument("--algo", choices=ALGOS, default=None,
                         help="maskable_ppo (sb3) or mappo / ippo (torchrl; default mappo)")
     parser.add_argument("--steps", type=positive_int, default=None,
@@ -35,9 +36,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "rounded up to whole iterations (default: sb3 50000, torchrl "
                              "2000000)")
     parser.add_argument("--out", default=None,
-                        help="output directory (default: runs/SCENARIO, the path "
-                             "`netsense benchmark --policies learned:runs/{scenario}/policy.zip` "
-                             "reads)")
+                        help="output directory (default: runs/SCENARIO; torchrl writes "
+                             "OUT/seed_<s>/policy.pt, sb3 OUT/policy.zip, the paths "
+                             "`netsense benchmark --policies learned:PATH` reads). A folder "
+                             "that holds another run is refused unless --resume or "
+                             "--overwrite is given")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out from its last checkpoint (torchrl: "
+                             "optimiser, schedules, random generators, step count and log "
+                             "restored; the run ends where an uninterrupted one would); with "
+                             "--seeds, finished seeds are kept and unfinished ones resumed")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="remove the run files --out holds (policies, checkpoints, logs, "
+                             "seed_* folders) and train afresh")
     parser.add_argument("--seed", type=nonnegative_int, default=0, help="seed (default: 0)")
     parser.add_argument("--seeds", type=nonnegative_int, nargs="+", default=None,
                         metavar="SEED",
@@ -208,6 +219,28 @@ def _given(args: argparse.Namespace, names) -> list[str]:
             if getattr(args, n) is not None]
 
 
+#: What ``--backend torchrl`` (the default) imports: the 'torchrl' extra.
+TORCHRL_MODULES = ("torch", "torchrl", "tensordict")
+
+
+def resolve_backend(backend: str | None) -> str:
+    """``--backend`` as given, else ``"torchrl"``; a TorchRL backend whose extra is not
+    installed is a ``ValueError`` naming the extra and the SB3 alternative."""
+    import importlib.util
+
+    if backend == "sb3":
+        return backend
+    missing = [m for m in TORCHRL_MODULES if importlib.util.find_spec(m) is None]
+    if missing:
+        how = "--backend torchrl" if backend == "torchrl" else "netsense train (by default)"
+        raise ValueError(f"{how} trains with the batched TorchRL trainer, whose extra is not "
+                         f"installed (no {', '.join(missing)}): install it with "
+                         "pip install -e \".[torchrl]\" (or pip install \"netsense[torchrl]\"), "
+                         "or train MaskablePPO through SB3 instead with --backend sb3 "
+                         "(the 'rl' extra)")
+    return "torchrl"
+
+
 def _check_inputs(args: argparse.Namespace) -> dict:
     """Unknown scenario, bad overrides and options of the other backend fail before any
     learning stack is imported."""
@@ -219,6 +252,9 @@ def _check_inputs(args: argparse.Namespace) -> dict:
     from netsense.env.vector import load_model
 
     load_model(args.scenario, **overrides)  # bad override values name their field here
+    if args.backend is None and args.algo == "maskable_ppo":
+        args.backend = "sb3"  # the algorithm only SB3 trains
+    args.backend = resolve_backend(args.backend)
     if args.backend == "sb3":
         wrong = _given(args, TORCHRL_ONLY)
         if wrong:
@@ -238,11 +274,17 @@ def run(args: argparse.Namespace) -> int:
     if args.algo not in (None, "maskable_ppo"):
         raise ValueError(f"--algo {args.algo} needs --backend torchrl")
     args.algo = "maskable_ppo"
+    if args.resume:
+        raise ValueError("--resume continues runs of --backend torchrl; an SB3 run starts "
+                         "afresh (--overwrite replaces the run in --out)")
     from netsense.benchmark.baselines import baseline_returns
+    from netsense.rl.run_folder import claim
     from netsense.rl.sb3 import TrainConfig, train
 
     cfg = TrainConfig(scenario=args.scenario, seed=args.seed, overrides=overrides,
                       **given_fields(args, "sb3"))
+    out = args.out if args.out is not None else f"runs/{args.scenario}"
+    claim(out, overwrite=args.overwrite)  # before anything is written
     asked_refs = ("freshness", "uniform_consensus")
     refs = baseline_returns(cfg, asked_refs)
     left = [r for r in asked_refs if r not in refs]
@@ -252,7 +294,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: {', '.join(left)} do{'es' if len(left) == 1 else ''} not apply to "
               f"{args.scenario} (not drawn as reference on the training curve)",
               file=sys.stderr)
-    out = args.out if args.out is not None else f"runs/{args.scenario}"
     res = train(cfg, out, progress=not args.no_progress, baselines=refs)
     last = res.curve[-1]["mean_episode_reward"] if res.curve else float("nan")
     asked = ("" if res.agent_steps == cfg.steps
@@ -280,11 +321,37 @@ def _launch_options(args: argparse.Namespace) -> dict:
     return {"ray_address": args.ray, "resources": resources, "threads": args.cpus_per_run}
 
 
+def _check_resumable(out, runs) -> None:
+    """``--resume``: each run's folder, if started, was started with the configuration
+    given now (its ``config.json``); else a ``ValueError`` naming the folder and the
+    fields that differ, before anything is written."""
+    import json
+    from dataclasses import asdict
+
+    for r in runs:
+        path = out / r.folder / "config.json"
+        if not path.is_file():
+            continue
+        try:
+            then = json.loads(path.read_text())
+        except ValueError as exc:
+            raise ValueError(f"{path}: unreadable ({exc}); --overwrite trains the run "
+                             "again") from None
+        now = json.loads(json.dumps(asdict(r.config), default=list))
+        diff = sorted(k for k in set(now) | set(then) if now.get(k) != then.get(k))
+        if diff:
+            parts = [f"{k}: {then.get(k)!r} in the run, {now.get(k)!r} now"
+                     for k in diff[:5]]
+            raise ValueError(f"{out / r.folder}: --resume needs the flags the run was "
+                             f"started with; they differ in {'; '.join(parts)}")
+
+
 def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
     from pathlib import Path
 
     from netsense.rl.config import PPOConfig, device_of
     from netsense.rl.launch import launch, make_runs
+    from netsense.rl.run_folder import claim
 
     algo = args.algo or "mappo"
     if algo == "maskable_ppo":
@@ -304,8 +371,11 @@ def _run_torchrl(args: argparse.Namespace, overrides: dict) -> int:
         cfg = cfg.conservative()
     runs = make_runs(cfg, seeds)  # every seed's config checked before the first run
     device_of(cfg.device)  # a device torch does not have fails here, not mid-run
+    if args.resume:
+        _check_resumable(out, runs)
+    claim(out, resume=args.resume, overwrite=args.overwrite)  # before anything is written
     _say_adjusted(cfg, args)
-    summary = launch(runs, out, progress=not args.no_progress, **where)
+    summary = launch(runs, out, progress=not args.no_progress, resume=args.resume, **where)
     for e in summary:
         if e["status"] != "ok":
             print(f"seed {e['seed']}: FAILED: {e['error']}")

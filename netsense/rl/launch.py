@@ -16,7 +16,11 @@
 Every way writes the same files: each run's folder ``OUT/seed_<s>`` (unnamed runs) or
 ``OUT/<name>/seed_<s>`` with what :func:`train_ppo` writes (``config.json``,
 ``log.csv``, checkpoints, ``policy.pt``, the run's ``summary.json``), and
-``OUT/summary.json``: one entry per run, in the order given, with its status. Seeded
+``OUT/summary.json``: one entry per run, in the order given, with its status, and
+``OUT/run.json`` (:mod:`netsense.rl.run_folder`): ``running`` while the runs train,
+``finished`` when all of them have, ``failed`` when one failed. ``resume=True`` continues
+an interrupted launch: finished runs are kept, unfinished ones resume from their last
+checkpoint (a Ray task receives the files it resumes from). Seeded
 training on the CPU is deterministic, so the weights and the log's non-timing columns
 are the same too (``tests/test_rl_launch.py``). A run that raises is recorded
 (``status: "failed"``, its error, traceback and config) and the others go on; one tqdm bar
@@ -38,8 +42,12 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from netsense.rl.atomic import write_atomic, write_json
 from netsense.rl.config import PPOConfig
 from netsense.rl.ppo import train_ppo
+from netsense.rl.resume import RESUME_FILE
+from netsense.rl.run_folder import FINISHED, RUN_FILE, RUNNING, mark, run_status
+from netsense.rl.runlog import read_log
 
 __all__ = ["FINAL_COLUMNS", "THREAD_VARS", "Run", "launch", "make_runs", "spawn_environment",
            "thread_env"]
@@ -100,17 +108,22 @@ def _final(entry: dict, rows: list[dict]) -> None:
     entry.update({k: last.get(k) for k in FINAL_COLUMNS})
 
 
-def _train_one(run: Run, folder: str | None, progress: bool = False) -> dict:
+def _train_one(run: Run, folder: str | None, progress: bool = False, resume: bool = False,
+               given: dict[str, bytes] | None = None) -> dict:
     """Train ``run`` into ``folder``; ``None``: into a temporary folder whose files come
-    back in the entry's ``files`` (relative path -> bytes). Never raises for a failed
-    run: the entry says ``status: "failed"`` with the error. Module level: worker
-    processes and Ray tasks import it by name."""
+    back in the entry's ``files`` (relative path -> bytes), after ``given`` (the files a
+    resumed run continues from) is written there. ``resume``: continue the run in the
+    folder (:func:`train_ppo`'s ``resume``). Never raises for a failed run: the entry
+    says ``status: "failed"`` with the error. Module level: worker processes and Ray
+    tasks import it by name."""
     entry: dict = {"name": run.name, "seed": run.config.seed, "folder": run.folder,
                    "thread_env": {k: os.environ[k] for k in THREAD_VARS if k in os.environ}}
     tmp = tempfile.mkdtemp(prefix="netsense-run-") if folder is None else None
     target = Path(tmp if folder is None else folder)
     try:
-        res = train_ppo(run.config, target, progress=progress)
+        if given:
+            _write_files(target, given)
+        res = train_ppo(run.config, target, progress=progress, resume=resume)
         entry["status"] = "ok"
         _final(entry, res.rows)
         entry.update({"agent_steps": res.agent_steps, "wall_s": round(res.wall_s, 2),
@@ -141,10 +154,36 @@ def _died(run: Run, error: str) -> dict:
 
 
 def _write_files(root: Path, files: dict[str, bytes]) -> None:
-    for rel, data in files.items():
+    """``files`` (relative path -> bytes) under ``root``, each whole or not at all, the
+    run marker last (a run's folder is finished only once all its files are there)."""
+    for rel in sorted(files, key=lambda r: Path(r).name == RUN_FILE):
         path = root / rel
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(data)
+        write_atomic(path, files[rel])
+
+
+#: The files a run continues from (:func:`train_ppo`'s ``resume``); its checkpoints stay.
+RESUME_FILES = (RESUME_FILE, "log.csv", "config.json", RUN_FILE)
+
+
+def _given(folder: Path) -> dict[str, bytes]:
+    """The files of an unfinished run that a Ray task resumes it from."""
+    return {n: (folder / n).read_bytes() for n in RESUME_FILES if (folder / n).is_file()}
+
+
+def _finished_entry(run: Run, folder: Path, before: dict | None) -> dict:
+    """The summary entry of a run that finished before a resumed launch: its entry in the
+    launch's earlier ``summary.json``, else one rebuilt from the run's own files."""
+    if before is not None and before.get("status") == "ok":
+        return before
+    meta = json.loads((folder / "summary.json").read_text()) \
+        if (folder / "summary.json").is_file() else {}
+    rows, _ = read_log(folder / "log.csv")
+    entry = {"name": run.name, "seed": run.config.seed, "folder": run.folder, "status": "ok"}
+    _final(entry, rows)
+    entry.update({k: meta.get(k) for k in ("agent_steps", "wall_s", "agent_steps_per_s",
+                                           "mask_violations")})
+    return entry
 
 
 def thread_env(threads: int | None) -> dict[str, str]:
@@ -179,7 +218,8 @@ def _positive_int(value, what: str) -> int:
 
 def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
            threads: int | None = 1, ray_address: str | None = None,
-           resources: Mapping | None = None, progress: bool = True) -> list[dict]:
+           resources: Mapping | None = None, progress: bool = True,
+           resume: bool = False) -> list[dict]:
     """Train ``runs`` into ``out`` (see the module docstring for the files).
 
     Parameters
@@ -208,6 +248,10 @@ def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
         ``{"num_cpus": 1}``; e.g. ``{"num_cpus": 2, "num_gpus": 0.5}``).
     progress : bool
         One tqdm bar over runs (and, in this process, each run's own bar).
+    resume : bool
+        Continue a launch that was interrupted: a run whose folder holds a finished run
+        is not trained again (its entry is kept), an unfinished one continues from its
+        last checkpoint (:func:`train_ppo`'s ``resume``), one not started starts.
 
     Returns
     -------
@@ -246,6 +290,14 @@ def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
         resources = dict(resources)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    before: dict[str, dict] = {}
+    if resume and (out / "summary.json").is_file():
+        try:
+            before = {e["folder"]: e for e in json.loads((out / "summary.json").read_text())
+                      if isinstance(e, dict) and "folder" in e}
+        except (ValueError, TypeError):
+            before = {}
+    mark(out, RUNNING, kind="launch", runs=folders)
 
     from tqdm.auto import tqdm
 
@@ -254,13 +306,15 @@ def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
 
     def write_summary() -> list[dict]:
         summary = [e for e in entries if e is not None]
-        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        write_json(out / "summary.json", summary)
         return summary
 
     def done(i: int, entry: dict) -> None:
         files = entry.pop("files", None)
         if files is not None:
             _write_files(out / runs[i].folder, files)
+            if RESUME_FILE not in files:  # the run finished where it ran
+                (out / runs[i].folder / RESUME_FILE).unlink(missing_ok=True)
         entries[i] = entry
         write_summary()  # after every run: an interrupted sweep keeps what finished
         bar.update()
@@ -268,32 +322,48 @@ def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
         if failed:
             bar.set_postfix(failed=failed)
 
+    todo = []
+    for i, r in enumerate(runs):
+        status = run_status(out / r.folder) if resume else None
+        if status == FINISHED:  # trained before the interruption: kept as it is
+            done(i, _finished_entry(r, out / r.folder, before.get(r.folder)))
+        else:
+            todo.append(i)
+    again = {i: resume and run_status(out / runs[i].folder) is not None for i in todo}
     try:
         if ray_address is not None:
-            _on_ray(runs, ray_address, resources or {"num_cpus": 1}, threads, done)
+            _on_ray(runs, todo, again, out, ray_address, resources or {"num_cpus": 1},
+                    threads, done)
         elif workers == 1:
-            for i, r in enumerate(runs):
-                done(i, _train_one(r, str(out / r.folder), progress))
+            for i in todo:
+                r = runs[i]
+                done(i, _train_one(r, str(out / r.folder), progress, again[i]))
         else:
-            _in_processes(runs, out, workers, threads, done)
+            _in_processes(runs, todo, again, out, workers, threads, done)
     finally:
         bar.close()
-    return write_summary()
+    summary = write_summary()
+    ok = len(summary) == len(runs) and all(e["status"] == "ok" for e in summary)
+    mark(out, FINISHED if ok else "failed", kind="launch", runs=folders)
+    return summary
 
 
-def _in_processes(runs: list[Run], out: Path, workers: int, threads: int | None,
+def _in_processes(runs: list[Run], todo: list[int], again: dict[int, bool], out: Path,
+                  workers: int, threads: int | None,
                   done: Callable[[int, dict], None]) -> None:
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
     ctx = mp.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(runs)), mp_context=ctx)
+    if not todo:
+        return
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx)
     try:
         # the pool spawns its processes on submit (spawn context), inside the environment
         with spawn_environment(thread_env(threads)):
-            futs = {pool.submit(_train_one, r, str(out / r.folder)): i
-                    for i, r in enumerate(runs)}
+            futs = {pool.submit(_train_one, runs[i], str(out / runs[i].folder), False,
+                                again[i]): i for i in todo}
         for fut in as_completed(futs):
             i = futs[fut]
             try:
@@ -309,8 +379,11 @@ def _in_processes(runs: list[Run], out: Path, workers: int, threads: int | None,
     pool.shutdown()
 
 
-def _on_ray(runs: list[Run], address: str, resources: dict, threads: int | None,
+def _on_ray(runs: list[Run], todo: list[int], again: dict[int, bool], out: Path,
+            address: str, resources: dict, threads: int | None,
             done: Callable[[int, dict], None]) -> None:
+    if not todo:
+        return
     import ray
 
     started = not ray.is_initialized()
@@ -327,7 +400,9 @@ def _on_ray(runs: list[Run], address: str, resources: dict, threads: int | None,
         task = ray.remote(_train_one).options(
             **resources, max_retries=0,
             **({"runtime_env": {"env_vars": env}} if env else {}))
-        refs = {task.remote(r, None): i for i, r in enumerate(runs)}
+        refs = {task.remote(runs[i], None, False, again[i],
+                            _given(out / runs[i].folder) if again[i] else None): i
+                for i in todo}
         pending = list(refs)
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)

@@ -20,7 +20,7 @@ extra: ``pip install torch==2.13.0 && pip install -e ".[rl]"``.
 from __future__ import annotations
 
 import csv
-import json
+import io
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from netsense.rl.atomic import atomic_path, write_atomic, write_json
+from netsense.rl.run_folder import FINISHED, RUNNING, mark
 from netsense.rl.sb3_policy import LearnedPolicy, sb3_metadata, write_sb3_metadata
 from netsense.rl.wrappers import MaskedFlatObs, mask_allows
 
@@ -335,6 +337,7 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    mark(out, RUNNING, backend="sb3")  # a killed run leaves its folder marked unfinished
     if config.torch_threads is not None:
         torch.set_num_threads(int(config.torch_threads))
     env = make_vec_env(None if env_fn else config.scenario, num_vec_envs=config.num_vec_envs,
@@ -357,25 +360,31 @@ def train(config: TrainConfig, out: str | Path, *, progress: bool = True,
     wall = time.perf_counter() - t0
     masks = monitor.venv  # VecMonitor -> VecActionMasks
     policy_path = out / "policy.zip"
-    model.save(policy_path)
+    buf = io.BytesIO()
+    model.save(buf)
+    raw = write_atomic(out / ".policy.unsealed.zip", buf.getvalue())
     # netsense's metadata and checksum: LearnedPolicy reads the file without unpickling
-    write_sb3_metadata(policy_path, sb3_metadata(
+    # (written beside policy.zip and renamed over it)
+    write_sb3_metadata(raw, sb3_metadata(
         model, scenario=config.scenario, overrides=config.overrides, seed=config.seed,
-        num_vec_envs=config.num_vec_envs))
+        num_vec_envs=config.num_vec_envs), policy_path)
+    raw.unlink()
     env.close()
     curve_csv = out / "training_curve.csv"
-    with curve_csv.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=["timesteps", "episodes", "mean_episode_reward",
-                                           "wall_s"])
-        w.writeheader()
-        w.writerows(cb.rows)
+    text = io.StringIO()
+    w = csv.DictWriter(text, fieldnames=["timesteps", "episodes", "mean_episode_reward",
+                                         "wall_s"])
+    w.writeheader()
+    w.writerows(cb.rows)
+    write_atomic(curve_csv, text.getvalue())
     refs = dict(baselines or {})
     curve_png = _plot_curve(cb.rows, out / "training_curve.png", config.scenario, refs)
     meta = {**asdict(config), "algo": "maskable_ppo", "wall_s": round(wall, 2),
             "agent_steps": int(model.num_timesteps),
             "mask_violations": masks.mask_violations, "actions_checked": masks.actions_checked,
             "baseline_returns": refs}
-    (out / "train_config.json").write_text(json.dumps(meta, indent=2, default=list) + "\n")
+    write_json(out / "train_config.json", meta, default=list)
+    mark(out, FINISHED, backend="sb3")  # last: the folder holds a finished run
     return TrainResult(policy_path, curve_csv, curve_png, cb.rows, wall,
                        masks.mask_violations, masks.actions_checked, int(model.num_timesteps))
 
@@ -399,6 +408,7 @@ def _plot_curve(rows: list[dict], path: Path, title: str,
     ax.set_ylabel("mean episode return per agent")
     ax.set_title(f"MaskablePPO on {title}")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
     return path

@@ -23,13 +23,14 @@ Imports: numpy, torch (lazily SB3 / sb3-contrib) and :mod:`netsense.rl.policy_fi
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from netsense.rl.atomic import atomic_path
 from netsense.rl.policy_files import check_weights, content_checksum, load_tensors, plain
+from netsense.rl.run_folder import check_finished
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "META_MEMBER", "LearnedPolicy", "convert_sb3_policy",
            "read_sb3_policy", "sb3_metadata", "write_sb3_metadata"]
@@ -102,13 +103,11 @@ def write_sb3_metadata(src: str | Path, meta: dict, dst: str | Path | None = Non
         weights = load_tensors(zin.read("policy.pth"), f"{src} (policy.pth)")
         meta = {k: v for k, v in plain(meta).items() if k != "sha256"}
         meta["sha256"] = content_checksum(meta, {"policy": weights})
-        tmp = dst.with_name(dst.name + ".part")
-        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
+        with atomic_path(dst) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
             for info in zin.infolist():
                 if info.filename != META_MEMBER:
                     zout.writestr(info, zin.read(info.filename))
             zout.writestr(META_MEMBER, json.dumps(meta, indent=1, sort_keys=True) + "\n")
-    os.replace(tmp, dst)
     return dst
 
 
@@ -166,6 +165,7 @@ def read_sb3_policy(path: str | Path) -> tuple[dict, dict]:
     path = Path(path)
     if not path.exists():
         raise ValueError(f"no learned policy at {path} (train one with `netsense train`)")
+    check_finished(path.parent)  # a killed run's folder holds no final policy
     if not path.is_file():
         raise ValueError(f"{path}: not a policy file (a directory?)")
     bad = f"{path}: not a readable MaskablePPO policy file (truncated or corrupted?)"
@@ -247,9 +247,7 @@ def convert_sb3_policy(src: str | Path, dst: str | Path, *, trust: bool = False,
         meta = sb3_metadata(model, **extra)
     except ValueError as exc:
         raise ValueError(f"{src}: cannot convert: {exc}") from None
-    if src.resolve() != dst.resolve():
-        dst.write_bytes(src.read_bytes())
-    write_sb3_metadata(dst, meta)
+    write_sb3_metadata(src, meta, dst)  # whole or not at all
     LearnedPolicy(dst)  # the converted file reads back
     return dst
 
