@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import pickle
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -262,6 +263,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="rerun the frontier only: take the reference rows, their episodes "
                         "and the trade-off from the earlier run in DIR (relabelled), "
                         "instead of running the lookaheads")
+    p.add_argument("--frontier-rows", type=Path, default=None, metavar="FILE",
+                   help="with --keep-references: the frontier rows pickled by "
+                        "experiments/rl/comm_tasks.py --save-rows (the same protocol run) "
+                        "instead of running the frontier again")
     args = p.parse_args(argv)
     over = None
     if args.smoke:
@@ -271,8 +276,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.keep_references is not None:
         kept = kept_references(args.keep_references, args.tasks)
         trade = kept_tradeoff(args.keep_references) if args.tradeoff_task else None
-        rows = pr.run_frontier(args.tasks, args.out, episodes=args.episodes, overrides=over,
-                               workers=args.workers)
+        if args.frontier_rows is not None:
+            with args.frontier_rows.open("rb") as fh:  # (a file this experiment wrote)
+                rows = [r for r in pickle.load(fh) if r["scenario"] in args.tasks]
+            if {r["scenario"] for r in rows} != set(args.tasks):
+                raise ValueError(f"{args.frontier_rows} lacks some of {args.tasks}")
+            if any(r["episodes"] != args.episodes for r in rows):
+                raise ValueError(f"{args.frontier_rows}: not runs of {args.episodes} episodes")
+        else:
+            rows = pr.run_frontier(args.tasks, args.out, episodes=args.episodes,
+                                   overrides=over, workers=args.workers)
         rows = [r for t in dict.fromkeys(args.tasks) for r in
                 [x for x in rows if x["scenario"] == t] + [x for x in kept
                                                             if x["scenario"] == t]]

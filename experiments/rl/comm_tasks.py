@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import pickle
 from pathlib import Path
 
 from netsense.benchmark.intervals import bootstrap_ci
@@ -133,12 +134,18 @@ def main(argv=None) -> list[dict]:
                     help="override the scenarios' horizon (smoke runs)")
     ap.add_argument("--workers", type=int, default=1,
                     help="run the scenarios in this many processes")
+    ap.add_argument("--save-rows", type=Path, default=None, metavar="FILE",
+                    help="also pickle the frontier rows (with their per-episode values) into "
+                         "FILE, for experiments/rl/comm_bounds.py --frontier-rows")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     over = {} if args.horizon is None else {"horizon": args.horizon}
     rows = run_frontier(args.scenarios, args.out, episodes=args.episodes, overrides=over,
                         progress=not args.no_progress, workers=args.workers)
+    if args.save_rows is not None:
+        with args.save_rows.open("wb") as fh:
+            pickle.dump(rows, fh)
     summary = []
     for sc in dict.fromkeys(args.scenarios):
         summary += summarise(sc, [r for r in rows if r["scenario"] == sc])
