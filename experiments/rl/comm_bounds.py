@@ -18,13 +18,21 @@ lookahead schedulers, not deployable policies, and their returns are achieved, n
    seeds, continuing with the policies the frontier chose for that task:
    ``tradeoff.csv``, ``tradeoff.png``, ``tradeoff.md``.
 
-Writes into ``experiments/results/rl/comm_bounds/``. Run (the references cost about 60 s
-of one core per episode summed over the nine tasks, the causal one 85 % of it: about 25
-minutes of one core for the frontier part with 20 reference episodes, plus 5 minutes for
-the trade-off; ``--workers 2`` runs the tasks in two processes; ``--smoke`` for a
+Writes into ``experiments/results/rl/comm_bounds/``. Run (measured on one core: the
+references cost about 60 s per reference episode summed over the nine tasks, the causal
+one 85 % of it, so about 20 minutes for 20 episodes; the frontier about 15 minutes more,
+the trade-off 5; ``--workers 2`` runs the tasks in two processes; ``--smoke`` for a
 seconds-long check)::
 
     NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py --workers 2
+
+The frontier alone, the references, their episodes and the trade-off carried over from
+an earlier run (relabelled; their continuation is in the ``knob`` column), and the
+frontier rows taken from ``experiments/rl/comm_tasks.py`` (the same protocol run)::
+
+    NUMBA_NUM_THREADS=1 python experiments/rl/comm_tasks.py --workers 5 --save-rows rows.pkl
+    NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py --frontier-rows rows.pkl \\
+        --keep-references experiments/results/rl/comm_bounds
 """
 
 # %%

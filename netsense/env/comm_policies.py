@@ -60,8 +60,8 @@ read the simulation core (the next graph and arrivals), which no agent observes.
 
 The rules from ``until`` to ``tdma`` (memory, randomness, clock; their sources and exact
 rules) are in :mod:`netsense.env.comm_decentralised`; ``K`` is the channel capacity
-(``N`` without a channel). Every rule but the schedulers reads only agent ``i``'s own
-observation (and memory): they are decentralised policies.
+(``N`` without a channel). Every rule but the schedulers and the privileged rules reads
+only agent ``i``'s own observation (and memory): they are decentralised policies.
 
 Age reduction ``h_{lij} = [tau_i^{(j)} - tau_l^{(j)}]_+`` of receiver ``i``'s age of
 substate ``j`` were it to adopt sender ``l``'s (``tau_i^{(j)} = omega`` counts as ``H``,
