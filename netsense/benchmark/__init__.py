@@ -27,10 +27,13 @@ Policies (names accepted by :func:`run_benchmark` and ``netsense benchmark``):
     a centralized Kalman filter that sees every agent's measurement every step (no
     network): a lower bound on the error, no messages and no reward;
 ``always``, ``never``, ``periodic:P``, ``bernoulli:p``, ``sources:P``, ``event:d``,
-``until:T``, ``settle:e``, ``aloha:g,q``, ``tdma:F``, ``oldest:m``, ``whittle:m``
+``until:T``, ``settle:e``, ``aloha:g,q``, ``tdma:F``, ``oldest:m``, ``whittle:m``,
+``gated(BASE)``, ``acked[:T](BASE)``, ``phased[:P](BASE)``, ``oracle(BASE)``,
+``oracle_channel(BASE)``
     the communication baselines of
     :mod:`netsense.env.comm_policies` (communication-only scenarios; not applicable, hence
-    skipped, on full-control ones);
+    skipped, on full-control ones); the informed rules refuse, by name, a scenario whose
+    observation lacks the field they read; the ``oracle`` rules are privileged;
 ``learned`` / ``learned:PATH`` / ``learned_sampled:PATH``
     a policy trained by :mod:`netsense.rl.sb3` and loaded from ``PATH`` (a ``.zip``); in
     ``PATH`` the text ``{scenario}`` is replaced by the scenario id; ``learned_sampled``
