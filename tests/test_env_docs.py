@@ -60,3 +60,28 @@ def test_env_page_example_offers_only_policies_that_run_on_its_scenario():
     env = make(scenario)
     for name in ["freshness", *offered]:
         make_policy(name, env)  # raises for a policy the scenario refuses
+
+
+def test_task_cards_state_what_the_registry_holds():
+    """docs/tasks.md has one card per task of the benchmark suite, in the suite's order, and
+    each card's control mode, message and substate costs, channel capacity and horizon are
+    the scenario file's (a full-control scenario is scored in ``transmit`` mode)."""
+    from netsense.benchmark.references import SUITE_TASKS
+    from netsense.env.registry import load
+
+    text = (DOCS / "tasks.md").read_text()
+    cards = re.split(r"^### `([\w-]+)`.*$", text[text.index("## The cards"):
+                                                 text.index("## Calibration")], flags=re.M)
+    ids, bodies = cards[1::2], cards[2::2]
+    assert tuple(ids) == SUITE_TASKS
+    for task, body in zip(ids, bodies, strict=True):
+        sc = load(task)
+        mode = sc.control.get("mode", "transmit")
+        assert re.search(rf"`{mode}` mode", body), (task, mode)
+        assert re.search(r"`c = ([\d.]+)` per message", body).group(1) == \
+            f"{sc.reward.message_cost:g}", task
+        c_s = re.search(r"`c_s = ([\d.]+)`", body)
+        assert (float(c_s.group(1)) if c_s else 0.0) == sc.reward.substate_cost, task
+        k = re.search(r"`K = (\d+)`", body)
+        assert (int(k.group(1)) if k else None) == (sc.channel or {}).get("capacity"), task
+        assert re.search(r"`H = (\d+)` steps", body).group(1) == str(sc.horizon), task
