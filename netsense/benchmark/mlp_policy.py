@@ -345,6 +345,7 @@ def write_mlp_policy(path: str | Path, layers: Sequence[tuple], *, task: str, co
         header["layers"].append({"weight": f"w{i}", "bias": f"b{i}", "activation": act})
     if agent_features is not None:
         arrays["agent_features"] = np.asarray(agent_features, dtype=np.float32)
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part.npz")
     np.savez(tmp, header=np.array(json.dumps(header)), **arrays)
     try:

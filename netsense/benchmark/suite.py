@@ -44,7 +44,7 @@ import numpy as np
 from netsense.benchmark.references import SUITE_TASKS, TaskReferences, load_references
 
 __all__ = ["SUITE_TASKS", "Builder", "SuiteResult", "builder", "read_episodes", "rescore",
-           "resolve", "runs_folder", "score", "summarise"]
+           "resolve", "runs_folder", "score", "summarise", "task_layout"]
 
 #: Final policy files of a run folder, in the order they are looked for.
 POLICY_FILES = ("policy.npz", "policy.pt", "policy.zip")
@@ -73,6 +73,24 @@ class _Run:
     kind: str  # "file" (.pt / .zip: protocol's learned:), "npz", "act", "builder", "rule"
     obj: object
     source: str
+
+
+def task_layout(task: str) -> dict:
+    """What a policy of ``task`` reads and writes in the suite: ``control`` (the
+    communication-only mode it is scored in), ``n_agents``, ``obs_dim`` (one agent's flat
+    observation, ``obs["observation"]`` of ``netsense.make(task, control={"mode":
+    control})``) and ``nvec`` (choices per action entry; the flat action mask has
+    ``sum(nvec)`` entries)."""
+    from netsense.engine.core import BatchedCore
+    from netsense.env.vector import load_model
+
+    refs = load_references()
+    if task not in refs:
+        raise ValueError(f"{task!r} is not a suite task {tuple(refs)}")
+    model, _ = load_model(task, **_overrides(refs[task]))
+    core = BatchedCore(model, 1)
+    return {"control": refs[task].control, "n_agents": int(core.N),
+            "obs_dim": int(core.layout.size), "nvec": [int(v) for v in core.nvec]}
 
 
 # ----------------------------------------------------------------------------- policies
@@ -397,12 +415,14 @@ class SuiteResult:
     tasks: list = field(default_factory=list)
     learners: list = field(default_factory=list)
 
-    def write(self, out: str | Path) -> dict[str, Path]:
+    def write(self, out: str | Path, figure: Sequence[str] | None = None
+              ) -> dict[str, Path]:
         """``table.csv``, ``table.md``, ``episodes.csv`` and ``figure.png`` into ``out``
-        (:mod:`netsense.benchmark.suite_output`)."""
+        (:mod:`netsense.benchmark.suite_output`); ``figure``: the policies the figure
+        shows (default: all)."""
         from netsense.benchmark.suite_output import write_result
 
-        return write_result(self, out)
+        return write_result(self, out, figure)
 
     def markdown(self) -> str:
         """The table as Markdown."""
@@ -533,16 +553,19 @@ def summarise(rows: Sequence[dict], references: Mapping[str, TaskReferences]) ->
 
 
 def _reference_aggregate(rows, references, tasks, kind: str, eps: list[int]) -> float:
-    """IQM over tasks x ``eps`` of a reference's normalised scores (NaN where a task lacks
-    it on those episodes)."""
+    """IQM over tasks x episodes of a reference's normalised scores, on the episodes of
+    ``eps`` every task has it on (NaN where there are none)."""
     from netsense.benchmark.scores import iqm, normalise
 
+    got_by = {t: {int(r["episode_seed"]): r["return"] for r in rows
+                  if r["task"] == t and r["kind"] == kind} for t in tasks}
+    # a reference run on fewer episodes (the lookahead's first ones): those of them
+    eps = sorted(set(eps).intersection(*(set(g) for g in got_by.values())))
+    if not eps:
+        return math.nan
     vals = []
     for t in tasks:
-        got = {int(r["episode_seed"]): r["return"] for r in rows
-               if r["task"] == t and r["kind"] == kind}
-        if not set(eps) <= set(got):
-            return math.nan
+        got = got_by[t]
         ref = references[t]
         vals.append(normalise(np.array([got[e] for e in eps]), ref.never.on(eps),
                               ref.upper_bound.on(eps)))
@@ -583,13 +606,17 @@ def read_episodes(path: str | Path) -> list[dict]:
             for r in rows]
 
 
-def rescore(path: str | Path, references: str | Path | None = None) -> SuiteResult:
+def rescore(path: str | Path, references: str | Path | None = None,
+            order: Sequence[str] = ()) -> SuiteResult:
     """The :class:`SuiteResult` of a written ``episodes.csv`` under the current references,
     without evaluating a policy again: the policies' returns from the file, the
     references' from the references file (rebuilt references, a new upper bound, change
-    the scores, not the returns)."""
+    the scores, not the returns). ``order``: policies to list first, in that order (the
+    others follow in the file's order)."""
     refs = load_references(references)
     rows = [r for r in read_episodes(path) if r["kind"] == "policy"]
+    rank = {name: i for i, name in enumerate(order)}
+    rows.sort(key=lambda r: rank.get(r["learner"], len(rank)))  # stable: file order else
     unknown = sorted({r["task"] for r in rows} - set(refs))
     if unknown:
         raise ValueError(f"{path}: tasks {unknown} are not in the references")

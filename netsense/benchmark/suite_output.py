@@ -124,8 +124,10 @@ def leaderboard_markdown(rows: Sequence[dict]) -> str:
             + "\n\nIQM return over training seeds x episodes:\n\n" + "\n".join(ret) + "\n")
 
 
-def write_result(result, out: str | Path) -> dict[str, Path]:
-    """Write :class:`~netsense.benchmark.suite.SuiteResult`'s files (module docstring)."""
+def write_result(result, out: str | Path, figure: Sequence[str] | None = None
+                 ) -> dict[str, Path]:
+    """Write :class:`~netsense.benchmark.suite.SuiteResult`'s files (module docstring);
+    ``figure``: the policies the figure shows (default: all)."""
     from netsense.benchmark.suite import TABLE_COLUMNS
 
     out = Path(out)
@@ -144,12 +146,12 @@ def write_result(result, out: str | Path) -> dict[str, Path]:
         w.writerow(cols)
         for r in result.episodes:
             w.writerow([repr(r[c]) if c == "return" else r[c] for c in cols])
-    plot_result(result, paths["figure.png"])
+    plot_result(result, paths["figure.png"], figure)
     return paths
 
 
-def plot_result(result, path: str | Path) -> None:
-    """The suite's figure (module docstring)."""
+def plot_result(result, path: str | Path, learners: Sequence[str] | None = None) -> None:
+    """The suite's figure (module docstring) of ``learners`` (default: every policy)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -158,8 +160,13 @@ def plot_result(result, path: str | Path) -> None:
     from netsense.benchmark.scores import performance_profile
 
     rows = [r for r in result.table if r["task"] != "aggregate"]
-    tasks, learners = result.tasks, result.learners
-    fig = plt.figure(figsize=(13, 0.45 * len(tasks) * max(1, len(learners)) ** 0.5 + 3.5))
+    tasks = result.tasks
+    if learners is None:
+        learners = result.learners
+    unknown = [ln for ln in learners if ln not in result.learners]
+    if unknown:
+        raise ValueError(f"the figure's policies {unknown} are not in the result")
+    fig = plt.figure(figsize=(13, max(6.0, 0.12 * len(tasks) * len(learners) + 3.0)))
     grid = fig.add_gridspec(2, 2, width_ratios=(1.4, 1), height_ratios=(2.2, 1))
     ax_t = fig.add_subplot(grid[:, 0])
     ax_a = fig.add_subplot(grid[0, 1])
@@ -221,7 +228,8 @@ def plot_result(result, path: str | Path) -> None:
     ax_a.set_title(f"aggregate over {len(tasks)} tasks: IQM [95 % CI]", fontsize=9)
     if result.scores:
         taus = np.linspace(-0.25, 1.0, 51)
-        prof, prof_ci = performance_profile(result.scores, taus)
+        prof, prof_ci = performance_profile(
+            {k: v for k, v in result.scores.items() if k in learners}, taus)
         for j, ln in enumerate(learners):
             if ln in prof:
                 ax_p.plot(taus, prof[ln], color=f"C{j}", lw=1.3)
