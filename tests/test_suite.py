@@ -378,3 +378,33 @@ def test_docs_example_runs(tmp_path, monkeypatch):
     exec(compile(code.replace("episodes=100", "episodes=2"), "suite.md", "exec"), {})
     with (tmp_path / "suite_out" / "table.csv").open() as fh:
         assert fh.read().splitlines()[1].startswith("comm_announced-v0,mine,1,2,")
+
+
+def test_references_script_reads_both_spellings_and_the_bounds(tmp_path):
+    """experiments/rl/suite_references.py: the lookahead references under either name, the
+    best one by mean; upper bounds per task and seed; a bounds file without its columns
+    refused."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "suite_references", ROOT / "experiments" / "rl" / "suite_references.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    eps = tmp_path / "episodes.csv"
+    eps.write_text("scenario,policy,episode,seed,reward\n"
+                   f"{TASK},reference:causal,0,1000000,-10\n"
+                   f"{TASK},reference:causal,1,1000001,-12\n"
+                   f"{TASK},bound:clairvoyant,0,1000000,-9\n"
+                   f"{TASK},event:2,0,1000000,-5\n"
+                   "comm_fading-v0,reference:causal,0,1000000,-1\n")
+    refs = mod.reference_episodes(TASK, eps)
+    assert refs == {"reference:causal": {1000000: -10.0, 1000001: -12.0},
+                    "bound:clairvoyant": {1000000: -9.0}}
+    ub = tmp_path / "ub.csv"
+    ub.write_text("scenario,seed,upper_bound,solver\n"
+                  f"{TASK},1000001,-3.5,x\n{TASK},1000000,-2,x\n")
+    assert mod.upper_bounds(ub) == {TASK: {1000001: -3.5, 1000000: -2.0}}
+    assert mod.upper_bounds(tmp_path / "missing.csv") == {}
+    ub.write_text("scenario,seed,bound\n")
+    with pytest.raises(ValueError, match="upper_bound"):
+        mod.upper_bounds(ub)

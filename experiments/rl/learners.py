@@ -29,8 +29,9 @@ the runs.
   ``10^6 .. 10^6 + 99``, disjoint from every training seed; checked), greedy and sampled,
   and the best-validated checkpoint greedy (evaluation ``best-validated``) where a run has one,
   beside the task's references on the same episodes: ``never``, the best decentralised
-  scripted point of the frontier (by mean return) and the causal and clairvoyant bounds
-  (read from the bounds experiment's ``episodes.csv``, fewer episodes);
+  rule (the benchmark suite's, :mod:`netsense.benchmark.references`) and the causal and
+  clairvoyant lookahead references (read from the lookahead experiment's
+  ``episodes.csv``, fewer episodes; labelled ``bound:causal``, ``bound:clairvoyant``);
 * ``curves.png`` / ``curves.csv``: evaluation return against agent-steps, the interquartile
   mean (IQM) over the training seeds with a 95 % stratified-bootstrap band (the greedy
   return of the periodic evaluation during training, on its own episodes), with the best
