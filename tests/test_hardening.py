@@ -1567,3 +1567,56 @@ def test_cli_names_the_extra_of_a_missing_stack(monkeypatch, capsys):
     except ModuleNotFoundError as exc:
         line = _one_line(exc)
     assert "'torch'" in line and '".[torchrl]"' in line and "pip install torch==2.13.0" in line
+
+
+# ============================================== inputs that never end or nest without end
+@pytest.mark.parametrize("text, match", [
+    ("a = " + "[" * 1000 + "1" + "]" * 1000 + "\n", "nested too deeply to parse"),
+    ("a = " + "{b = " * 400 + "1" + "}" * 400 + "\n", "nested too deeply to parse"),
+    ("[" + ".".join(["t"] * 500) + "]\nx = 1\n", "tables or arrays nested 501 deep"),
+    ("horizon = 5\n" + "# padding\n" * 200_000, "larger than 1048576 bytes"),
+])
+def test_scenario_file_nested_or_huge_is_a_value_error_naming_it(tmp_path, text, match):
+    path = tmp_path / "deep_v0.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=match) as info:
+        load_file(path)
+    assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize("device", ["/dev/zero", "/dev/urandom"])
+def test_scenario_path_that_never_ends_is_refused_without_reading(device):
+    if not os.path.exists(device):
+        pytest.skip(f"no {device} here")
+    with pytest.raises(ValueError, match=f"{device}: not a regular file"):
+        load_file(device)
+
+
+def test_scenario_path_of_a_fifo_is_refused_without_blocking(tmp_path):
+    fifo = tmp_path / "pipe_v0.toml"
+    os.mkfifo(fifo)  # opening it for reading would wait for a writer
+    with pytest.raises(ValueError, match="not a regular file"):
+        load_file(fifo)
+
+
+def test_torchrl_env_reset_mask_of_the_wrong_shape_names_it():
+    pytest.importorskip("torchrl")
+    import torch
+    from tensordict import TensorDict
+
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core
+
+    env = NetSenseBatchedEnv(make_core("message_cost-v1", 4), seed=0)
+    env.reset()
+    for mask in (torch.ones(4, 2, dtype=torch.bool), torch.ones(4, 1, 1, dtype=torch.bool),
+                 torch.ones(4, 1)):
+        td = TensorDict({"_reset": mask}, batch_size=[4])
+        with pytest.raises(ValueError, match=r"'_reset' must be a bool mask of shape \(4,\)"):
+            env.reset(td)
+        with pytest.raises(ValueError, match=r"'_reset' must be a bool mask"):
+            env._reset(td)
+    with pytest.raises(ValueError, match=r"batch size must be the env's \(4,\), got \(\)"):
+        env.reset(TensorDict({"_reset": torch.ones(4, dtype=torch.bool)}, batch_size=[]))
+    ok = env.reset(TensorDict({"_reset": torch.tensor([True, False, True, False])},
+                              batch_size=[4]))
+    assert ok.batch_size == torch.Size([4])

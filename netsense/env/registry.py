@@ -87,6 +87,8 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
+import os
+import stat
 import sys
 from dataclasses import dataclass, field
 from importlib import resources
@@ -430,22 +432,78 @@ def load(scenario_id: str) -> Scenario:
     return load_file(entry, scenario_id)
 
 
+#: Largest scenario file read (bytes); the shipped ones are a few kilobytes.
+MAX_SCENARIO_BYTES = 1 << 20
+#: Deepest nesting of tables and arrays in a scenario file (the shipped ones: 4).
+MAX_SCENARIO_DEPTH = 16
+
+
+def _read_bytes(path) -> bytes:
+    """At most :data:`MAX_SCENARIO_BYTES` + 1 bytes of a regular file (a device, pipe or
+    folder is refused before it is opened: ``/dev/zero`` never ends, a FIFO blocks)."""
+    if not isinstance(path, (str, os.PathLike)):  # a packaged file (importlib.resources)
+        return path.read_bytes()
+    p = Path(path)
+    mode = p.stat().st_mode
+    if not stat.S_ISREG(mode):
+        kind = "a folder" if stat.S_ISDIR(mode) else "a device, pipe or socket"
+        raise ValueError(f"{path}: not a regular file ({kind}); a scenario is a TOML file")
+    with p.open("rb") as fh:
+        return fh.read(MAX_SCENARIO_BYTES + 1)
+
+
+def _depth(value) -> int:
+    """Nesting depth of tables and arrays (iterative: no recursion on deep input)."""
+    deepest, stack = 0, [(value, 0)]
+    while stack:
+        v, d = stack.pop()
+        if isinstance(v, dict):
+            stack += [(x, d + 1) for x in v.values()]
+        elif isinstance(v, list):
+            stack += [(x, d + 1) for x in v]
+        else:
+            continue
+        deepest = max(deepest, d + 1)
+    return deepest
+
+
 def load_file(path, scenario_id: str | None = None) -> Scenario:
-    """Parse and validate a scenario TOML file (any path, e.g. a user's own file)."""
+    """Parse and validate a scenario TOML file (any path, e.g. a user's own file).
+
+    Raises
+    ------
+    ValueError
+        Naming the file: missing or unreadable, not a regular file (a device such as
+        ``/dev/zero``, a pipe, a folder), larger than :data:`MAX_SCENARIO_BYTES`, not
+        UTF-8, not valid TOML, nested deeper than :data:`MAX_SCENARIO_DEPTH` tables or
+        arrays, or a scenario that does not validate.
+    """
     name = getattr(path, "name", str(path))
     sid = scenario_id or _id_of(Path(name).name) or Path(name).stem
     try:
-        text = path.read_text() if hasattr(path, "read_text") else Path(path).read_text()
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a TOML text file (not UTF-8: {exc.reason} at byte "
-                         f"{exc.start})") from None
+        data = _read_bytes(path)
     except OSError as exc:
         raise ValueError(f"{path}: cannot read the scenario file: "
                          f"{exc.strerror or exc}") from None
+    if len(data) > MAX_SCENARIO_BYTES:
+        raise ValueError(f"{path}: larger than {MAX_SCENARIO_BYTES} bytes; a scenario "
+                         "file is a few kilobytes of TOML")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a TOML text file (not UTF-8: {exc.reason} at byte "
+                         f"{exc.start})") from None
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML: {exc}") from exc
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise ValueError(f"{path}: tables or arrays nested too deeply to parse (a scenario "
+                         f"nests at most {MAX_SCENARIO_DEPTH})") from None
+    depth = _depth(raw)
+    if depth > MAX_SCENARIO_DEPTH:
+        raise ValueError(f"{path}: tables or arrays nested {depth} deep; a scenario nests "
+                         f"at most {MAX_SCENARIO_DEPTH}")
     return Scenario.from_dict(sid, raw, source=str(path))
 
 

@@ -355,11 +355,36 @@ class NetSenseBatchedEnv(EnvBase):
         return out.obs, out.action_mask, r.astype(np.float32), out.terminated, out.truncated
 
     # ------------------------------------------------------------------ EnvBase
+    def _reset_mask(self, tensordict: TensorDictBase | None) -> np.ndarray | None:
+        """The ``_reset`` entry as a ``(B,)`` bool array (``None``: absent); a mask of
+        another shape or dtype is a ``ValueError`` naming it and the shape expected."""
+        if tensordict is None or "_reset" not in tensordict.keys():
+            return None
+        B = int(self.batch_size[0])
+        m = tensordict.get("_reset")
+        if not isinstance(m, torch.Tensor) or m.dtype != torch.bool or \
+                tuple(m.shape) not in ((B,), (B, 1)):
+            what = (f"{m.dtype} of shape {tuple(m.shape)}" if isinstance(m, torch.Tensor)
+                    else type(m).__name__)
+            raise ValueError(f"reset: '_reset' must be a bool mask of shape ({B},) or "
+                             f"({B}, 1), one entry per environment of the batch, got {what}")
+        return m.reshape(B).cpu().numpy()
+
+    def reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        """TorchRL's ``reset``, after checking the given tensordict: its batch size must
+        be the env's ``(B,)`` and its ``_reset`` mask, if any, a bool tensor of shape
+        ``(B,)`` or ``(B, 1)`` (``ValueError`` naming the argument otherwise)."""
+        if tensordict is not None:
+            if tuple(tensordict.batch_size) != tuple(self.batch_size):
+                raise ValueError(f"reset: the tensordict's batch size must be the env's "
+                                 f"{tuple(self.batch_size)}, got "
+                                 f"{tuple(tensordict.batch_size)}")
+            self._reset_mask(tensordict)
+        return super().reset(tensordict, **kwargs)
+
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         B = self.batch_size[0]
-        sel = None
-        if tensordict is not None and "_reset" in tensordict.keys():
-            sel = tensordict.get("_reset").reshape(B).cpu().numpy().astype(bool)
+        sel = self._reset_mask(tensordict)
         obs, mask = self.restart(sel)
         zeros = np.zeros(B, bool)
         return TensorDict({**self._obs_td(obs, mask), **self._flags(zeros, zeros)},
