@@ -408,3 +408,47 @@ def test_references_script_reads_both_spellings_and_the_bounds(tmp_path):
     ub.write_text("scenario,seed,bound\n")
     with pytest.raises(ValueError, match="upper_bound"):
         mod.upper_bounds(ub)
+
+
+def _script(name: str):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "experiments" / "rl" /
+                                                  f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_experiment_scripts_smoke(tmp_path, monkeypatch):
+    """suite_references.py and suite_scores.py at smoke size: references of two episodes
+    that the suite loads; scores of one task; the page's tables rewritten from the CSV."""
+    from netsense.benchmark.suite_output import leaderboard_markdown, read_table
+
+    refs = tmp_path / "refs.json"
+    assert _script("suite_references").main(["--out", str(refs), "--episodes", "2"]) == 0
+    assert load_references(refs)[TASK].never.values.shape == (2,)
+    mod = _script("suite_scores")
+    monkeypatch.setattr(mod, "LEARNERS", {"10M": mod.LEARNERS["mlp, 10M agent-steps"]})
+    rules = mod.family_rules([TASK])
+    import csv
+
+    with (mod.FRONTIERS / f"frontier_{TASK}.csv").open() as fh:
+        event = [r for r in csv.DictReader(fh) if r["family"] == "event"]
+    best = max(event, key=lambda r: float(r["reward_mean"]))["policy"]
+    assert rules["event (decentralised)"] == {TASK: f"rule:{best}"}
+    keep = ("event (decentralised)", "oldest (centralised)")
+    monkeypatch.setattr(mod, "family_rules", lambda tasks: {k: rules[k] for k in keep})
+    page = tmp_path / "page.md"
+    page.write_text(f"intro\n{mod.START}\nold\n{mod.END}\noutro\n")
+    out = tmp_path / "out"
+    args = ["--tasks", TASK, "--episodes", "2", "--out", str(out), "--page", str(page),
+            "--no-progress"]
+    assert mod.main(["score", *args]) == 0
+    table = read_table(out / "table.csv")
+    assert table[0]["learner"] == "10M" and table[0]["seeds"] == 5
+    assert {"event (decentralised)", "oldest (centralised)"} <= {r["learner"] for r in table}
+    assert page.read_text() == (f"intro\n{mod.START}\n{leaderboard_markdown(table)}"
+                                f"{mod.END}\noutro\n")
+    assert mod.main(["summary", *args]) == 0
+    assert read_table(out / "table.csv") == table

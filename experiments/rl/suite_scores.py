@@ -90,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     from netsense.benchmark.references import SUITE_TASKS
     from netsense.benchmark.suite import read_episodes, rescore, score
+    from netsense.benchmark.suite_output import read_table
 
     if args.command == "score":
         tasks = args.tasks or list(SUITE_TASKS)
@@ -102,8 +103,8 @@ def main(argv: list[str] | None = None) -> int:
             (n for n in names if n not in LEARNERS), key=_rank)
         result = rescore(path, order=order)
     # the figure: the learners (the rules are there as the best decentralised marker)
-    result.write(args.out, [ln for ln in result.learners if ln in LEARNERS])
-    write_page(result.table, args.page)
+    paths = result.write(args.out, [ln for ln in result.learners if ln in LEARNERS])
+    write_page(read_table(paths["table.csv"]), args.page)  # the page shows what the CSV holds
     print(result.markdown())
     return 0
 
