@@ -115,7 +115,8 @@ def _file_task(path: Path) -> tuple[str, int | None, str]:
 
 
 def _file_run(path: Path, task: str | None, seed: int | None,
-              refs: Mapping[str, TaskReferences]) -> _Run:
+              refs: Mapping[str, TaskReferences]) -> _Run | None:
+    """The run of a policy file; ``None`` for a suite task that is not scored now."""
     if path.suffix == ".zip":
         if task is None:
             raise ValueError(f"{path}: a .zip does not name its task: put it in a runs "
@@ -128,8 +129,10 @@ def _file_run(path: Path, task: str | None, seed: int | None,
     if task is not None and ftask != task:
         raise ValueError(f"{path}: a policy of {ftask}, given for {task}")
     if ftask not in refs:
-        raise ValueError(f"{path}: a policy of {ftask}, which is not among the scored tasks "
-                         f"{tuple(refs)}")
+        if ftask in SUITE_TASKS:
+            return None  # a task left out of this scoring (``tasks``)
+        raise ValueError(f"{path}: a policy of {ftask}, which is not a suite task "
+                         f"{SUITE_TASKS}")
     if mode is not None and mode != refs[ftask].control:
         raise ValueError(f"{path}: acts in control mode {mode!r}; the suite scores "
                          f"{ftask} in {refs[ftask].control!r}")
@@ -200,7 +203,8 @@ def _expand(name: str, spec, refs: Mapping[str, TaskReferences]
             p = Path(spec)
             if p.is_dir():
                 raise ValueError(f"{p}: a runs folder is given for all tasks, not per task")
-            return [_file_run(p, task, seed, refs)]
+            run = _file_run(p, task, seed, refs)
+            return [] if run is None else [run]
         if callable(spec):
             return [_Run(task, seed, "act", spec, f"callable {name}")]
         raise ValueError(f"policy {name!r}: {type(spec).__name__} is no policy (a path, "
@@ -226,14 +230,15 @@ def _expand(name: str, spec, refs: Mapping[str, TaskReferences]
             label = (f"{name}/{learner}" if many and learner else name) if name else (
                 learner or Path(spec).name)
             res[label] = {t: [_file_run(p, t, s, refs) for s, p in runs]
-                          for t, runs in by_task.items()}
+                          for t, runs in by_task.items() if t in refs}
         return res
     items = list(spec) if isinstance(spec, (list, tuple)) else [spec]
     out = {}
     for i, x in enumerate(items):
         if isinstance(x, (str, Path)) and not str(x).startswith("rule:"):
             r = _file_run(Path(x), None, i, refs)
-            out.setdefault(r.task, []).append(r)
+            if r is not None:
+                out.setdefault(r.task, []).append(r)
         else:
             for task in tasks:
                 out.setdefault(task, []).extend(per_task(x, task, i))
