@@ -184,7 +184,7 @@ def test_resume_is_bit_identical_in_process(tmp_path, monkeypatch, overlap):
     assert _log(tmp_path / "part" / "log.csv") == _log(tmp_path / "full" / "log.csv")
 
 
-def test_resume_refuses_another_configuration(tmp_path, monkeypatch):
+def test_resume_refuses_another_configuration(tmp_path, monkeypatch, capsys):
     from netsense.rl import ppo
 
     cfg = _tiny(steps=4 * 4 * 8 * 10)
@@ -200,9 +200,14 @@ def test_resume_refuses_another_configuration(tmp_path, monkeypatch):
         ppo.train_ppo(cfg, tmp_path)
     monkeypatch.setattr(ppo.RunLog, "add", add)
     before = sorted(p.name for p in tmp_path.iterdir())
+    # the benchmark refuses the unfinished run's checkpoint, naming the folder
+    ckpt = tmp_path / "checkpoint_00002.pt"
+    assert main(["benchmark", "message_cost-v1", "--policies", f"learned:{ckpt}", "--out",
+                 str(tmp_path / "bench")]) == 2
+    assert f"{tmp_path} is an unfinished training run" in capsys.readouterr().err
     with pytest.raises(ValueError, match=r"differs in lr: 0.001 in the run, 0.002 now"):
         ppo.train_ppo(replace(cfg, lr=2e-3), tmp_path, resume=True)
-    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "bench") == before
 
 
 def test_log_drops_rows_after_the_checkpoint_and_a_half_written_row(tmp_path):
