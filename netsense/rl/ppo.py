@@ -144,6 +144,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         mark(out, RUNNING, backend="torchrl", seed=config.seed)
+        if saved is None:  # a fresh start: an older run's resume state is not this run's
+            (out / RESUME_FILE).unlink(missing_ok=True)
         write_json(out / "config.json", asdict(config), default=list)
     core = make_core(config.scenario, config.num_envs, control=config.control,
                      **config.overrides)
