@@ -360,7 +360,7 @@ def test_cli_smoke(tmp_path, capsys):
 def test_leaderboard_page_equals_committed_table():
     from netsense.benchmark.suite_output import leaderboard_markdown, read_table
 
-    table = ROOT / "experiments" / "results" / "rl" / "suite" / "table.csv"
+    table = ROOT / "experiments" / "results" / "rl" / "suite_scores" / "table.csv"
     page = (ROOT / "docs" / "leaderboard.md").read_text()
     inside = page.split("<!-- suite-table:start -->\n", 1)[1].split(
         "<!-- suite-table:end -->", 1)[0]

@@ -30,10 +30,10 @@ import math
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-RESULTS = ROOT / "experiments" / "results" / "rl"
-FRONTIERS = RESULTS / "comm_tasks"
-REFERENCE_EPISODES = RESULTS / "comm_bounds" / "episodes.csv"
-UPPER_BOUNDS = RESULTS / "upper_bounds" / "episodes.csv"
+RL = ROOT / "experiments" / "results" / "rl"
+FRONTIERS = RL / "comm_tasks"
+REFERENCE_EPISODES = RL / "comm_bounds" / "episodes.csv"
+UPPER_BOUNDS = RL / "upper_bounds" / "episodes.csv"
 OUT = ROOT / "netsense" / "benchmark" / "data" / "suite_references.json"
 #: policy-name prefixes of the full-information references in REFERENCE_EPISODES
 REFERENCE_PREFIXES = ("reference:", "bound:")

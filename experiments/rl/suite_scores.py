@@ -16,7 +16,7 @@ episodes of every task for
   best knob per task (mean return), labelled with its kind (decentralised rules,
   privileged rules and centralised schedulers are different rungs of the score ladder);
 
-and writes ``experiments/results/rl/suite/`` (``table.csv``, ``table.md``,
+and writes ``experiments/results/rl/suite_scores/`` (``table.csv``, ``table.md``,
 ``episodes.csv``, ``figure.png``) and the tables of ``docs/leaderboard.md`` (between its
 markers). **summary** rebuilds the same files from ``episodes.csv`` under the current
 references (after ``experiments/rl/suite_references.py`` ran again: a new upper bound or
@@ -31,13 +31,13 @@ import csv
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-RESULTS = ROOT / "experiments" / "results" / "rl"
-OUT = RESULTS / "suite"
-FRONTIERS = RESULTS / "comm_tasks"
+RL = ROOT / "experiments" / "results" / "rl"
+RESULTS = ROOT / "experiments" / "results" / "rl" / "suite_scores"
+FRONTIERS = RL / "comm_tasks"
 PAGE = ROOT / "docs" / "leaderboard.md"
 #: name -> runs folder of the committed learners
-LEARNERS = {"mlp, 2M agent-steps": RESULTS / "learners" / "runs",
-            "mlp, 10M agent-steps": RESULTS / "learners" / "budget_10m" / "runs"}
+LEARNERS = {"mlp, 2M agent-steps": RL / "learners" / "runs",
+            "mlp, 10M agent-steps": RL / "learners" / "budget_10m" / "runs"}
 #: frontier kinds of the scripted families scored (the endpoints always/never excluded)
 FAMILY_KINDS = ("decentralised", "privileged", "centralised")
 START, END = "<!-- suite-table:start -->", "<!-- suite-table:end -->"
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("command", choices=("score", "summary"))
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--tasks", nargs="+")
-    p.add_argument("--out", type=Path, default=OUT)
+    p.add_argument("--out", type=Path, default=RESULTS)
     p.add_argument("--page", type=Path, default=PAGE)
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
