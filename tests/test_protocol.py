@@ -79,7 +79,8 @@ def _read(path):
 def test_smoke_frontier_writes_png_and_csv(tmp_path):
     fams = {"periodic": (1, 5), "whittle": (2,)}
     rows = pr.run_frontier(["comm_channel_k2-v0", "fig1_scalar-v0"], tmp_path, episodes=3,
-                           families=fams, overrides={"horizon": 12}, progress=False)
+                           families=fams, overrides={"horizon": 12}, progress=False,
+                           informed_bases=())  # (the wrapped rules: test_comm_informed.py)
     for sc in ("comm_channel_k2-v0", "fig1_scalar-v0"):
         png, table = tmp_path / f"frontier_{sc}.png", tmp_path / f"frontier_{sc}.csv"
         assert png.stat().st_size > 10_000
