@@ -42,9 +42,11 @@ from pathlib import Path
 import numpy as np
 
 from netsense.benchmark.references import SUITE_TASKS, TaskReferences, load_references
+from netsense.benchmark.suite_output import AGGREGATE, TABLE_COLUMNS
 
-__all__ = ["SUITE_TASKS", "Builder", "SuiteResult", "builder", "read_episodes", "rescore",
-           "resolve", "runs_folder", "score", "summarise", "task_layout"]
+__all__ = ["AGGREGATE", "SUITE_TASKS", "TABLE_COLUMNS", "Builder", "SuiteResult", "builder",
+           "read_episodes", "rescore", "resolve", "runs_folder", "score", "summarise",
+           "task_layout"]
 
 #: Final policy files of a run folder, in the order they are looked for.
 POLICY_FILES = ("policy.npz", "policy.pt", "policy.zip")
@@ -384,14 +386,6 @@ def _rows(task, learner, kind, seed, seeds, values) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------- summary
-#: Columns of :attr:`SuiteResult.table` (docs/suite.md says what each means).
-TABLE_COLUMNS = ("task", "learner", "seeds", "episodes", "iqm", "iqm_ci_low", "iqm_ci_high",
-                 "best_decentralised", "best_decentralised_iqm", "p_improvement",
-                 "score_episodes", "score", "score_ci_low", "score_ci_high",
-                 "best_decentralised_score", "best_reference", "best_reference_score",
-                 "above_bound")
-#: ``task`` of the aggregate rows.
-AGGREGATE = "aggregate"
 
 
 @dataclass

@@ -24,8 +24,17 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["leaderboard_markdown", "markdown_table", "plot_result", "read_table",
-           "write_result"]
+__all__ = ["AGGREGATE", "TABLE_COLUMNS", "leaderboard_markdown", "markdown_table",
+           "plot_result", "read_table", "write_result"]
+
+#: Columns of the suite's table (``SuiteResult.table``; docs/suite.md says what each means).
+TABLE_COLUMNS = ("task", "learner", "seeds", "episodes", "iqm", "iqm_ci_low", "iqm_ci_high",
+                 "best_decentralised", "best_decentralised_iqm", "p_improvement",
+                 "score_episodes", "score", "score_ci_low", "score_ci_high",
+                 "best_decentralised_score", "best_reference", "best_reference_score",
+                 "above_bound")
+#: ``task`` of the aggregate rows.
+AGGREGATE = "aggregate"
 
 
 def _cell(v) -> str:
@@ -44,8 +53,6 @@ def _f(v, d: int = 1) -> str:
 
 def read_table(path: str | Path) -> list[dict]:
     """``table.csv`` back as rows (numbers as floats, empty cells NaN)."""
-    from netsense.benchmark.suite import TABLE_COLUMNS
-
     with Path(path).open() as fh:
         rows = list(csv.DictReader(fh))
     text = {"task", "learner", "best_decentralised", "best_reference"}
@@ -128,8 +135,6 @@ def write_result(result, out: str | Path, figure: Sequence[str] | None = None
                  ) -> dict[str, Path]:
     """Write :class:`~netsense.benchmark.suite.SuiteResult`'s files (module docstring);
     ``figure``: the policies the figure shows (default: all)."""
-    from netsense.benchmark.suite import TABLE_COLUMNS
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"table.csv": out / "table.csv", "table.md": out / "table.md",
