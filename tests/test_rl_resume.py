@@ -156,15 +156,21 @@ def test_cli_seeds_resume_with_workers_keeps_finished_seeds(reference, tmp_path)
     assert run_folder.run_status(out) == "finished"
 
 
-@pytest.mark.parametrize("overlap", [False, True])
-def test_resume_is_bit_identical_in_process(tmp_path, monkeypatch, overlap):
+@pytest.mark.parametrize("kw", [{"overlap": False}, {"overlap": True},
+                                {"overlap": False, "control": "full", "bc": "freshness",
+                                 "bc_steps": 256, "bc_epochs": 2}],
+                         ids=["serial", "overlap", "warm-start"])
+def test_resume_is_bit_identical_in_process(tmp_path, monkeypatch, kw):
     """Interrupted after the fifth iteration's log row (its last checkpoint after the
     fourth), resumed: the final weights and log equal an uninterrupted run's, with the
-    serial loop and with the overlapped collection (whose collector draws from its own
-    generators: deterministic too)."""
+    serial loop, with the overlapped collection (whose collector draws from its own
+    generators: deterministic too) and after a behaviour-cloning warm start (not run
+    again)."""
     from netsense.rl import ppo
 
-    cfg = _tiny(overlap=overlap)
+    cfg = _tiny(**kw)
+    if "bc" in kw:
+        cfg = cfg.conservative()
     ppo.train_ppo(cfg, tmp_path / "full")
     add = ppo.RunLog.add
 
@@ -180,6 +186,7 @@ def test_resume_is_bit_identical_in_process(tmp_path, monkeypatch, overlap):
     assert len(_log(tmp_path / "part" / "log.csv")) == 5  # one row past the checkpoint
     res = ppo.train_ppo(cfg, tmp_path / "part", resume=True)
     assert [r["iteration"] for r in res.rows] == list(range(ITERS))
+    assert res.bc == json.loads((tmp_path / "full" / "summary.json").read_text())["bc"]
     assert _same_weights(tmp_path / "part" / "policy.pt", tmp_path / "full" / "policy.pt")
     assert _log(tmp_path / "part" / "log.csv") == _log(tmp_path / "full" / "log.csv")
 

@@ -50,7 +50,11 @@ entropy coefficient; ``eval_*`` columns (most likely actions) and ``eval_sampled
 ``training_curve.png`` (returns vs agent-steps), TensorBoard events under ``tb/`` when
 ``tensorboard`` or ``tensorboardX`` is installed, ``checkpoint_<iter>.pt`` at every
 evaluation and ``policy.pt`` at the end (:func:`netsense.rl.checkpoint.load_policy` reads
-them), ``config.json``, ``summary.json``. The learner runs on CUDA when
+them), ``resume.pt`` at every checkpoint until the run finishes (what ``resume=True``
+continues from, :mod:`netsense.rl.resume`), ``config.json``, ``summary.json`` and
+``run.json`` (``running``, then ``finished`` as the last write;
+:mod:`netsense.rl.run_folder`). Every file is written whole or not at all
+(:mod:`netsense.rl.atomic`). The learner runs on CUDA when
 ``torch.cuda.is_available()`` (``device="auto"``); the core always runs on the CPU. The
 loss runs in bfloat16 mixed precision on CPUs with native bfloat16 products
 (``precision="auto"``, :func:`netsense.rl.config.learner_precision`).
@@ -253,7 +257,8 @@ def train_ppo(config: PPOConfig, out: str | Path | None = None, *, progress: boo
                                  counters={"agent_steps": agent_steps,
                                            "mask_violations": violations,
                                            "collect_s": collect_s, "learn_s": learn_s,
-                                           "wall_s": time.perf_counter() - t0, "bc": bc})
+                                           "wall_s": time.perf_counter() - t0,
+                                           "bc": json.loads(json.dumps(bc, default=float))})
             bar.set_postfix(r=f"{row['step_reward']:.3g}", ev=f"{row['explained_variance']:.2f}")
     finally:  # an error in the learner leaves no collection running
         if ahead is not None:
