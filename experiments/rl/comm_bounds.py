@@ -26,13 +26,21 @@ seconds-long check)::
 
     NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py --workers 2
 
-The frontier alone, the references, their episodes and the trade-off carried over from
-an earlier run (relabelled; their continuation is in the ``knob`` column), and the
-frontier rows taken from ``experiments/rl/comm_tasks.py`` (the same protocol run)::
+Parts of a run can come from elsewhere: ``--frontier-rows`` takes the frontier rows that
+``experiments/rl/comm_tasks.py --save-rows`` pickled (the same protocol run),
+``--keep-references DIR ...`` the reference rows, episodes and trade-off of earlier runs
+(relabelled; each row's continuation is in its ``knob`` column), and references are run
+for the tasks no such folder holds. The committed results: the frontier of all nine
+tasks, the references rerun on the four tasks whose best decentralised rule changed (an
+informed rule, hence a new continuation), those of the five older tasks (whose
+continuation did not change) and the trade-off (``comm_process_noise-v0``) kept::
 
     NUMBA_NUM_THREADS=1 python experiments/rl/comm_tasks.py --workers 5 --save-rows rows.pkl
     NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py --frontier-rows rows.pkl \\
-        --keep-references experiments/results/rl/comm_bounds
+        --tasks comm_announced-v0 comm_fading-v0 comm_schedule-v0 comm_schedule-v1 \\
+        --tradeoff-task "" --workers 4 --out new
+    NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py --frontier-rows rows.pkl \\
+        --keep-references experiments/results/rl/comm_bounds new
 """
 
 # %%
@@ -81,6 +89,30 @@ def run_frontiers(tasks: Sequence[str], out: Path, episodes: int, reference_epis
                            references=("causal", "clairvoyant"),
                            reference_episodes=reference_episodes,
                            reference_config=LookaheadConfig(), workers=workers)
+
+
+def _references(tasks: Sequence[str], rows: Sequence[dict], episodes: int,
+                overrides: dict | None, workers: int) -> dict[str, list[dict]]:
+    """Both references of each of ``tasks`` continuing from its ``rows``
+    (:func:`netsense.benchmark.protocol.reference_rows`), ``workers`` tasks at once."""
+    jobs = [(t, [r for r in rows if r["scenario"] == t]) for t in tasks]
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
+            out = list(pool.map(_task_references, jobs, [episodes] * len(jobs),
+                                [overrides] * len(jobs)))
+    else:
+        out = [_task_references(j, episodes, overrides) for j in jobs]
+    return dict(zip(tasks, out, strict=True))
+
+
+def _task_references(job, episodes, overrides) -> list[dict]:
+    task, rows = job
+    return pr.reference_rows(task, rows, reference_episodes=episodes,
+                             reference_config=LookaheadConfig(), overrides=overrides)
 
 
 def kept_references(folder: Path, tasks: Sequence[str]) -> list[dict]:
@@ -267,23 +299,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="horizon 12, 3 episodes, 2 for the references and the trade-off")
     p.add_argument("--workers", type=int, default=1,
                    help="run the tasks' frontiers in this many processes")
-    p.add_argument("--keep-references", type=Path, default=None, metavar="DIR",
-                   help="rerun the frontier only: take the reference rows, their episodes "
-                        "and the trade-off from the earlier run in DIR (relabelled), "
-                        "instead of running the lookaheads")
+    p.add_argument("--keep-references", type=Path, nargs="+", default=None, metavar="DIR",
+                   help="take the reference rows and their episodes of the tasks an earlier "
+                        "run in DIR holds (a later DIR first; relabelled), and the "
+                        "trade-off of the first DIR that has one, instead of running them")
     p.add_argument("--frontier-rows", type=Path, default=None, metavar="FILE",
-                   help="with --keep-references: the frontier rows pickled by "
-                        "experiments/rl/comm_tasks.py --save-rows (the same protocol run) "
-                        "instead of running the frontier again")
+                   help="the frontier rows pickled by experiments/rl/comm_tasks.py "
+                        "--save-rows (the same protocol run) instead of running the "
+                        "frontier again")
     args = p.parse_args(argv)
     over = None
     if args.smoke:
         over = {"horizon": 12}
         args.episodes, args.reference_episodes, args.tradeoff_episodes = 3, 2, 2
     args.out.mkdir(parents=True, exist_ok=True)
-    if args.keep_references is not None:
-        kept = kept_references(args.keep_references, args.tasks)
-        trade = kept_tradeoff(args.keep_references) if args.tradeoff_task else None
+    if args.frontier_rows is not None or args.keep_references:
         if args.frontier_rows is not None:
             with args.frontier_rows.open("rb") as fh:  # (a file this experiment wrote)
                 rows = [r for r in pickle.load(fh) if r["scenario"] in args.tasks]
@@ -294,16 +324,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             rows = pr.run_frontier(args.tasks, args.out, episodes=args.episodes,
                                    overrides=over, workers=args.workers)
+        kept: dict[str, list[dict]] = {}
+        for folder in args.keep_references or ():  # a later folder replaces a task's rows
+            by_task: dict[str, list[dict]] = {}
+            for r in kept_references(folder, args.tasks):
+                by_task.setdefault(r["scenario"], []).append(r)
+            kept.update(by_task)
+        todo = [t for t in dict.fromkeys(args.tasks) if t not in kept]
+        fresh = _references(todo, rows, args.reference_episodes, over, args.workers)
         rows = [r for t in dict.fromkeys(args.tasks) for r in
-                [x for x in rows if x["scenario"] == t] + [x for x in kept
-                                                            if x["scenario"] == t]]
+                [x for x in rows if x["scenario"] == t] + kept.get(t, fresh.get(t, []))]
         pr.write_frontiers(rows, args.out)
+        trade = None
+        if args.keep_references and args.tradeoff_task:
+            trade = next((kept_tradeoff(f) for f in args.keep_references
+                          if (f / "tradeoff.csv").is_file()), None)
     else:
         rows = run_frontiers(args.tasks, args.out, args.episodes, args.reference_episodes,
                              over, args.workers)
     write_reference_episodes(rows, args.out / "episodes.csv")
     print(markdown_headroom(headroom(rows)))
-    if args.keep_references is not None and trade:
+    if args.keep_references and trade:
         write_tradeoff(trade, args.out)
     elif args.tradeoff_task:
         cont = next(r["knob"] for r in rows if r["scenario"] == args.tradeoff_task

@@ -84,8 +84,8 @@ __all__ = ["CENTRALISED_FAMILIES", "CONFIDENCE", "CSV_COLUMNS", "DEFAULT_REFEREN
            "DEFAULT_EPISODES", "EVAL_SEED0", "FAMILIES", "KINDS", "PROTOCOL_METRICS",
            "RESAMPLES", "TRAIN_SEED_LIMIT", "best_scripted", "bootstrap_ci", "check_disjoint",
            "evaluate", "eval_seeds", "family_kind", "frontier", "frontier_overrides",
-           "markdown_frontier", "pareto_front", "run_frontier", "write_frontier",
-           "write_frontiers"]
+           "markdown_frontier", "pareto_front", "reference_rows", "run_frontier",
+           "write_frontier", "write_frontiers"]
 
 EVAL_SEED0 = 1_000_000
 TRAIN_SEED_LIMIT = EVAL_SEED0
@@ -416,32 +416,17 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
         runs += [("learned", path, f"learned:{path}", "greedy", dict(overrides or {})),
                  ("learned", path, f"learned_sampled:{path}", "sampled",
                   dict(overrides or {}))]
-    runs += [("reference", kind, f"reference:{kind}", "lookahead", comm_over)
-             for kind in references]
     rows = []
     for fam, knob, spec, how, over in tqdm(runs, desc=f"frontier {scenario}",
                                            disable=not progress):
-        run_seeds, config = seeds, None
-        if fam == "reference":
-            run_seeds = seeds[:int(E)]
-            cont = (_continuation(rows) if reference_continuation == "best"
-                    else tuple([reference_continuation]
-                               if isinstance(reference_continuation, str)
-                               else reference_continuation))
-            base = reference_config or LookaheadConfig()
-            config = LookaheadConfig(**{**_fields(base), "kind": knob, "continuation": cont})
-            knob = " + ".join(cont)
-        vals, cost = _evaluate(scenario, spec, run_seeds, over, config)
+        vals, cost = _evaluate(scenario, spec, seeds, over)
         mode = (_mode(scenario, learned_overrides(scenario, knob, over)) if fam == "learned"
                 else control)
-        row = {"scenario": scenario, "control": mode, "kind": family_kind(fam),
-               "family": fam, "policy": spec, "knob": "" if knob is None else knob,
-               "evaluation": how, "episodes": len(run_seeds), "seed_first": run_seeds[0],
-               "seed_last": run_seeds[-1], "seconds": cost["seconds"], **_summary(vals),
-               "values": vals}
-        if config is not None:
-            row["reference_config"], row["cost"] = config, cost
-        rows.append(row)
+        rows.append(_row(scenario, mode, fam, spec, knob, how, seeds, vals, cost))
+    rows += reference_rows(scenario, rows, references, reference_episodes=int(E),
+                           reference_config=reference_config,
+                           reference_continuation=reference_continuation,
+                           overrides=overrides)
     # points an agent or a coordinator could reach (not privileged rules nor references)
     front = [r for r in rows if r["kind"] in ("decentralised", "centralised", "learned")]
     for r, p in zip(front, pareto_front(front), strict=True):
@@ -454,6 +439,44 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
 #: Episodes of the references in :func:`frontier` unless told (they cost far more per
 #: episode).
 DEFAULT_REFERENCE_EPISODES = 20
+
+
+def _row(scenario, control, fam, spec, knob, how, seeds, vals, cost) -> dict:
+    return {"scenario": scenario, "control": control, "kind": family_kind(fam),
+            "family": fam, "policy": spec, "knob": "" if knob is None else knob,
+            "evaluation": how, "episodes": len(seeds), "seed_first": seeds[0],
+            "seed_last": seeds[-1], "seconds": cost["seconds"], **_summary(vals),
+            "values": vals, "pareto": ""}
+
+
+def reference_rows(scenario: str, rows: Sequence[dict], references: Sequence[str] = (
+        "causal", "clairvoyant"), *, reference_episodes: int = DEFAULT_REFERENCE_EPISODES,
+        reference_config=None, reference_continuation: str | Sequence[str] = "best",
+        overrides: dict | None = None) -> list[dict]:
+    """The rows of the full-information references of ``scenario`` that :func:`frontier`
+    adds to its scripted ``rows`` (the continuation ``"best"`` is chosen among them), on
+    the first ``reference_episodes`` seeds of those rows."""
+    from netsense.benchmark.lookahead import LookaheadConfig
+
+    mine = [r for r in rows if r["scenario"] == scenario]
+    if references and not mine:
+        raise ValueError(f"no rows of {scenario} to continue from")
+    out = []
+    for kind in references:
+        seed0 = int(mine[0]["seed_first"])
+        seeds = eval_seeds(reference_episodes, seed0)
+        cont = (_continuation(mine) if reference_continuation == "best"
+                else tuple([reference_continuation] if isinstance(reference_continuation, str)
+                           else reference_continuation))
+        base = reference_config or LookaheadConfig()
+        config = LookaheadConfig(**{**_fields(base), "kind": kind, "continuation": cont})
+        over = frontier_overrides(scenario, overrides)
+        vals, cost = _evaluate(scenario, f"reference:{kind}", seeds, over, config)
+        row = _row(scenario, _mode(scenario, over), "reference", f"reference:{kind}",
+                   " + ".join(cont), "lookahead", seeds, vals, cost)
+        row["reference_config"], row["cost"] = config, cost
+        out.append(row)
+    return out
 
 
 def _fields(config) -> dict:
