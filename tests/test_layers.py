@@ -116,6 +116,8 @@ def test_no_import_cycles():
 #: modules of earlier stages. The adapters sit on the core-only helpers; the former homes of
 #: the pipeline's names (``mappo``, ``models``, ``torchrl_batched``) re-export from above.
 RL_STAGES = (
+    ("atomic",),
+    ("run_folder",),
     ("credit", "wrappers", "policy_files"),
     ("sb3_policy",),
     ("sb3", "rllib", "torchrl"),
@@ -124,6 +126,7 @@ RL_STAGES = (
     ("networks", "set_network", "memory"),
     ("config",),
     ("policy",),
+    ("resume",),
     ("rollout",),
     ("advantage",),
     ("scripted",),

@@ -37,10 +37,14 @@ warm start (``cloning``)          behaviour cloning of a scripted policy
 evaluation (``evaluation``)       periodic evaluation during training
 logging (``runlog``)              ``log.csv`` and TensorBoard
 checkpoints (``checkpoint``)      save / read / check policy files, ``BatchedPolicy``
+resume (``resume``)               ``resume.pt``: what a killed run continues from, read as data
 training loop (``ppo``)           ``train_ppo``: TorchRL's MAPPO / IPPO losses, schedules, logs
 many runs (``launch``)            ``launch``: seeds x configurations in this process, in worker
                                   processes or as Ray tasks, the same files either way
 ================================  ==================================================================
+
+Beneath every stage, standard library only: ``atomic`` (files written whole or not at all)
+and ``run_folder`` (is a run's folder finished; may a new run write into it).
 
 ``netsense.rl.mappo``, ``netsense.rl.models`` and ``netsense.rl.torchrl_batched`` are the
 former homes of these names and re-export them (see the CHANGELOG).
@@ -48,7 +52,8 @@ former homes of these names and re-export them (see the CHANGELOG).
 Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense.grid`.
 """
 
-__all__ = ["advantage", "checkpoint", "cloning", "config", "credit", "distributions", "envs",
-           "evaluation", "launch", "mappo", "memory", "models", "networks", "policy",
-           "policy_files", "ppo", "rllib", "rollout", "runlog", "sb3", "sb3_policy", "scripted",
-           "set_network", "torchrl", "torchrl_batched", "wrappers"]
+__all__ = ["advantage", "atomic", "checkpoint", "cloning", "config", "credit",
+           "distributions", "envs", "evaluation", "launch", "mappo", "memory", "models",
+           "networks", "policy", "policy_files", "ppo", "resume", "rllib", "rollout",
+           "run_folder", "runlog", "sb3", "sb3_policy", "scripted", "set_network", "torchrl",
+           "torchrl_batched", "wrappers"]

@@ -157,10 +157,10 @@ def read_policy(path: str | Path) -> dict:
     ValueError
         Naming the file and what is wrong: missing, in the folder of an unfinished
         training run (:func:`netsense.rl.run_folder.check_finished`), unreadable,
-        holding objects other than tensors and plain data, not a checkpoint of this trainer, without a
-        checksum (written before netsense stored one: :func:`seal_policy`), a checksum
-        that does not match (the file changed after it was written), non-finite
-        weights, a config this netsense refuses.
+        holding objects other than tensors and plain data, not a checkpoint of this
+        trainer, without a checksum (written before netsense stored one:
+        :func:`seal_policy`), a checksum that does not match (the file changed after
+        it was written), non-finite weights, a config this netsense refuses.
     """
     path = Path(path)
     state = _load(path)
