@@ -320,3 +320,35 @@ def test_train_defaults_to_torchrl_and_names_the_extra_when_missing(monkeypatch,
     assert main(["train", "message_cost-v1", "--steps", "10"]) == 2
     err = capsys.readouterr().err
     assert 'pip install -e ".[torchrl]"' in err and "--backend sb3" in err
+
+
+def test_a_ray_task_resumes_from_the_files_it_is_given(tmp_path, monkeypatch):
+    """What a Ray task does on --resume, without Ray: the unfinished run's resume files go
+    to the task, which trains in a temporary folder; the files it returns finish the run
+    here, as an uninterrupted run would have (checked bit for bit)."""
+    from netsense.rl import launch, ppo
+
+    cfg = _tiny()
+    ppo.train_ppo(cfg, tmp_path / "full")
+    add = ppo.RunLog.add
+
+    def interrupted(self, row):
+        add(self, row)
+        if row["iteration"] == 6:
+            raise KeyboardInterrupt
+
+    run = tmp_path / "out" / "seed_0"
+    monkeypatch.setattr(ppo.RunLog, "add", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        ppo.train_ppo(cfg, run)
+    monkeypatch.setattr(ppo.RunLog, "add", add)
+    given = launch._given(run)
+    assert set(given) == {"resume.pt", "log.csv", "config.json", "run.json"}
+    entry = launch._train_one(launch.Run(cfg), None, False, True, given)
+    assert entry["status"] == "ok", entry.get("error")
+    assert "resume.pt" not in entry["files"]
+    launch._write_files(run, entry["files"])
+    (run / "resume.pt").unlink()  # as launch does for a run that finished where it ran
+    assert run_folder.is_finished(run)
+    assert _same_weights(run / "policy.pt", tmp_path / "full" / "policy.pt")
+    assert _log(run / "log.csv") == _log(tmp_path / "full" / "log.csv")
