@@ -352,3 +352,20 @@ def test_a_ray_task_resumes_from_the_files_it_is_given(tmp_path, monkeypatch):
     assert run_folder.is_finished(run)
     assert _same_weights(run / "policy.pt", tmp_path / "full" / "policy.pt")
     assert _log(run / "log.csv") == _log(tmp_path / "full" / "log.csv")
+
+
+def test_cli_resume_with_other_flags_is_refused_before_writing(tmp_path, capsys):
+    from dataclasses import asdict
+
+    out = tmp_path / "out"
+    (out / "seed_0").mkdir(parents=True)
+    started = replace(_tiny(), lr=5e-4, eval_interval=1, minibatch=16, epochs=2,
+                      overlap=False, torch_threads=1)
+    (out / "seed_0" / "config.json").write_text(json.dumps(asdict(started), default=list))
+    run_folder.mark(out / "seed_0", "running")
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert main(["train", *TINY, "--steps", str(STEPS), "--out", str(out), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert f"{out / 'seed_0'}: --resume needs the flags the run was started with" in err
+    assert "lr: 0.0005 in the run, 0.001 now" in err
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
