@@ -323,7 +323,7 @@ def plot(runs: dict, rates: dict, rows: list[dict], curves: dict, refs: dict,
             if policy == "best_decentralised" and episodes == "validation":
                 ax.axhline(ret, color="k", ls="--", lw=1.1,
                            label=f"best decentralised scripted ({spec})")
-            elif policy == "bound:causal":
+            elif policy == "reference:causal":
                 ax.axhline(ret, color="g", ls=":", lw=1.1, label="causal bound (test episodes)")
         ax.axvline(W, color="0.5", ls=":", lw=0.9)
         ax.set_xlabel("seconds of training at the benchmark's rate")

@@ -31,7 +31,7 @@ the runs.
   beside the task's references on the same episodes: ``never``, the best decentralised
   rule (the benchmark suite's, :mod:`netsense.benchmark.references`) and the causal and
   clairvoyant lookahead references (read from the lookahead experiment's
-  ``episodes.csv``, fewer episodes; labelled ``bound:causal``, ``bound:clairvoyant``);
+  ``episodes.csv``, fewer episodes; labelled ``reference:causal``, ``reference:clairvoyant``);
 * ``curves.png`` / ``curves.csv``: evaluation return against agent-steps, the interquartile
   mean (IQM) over the training seeds with a 95 % stratified-bootstrap band (the greedy
   return of the periodic evaluation during training, on its own episodes), with the best
@@ -214,15 +214,15 @@ def best_frontier_point(task: str, what: str, keep) -> str:
 
 
 def bound_episodes(task: str) -> dict[str, np.ndarray]:
-    """``{"bound:causal": returns, "bound:clairvoyant": returns}`` per episode of the
+    """``{"reference:causal": returns, "reference:clairvoyant": returns}`` per episode of the
     lookahead references (fewer episodes than the protocol's 100: the first ones of the
-    same seeds); policies the file calls ``reference:causal`` are read as ``bound:causal``."""
+    same seeds)."""
     out: dict[str, list] = {}
     if BOUNDS.exists():
         with BOUNDS.open() as fh:
             for r in csv.DictReader(fh):
                 if r["scenario"] == task:
-                    name = "bound:" + r["policy"].split(":", 1)[1]
+                    name = "reference:" + r["policy"].split(":", 1)[1]
                     out.setdefault(name, []).append(float(r["reward"]))
     return {k: np.asarray(v) for k, v in out.items()}
 
@@ -282,9 +282,10 @@ def summarise(rows: list[dict], learners: list[str]) -> list[dict]:
     for task in tasks:
         rs = [r for r in rows if r["task"] == task]
         ref = {p: np.array([r["reward"] for r in rs if r["policy"] == p])
-               for p in ("never", "best_decentralised", "bound:causal", "bound:clairvoyant")}
+               for p in ("never", "best_decentralised", "reference:causal",
+                         "reference:clairvoyant")}
         best = ref["best_decentralised"]
-        causal = ref["bound:causal"]
+        causal = ref["reference:causal"]
         for learner in learners:
             for kind in ("greedy", "sampled", "best-validated"):
                 seeds = sorted({r["seed"] for r in rs if r["policy"] == learner
@@ -344,7 +345,7 @@ REFERENCE_LINES = {
     "best_decentralised_validation": ("k", "--", 1.1, "best decentralised scripted"),
     "best_decentralised": ("0.35", "--", 0.7,
                            "best decentralised scripted, test episodes"),
-    "bound:causal": ("C3", ":", 1.1, "causal bound, test episodes"),
+    "reference:causal": ("C3", ":", 1.1, "causal full-information reference, test episodes"),
     "never": ("0.5", "-.", 1.1, "never, test episodes")}
 
 
@@ -461,7 +462,7 @@ def _f(v: float, d: int = 1) -> str:
 
 def markdown_summary(rows: list[dict]) -> str:
     lines = ["| task | learner | agent-steps | evaluation | IQM return [95 % CI] | best "
-             "decentralised scripted: IQM (mean) | causal bound: IQM (mean) | never | "
+             "decentralised scripted: IQM (mean) | causal reference: IQM (mean) | never | "
              "reaches scripted | P(learned > scripted) | gap closed (IQMs) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -532,7 +533,7 @@ def write_summaries(out: Path, rows: list[dict], folders: dict, tasks: list[str]
     refs = {t: {p: float(np.mean([r["reward"] for r in rows if r["task"] == t
                                   and r["policy"] == p])) if any(
         r["task"] == t and r["policy"] == p for r in rows) else math.nan
-        for p in ("never", "best_decentralised", "bound:causal")} for t in tasks}
+        for p in ("never", "best_decentralised", "reference:causal")} for t in tasks}
     lines = []
     for t in curves:
         spec = next(r["spec"] for r in rows if r["task"] == t
