@@ -15,7 +15,8 @@ header, then a ``str.format`` template over the CSV's columns)::
 
 Everything between the spec and ``<!-- /table -->`` is generated. Several CSV files (space
 separated) give their rows one after the other; ``where: column=a,b`` keeps the rows whose
-column is ``a`` or ``b`` (several ``where:`` lines must all hold); ``group: column`` merges
+column is ``a`` or ``b`` (``where: column="a, b"`` the one value ``a, b``; several
+``where:`` lines must all hold); ``group: column`` merges
 the rows with one value of it into one row of means (``{x_min}``, ``{x_max}`` and the
 count ``{n}`` beside each numeric ``{x}``). Numeric fields are
 formatted as numbers, with a typographic minus (−) as the rest of the docs write it.
@@ -70,7 +71,11 @@ def parse_spec(spec: str):
             group = line[len("group:"):].strip()
         elif line.startswith("where:"):
             col, _, values = line[len("where:"):].strip().partition("=")
-            filters.append((col.strip(), {v.strip() for v in values.split(",")}))
+            values = values.strip()
+            if len(values) > 1 and values[0] == values[-1] == '"':  # one literal value
+                filters.append((col.strip(), {values[1:-1]}))
+            else:
+                filters.append((col.strip(), {v.strip() for v in values.split(",")}))
         elif line.startswith("|"):
             cells = [c.strip() for c in line.strip().strip("|").split("|")]
             if len(cells) != 2:

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-OUT = ROOT / "experiments/results/rl/upper_bounds"
+RESULTS = ROOT / "experiments/results/rl/upper_bounds"
 FRONTIER = ROOT / "experiments/results/rl/comm_tasks"
 REFERENCES = ROOT / "experiments/results/rl/comm_bounds/episodes.csv"
 TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
@@ -156,7 +156,7 @@ def main(argv=None) -> list[dict]:
     ap.add_argument("--tasks", nargs="+", default=list(TASKS))
     ap.add_argument("--episodes", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args(argv)
     from tqdm import tqdm
 
