@@ -36,8 +36,8 @@ REFERENCES = ROOT / "experiments/results/rl/comm_bounds/episodes.csv"
 TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
          "message_cost-v0", "message_cost-v1", "comm_announced-v0", "comm_fading-v0",
          "comm_schedule-v0", "comm_schedule-v1")
-WINDOW = 12
-ROUNDS = 2
+WINDOW = 8
+ROUNDS = 3
 
 
 # %%

@@ -69,7 +69,7 @@ __all__ = ["EpisodeData", "UpperBound", "age_recursion", "episode_data", "upper_
            "upper_bounds"]
 
 #: Default age window ``W`` (ages ``>= W`` share one error value).
-DEFAULT_WINDOW = 40
+DEFAULT_WINDOW = 8
 #: Default rounds of the cutting-plane loop.
 DEFAULT_ROUNDS = 3
 _NEVER = 10 ** 9  # an omega index in the integer recursion
@@ -614,6 +614,9 @@ def _solution_errors(data: EpisodeData, tables: dict, x: np.ndarray, G: np.ndarr
     d = _reference_errors(data, amin)
     for (k, i, j), (lo, vals, tail) in tables.items():
         if lo is None:
+            continue
+        if vals.size == 0:  # no age below the window is possible
+            d[k, i, j] = tail
             continue
         gi = G[k, i, j, lo:]
         g = np.maximum.accumulate(np.clip(x[gi], 0.0, 1.0))
