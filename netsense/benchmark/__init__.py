@@ -97,6 +97,7 @@ from netsense.benchmark.rollouts import (
 )
 from netsense.env.policies import SCRIPTED_POLICIES
 from netsense.estimators.oracle import CentralizedKF
+from netsense.rl.atomic import atomic_path, write_atomic
 
 __all__ = [
     "BACKENDS", "DEFAULT_POLICIES", "METRICS", "POLICY_NAMES",
@@ -166,12 +167,12 @@ def run_benchmark(scenarios: Sequence[str], policies: Sequence[str] = DEFAULT_PO
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         write_csv(results, out / "episodes.csv")
-        with (out / "summary.csv").open("w", newline="") as fh:
+        with atomic_path(out / "summary.csv") as tmp, tmp.open("w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows({k: _fmt_csv(v) if isinstance(v, float) else v for k, v in r.items()}
                         for r in rows)
-        (out / "summary.md").write_text(markdown_table(rows, eps))
+        write_atomic(out / "summary.md", markdown_table(rows, eps))
         for sc in dict.fromkeys(scenarios):
             plot_errors(results, out / f"errors_{sc}.png", sc)
         plot_reward_vs_messages(rows, out / "reward_vs_messages.png")

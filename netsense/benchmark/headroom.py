@@ -33,6 +33,7 @@ import numpy as np
 
 from netsense.benchmark.intervals import bootstrap_ci, paired_percent
 from netsense.benchmark.kinds import RANDOM_FAMILIES, reference_label, spec_family
+from netsense.rl.atomic import atomic_path, write_atomic
 
 __all__ = ["HEADROOM_COLUMNS", "best_scripted", "headroom", "markdown_headroom",
            "write_headroom"]
@@ -131,11 +132,11 @@ def write_headroom(rows: Sequence[dict], out: str | Path) -> tuple[Path, Path]:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path_csv, path_md = out / "headroom.csv", out / "headroom.md"
-    with path_csv.open("w", newline="") as fh:
+    with atomic_path(path_csv) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(HEADROOM_COLUMNS)
         for r in rows:
             w.writerow([f"{r[c]:.6g}" if isinstance(r[c], float) else r[c]
                         for c in HEADROOM_COLUMNS])
-    path_md.write_text(markdown_headroom(rows))
+    write_atomic(path_md, markdown_headroom(rows))
     return path_csv, path_md

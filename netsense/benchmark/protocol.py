@@ -79,6 +79,7 @@ from netsense.benchmark.headroom import best_scripted, headroom, write_headroom
 from netsense.benchmark.intervals import CONFIDENCE, RESAMPLES, bootstrap_ci
 from netsense.benchmark.kinds import CENTRALISED_FAMILIES, KINDS, family_kind, reference_label
 from netsense.benchmark.rollouts import is_batched_policy, learned_overrides
+from netsense.rl.atomic import atomic_path, write_atomic
 
 __all__ = ["CENTRALISED_FAMILIES", "CONFIDENCE", "CSV_COLUMNS", "DEFAULT_REFERENCE_EPISODES",
            "DEFAULT_EPISODES", "EVAL_SEED0", "FAMILIES", "KINDS", "PROTOCOL_METRICS",
@@ -505,7 +506,7 @@ def write_frontier(rows: Sequence[dict], out: str | Path) -> tuple[Path, Path]:
     out.mkdir(parents=True, exist_ok=True)
     scenario = rows[0]["scenario"]
     path_csv = out / f"frontier_{scenario}.csv"
-    with path_csv.open("w", newline="") as fh:
+    with atomic_path(path_csv) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(CSV_COLUMNS)
         for r in rows:
@@ -595,11 +596,11 @@ def write_frontiers(rows: Sequence[dict], out: str | Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     for sc in dict.fromkeys(r["scenario"] for r in rows):
         write_frontier([r for r in rows if r["scenario"] == sc], out)
-    with (out / "frontier.csv").open("w", newline="") as fh:
+    with atomic_path(out / "frontier.csv") as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(CSV_COLUMNS)
         for r in rows:
             w.writerow([_cell(r[c]) for c in CSV_COLUMNS])
-    (out / "frontier.md").write_text(markdown_frontier(rows))
+    write_atomic(out / "frontier.md", markdown_frontier(rows))
     if any(r["kind"] == "reference" for r in rows):
         write_headroom(headroom(rows), out)

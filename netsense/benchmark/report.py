@@ -11,6 +11,7 @@ import numpy as np
 
 from netsense.benchmark.metrics import METRICS
 from netsense.env.policies import SCRIPTED_POLICIES
+from netsense.rl.atomic import atomic_path
 
 
 def aggregate(results: Iterable[dict]) -> list[dict]:
@@ -55,7 +56,7 @@ def write_csv(results: Sequence[dict], path: str | Path) -> Path:
     """One row per episode: scenario, policy, seed and every metric."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["scenario", "policy", "seed", *METRICS])
         for r in results:
@@ -168,6 +169,7 @@ def _save(fig, path: str | Path) -> Path:
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:  # the temporary name ends in .part: format given
+        fig.savefig(tmp, dpi=110, format=path.suffix[1:] or "png")
     plt.close(fig)
     return path

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from netsense.rl.atomic import atomic_path, write_atomic
+
 __all__ = ["AGGREGATE", "TABLE_COLUMNS", "leaderboard_markdown", "markdown_table",
            "plot_result", "read_table", "write_result"]
 
@@ -139,14 +141,14 @@ def write_result(result, out: str | Path, figure: Sequence[str] | None = None
     out.mkdir(parents=True, exist_ok=True)
     paths = {"table.csv": out / "table.csv", "table.md": out / "table.md",
              "episodes.csv": out / "episodes.csv", "figure.png": out / "figure.png"}
-    with paths["table.csv"].open("w", newline="") as fh:
+    with atomic_path(paths["table.csv"]) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(TABLE_COLUMNS)
         for r in result.table:
             w.writerow([_cell(r[c]) for c in TABLE_COLUMNS])
-    paths["table.md"].write_text(markdown_table(result.table))
+    write_atomic(paths["table.md"], markdown_table(result.table))
     cols = ("task", "learner", "kind", "seed", "episode_seed", "return")
-    with paths["episodes.csv"].open("w", newline="") as fh:
+    with atomic_path(paths["episodes.csv"]) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)
         for r in result.episodes:
@@ -247,5 +249,6 @@ def plot_result(result, path: str | Path, learners: Sequence[str] | None = None)
         ax_p.axis("off")
     ax_p.set_title("performance profile", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:  # the temporary name ends in .part: format given
+        fig.savefig(tmp, dpi=110, format=Path(path).suffix[1:] or "png")
     plt.close(fig)

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from netsense.commands._args import positive_float, positive_int
+from netsense.rl.atomic import atomic_path
 
 NAME = "bench"
 HELP = "Speed benchmarks (netsense bench env: env steps/s vs MPE2 simple_spread)."
@@ -138,7 +139,7 @@ def run_env(args: argparse.Namespace) -> int:
               f"{'n/a' if ratio is None else f'{ratio:.1f}x':>7}", flush=True)
     if args.csv is not None:
         args.csv.parent.mkdir(parents=True, exist_ok=True)
-        with open(args.csv, "w", newline="") as fh:
+        with atomic_path(args.csv) as tmp, open(tmp, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
