@@ -100,3 +100,18 @@ def test_figures_are_pngs_under_their_name_and_leave_no_temporary_file(tmp_path)
     _save(fig, tmp_path / "fig.png")
     assert (tmp_path / "fig.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fig.png"]
+
+
+def test_written_files_have_the_usual_permissions(tmp_path):
+    """A file written whole-or-not-at-all gets the mode a plain ``open`` would give
+    (``0o666`` less the umask), not ``mkstemp``'s owner-only ``0o600``."""
+    import os
+
+    from netsense.rl.atomic import write_atomic
+
+    mask = os.umask(0o022)
+    try:
+        write_atomic(tmp_path / "a.txt", "x")
+        assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o644
+    finally:
+        os.umask(mask)
