@@ -327,20 +327,20 @@ def test_cli_smoke(tmp_path, capsys):
 
     refs = _refs_with_bound(tmp_path)
     out = tmp_path / "out"
-    code = main(["suite", "score", "none=rule:never", "rule:event:2", "--tasks", TASK,
+    code = main(["suite", "score", "none=rule:never", "rule:gated(sources:0)", "--tasks", TASK,
                  "--episodes", "2", "--references", str(refs), "--out", str(out),
                  "--no-progress"])
     assert code == 0
     with (out / "table.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     assert [(r["task"], r["learner"]) for r in rows] == [
-        (TASK, "none"), (TASK, "rule:event:2"), ("aggregate", "none"),
-        ("aggregate", "rule:event:2")]
+        (TASK, "none"), (TASK, "rule:gated(sources:0)"), ("aggregate", "none"),
+        ("aggregate", "rule:gated(sources:0)")]
     never = json.loads(REFS.read_text())["tasks"][TASK]["never"]["returns"][:2]
     assert float(rows[0]["iqm"]) == pytest.approx(np.mean(never))
     assert float(rows[0]["score"]) == 0.0
-    # event:2 is this task's best decentralised rule: improvement 1/2, same score
-    assert rows[1]["best_decentralised"] == "event:2"
+    # gated(sources:0) is this task's best decentralised rule: improvement 1/2, same score
+    assert rows[1]["best_decentralised"] == "gated(sources:0)"
     assert float(rows[1]["p_improvement"]) == pytest.approx(0.5)
     assert float(rows[1]["score"]) == pytest.approx(float(rows[1]["best_decentralised_score"]))
     assert (out / "figure.png").stat().st_size > 0
@@ -350,8 +350,8 @@ def test_cli_smoke(tmp_path, capsys):
     # rebuilt from episodes.csv without running a policy: the same table, in the order asked
     from netsense.benchmark.suite import rescore
 
-    again = rescore(out / "episodes.csv", refs, order=["rule:event:2"])
-    assert [r["learner"] for r in again.table] == ["rule:event:2", "none"] * 2
+    again = rescore(out / "episodes.csv", refs, order=["rule:gated(sources:0)"])
+    assert [r["learner"] for r in again.table] == ["rule:gated(sources:0)", "none"] * 2
     assert [float(r["score"]) for r in again.table] == pytest.approx(
         [float(rows[i]["score"]) for i in (1, 0, 3, 2)])
 
