@@ -57,6 +57,8 @@ def _number(text: str):
 
 class _Formatter(string.Formatter):
     def format_field(self, value, format_spec):
+        if value == "" and format_spec:  # an empty numeric cell (a row without that value)
+            return "–"
         out = format(value, format_spec)
         return out.replace("-", "−") if isinstance(value, (int, float)) else out
 

@@ -49,7 +49,7 @@ def _frontier_policies(task: str) -> list[tuple[str, str]]:
 
 def run_task(task: str, episodes: int) -> tuple[list[dict], list[dict]]:
     """Bounds and policy returns of one task on the first ``episodes`` protocol seeds."""
-    from netsense.benchmark.protocol import eval_seeds, evaluate
+    from netsense.benchmark.protocol import eval_seeds, evaluate, frontier_overrides
     from netsense.benchmark.upper_bound import episode_data, upper_bound
 
     seeds = eval_seeds(episodes)
@@ -62,7 +62,7 @@ def run_task(task: str, episodes: int) -> tuple[list[dict], list[dict]]:
                        "constraints": ub.constraints, "seconds": round(ub.seconds, 2)})
     rows = []
     for policy, kind in _frontier_policies(task):
-        rew = evaluate(task, policy, seeds)["reward"]
+        rew = evaluate(task, policy, seeds, frontier_overrides(task))["reward"]
         rows += [{"scenario": task, "policy": policy, "kind": kind, "seed": s,
                   "reward": float(r)} for s, r in zip(seeds, rew, strict=True)]
     return bounds, rows
