@@ -621,3 +621,19 @@ def test_evaluation_scores_the_scenario_reward_whatever_the_training_reward():
                 for r in ("scenario", "counterfactual")}
     assert scripted["counterfactual"]["return"] == pytest.approx(
         scripted["scenario"]["return"], rel=1e-5)
+
+
+@pytest.mark.parametrize("spec", ["gated(sources:0)", "acked(sources:0)", "phased(event:2)"])
+def test_training_evaluates_the_informed_rules_as_the_benchmark_does(spec):
+    """The periodic evaluation's scripted reference (and the learning curves' line) takes
+    every decentralised rule of the frontier, the wrapping ones included, and scores it as
+    the benchmark's rollout does on the same seeds."""
+    from netsense.benchmark.protocol import evaluate as protocol_evaluate
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.evaluation import EVAL_SEED, evaluate_scripted
+
+    task = {"gated": "comm_announced-v0", "acked": "comm_fading-v0",
+            "phased": "comm_schedule-v0"}[spec.split("(")[0]]
+    got = evaluate_scripted(spec, PPOConfig(task, eval_envs=3))
+    want = protocol_evaluate(task, spec, [EVAL_SEED + b for b in range(3)])
+    assert got["return"] == pytest.approx(float(want["reward"].mean()), rel=1e-5)

@@ -22,15 +22,16 @@ def scripted_actions(name: str, core, seed: int = 0):
     """``(obs, mask) -> actions`` of a scripted policy in ``core``'s action layout.
 
     ``name``: a communication baseline of :mod:`netsense.env.comm_policies`
-    (``event:2``, ``sources:0``, ...; communication-only modes) or a policy of
+    (``event:2``, ``sources:0``, a wrapping rule such as ``gated(sources:0)``, ...;
+    communication-only modes) or a policy of
     :data:`netsense.env.policies.POLICIES` (in a communication-only mode the fusion
     rule's name means "always transmit", ``open_loop`` "never"). ``seed`` seeds the
     randomised ones.
     """
-    from netsense.env.comm_policies import COMM_POLICIES, make_comm_policy
+    from netsense.env.comm_policies import COMM_POLICIES, make_comm_policy, spec_family
     from netsense.env.policies import make_policy
 
-    if name.partition(":")[0] in COMM_POLICIES:
+    if spec_family(name) in COMM_POLICIES:
         return make_comm_policy(name, core, seed=seed).act
     return make_policy(name, core, **({"seed": seed} if name == "random" else {})).act
 
