@@ -227,25 +227,46 @@ def bound_episodes(task: str) -> dict[str, np.ndarray]:
     return {k: np.asarray(v) for k, v in out.items()}
 
 
+def reference_rows(task: str, episodes: int, control: str | None = None) -> list[dict]:
+    """The task's references per episode: ``never`` and the best decentralised rule of
+    the full frontier (the suite's, informed rules included) on the protocol's
+    ``episodes`` evaluation episodes, the lookahead references (``reference:causal``,
+    ``reference:clairvoyant``) and the certified upper bound (``upper_bound``, from the
+    suite's references) on their first ones."""
+    from netsense.benchmark.protocol import eval_seeds, evaluate
+    from netsense.benchmark.references import load_references
+
+    seeds = eval_seeds(episodes)
+    rows = []
+    refs = {"never": "never", "best_decentralised": best_decentralised(task)}
+    scr_over = {"control": {"mode": control}} if control else {}
+    for label, spec in refs.items():
+        m = evaluate(task, spec, seeds, scr_over)
+        rows += [{"task": task, "policy": label, "spec": spec, "seed": "",
+                  "evaluation": "scripted", "episode": e, "reward": float(v)}
+                 for e, v in enumerate(m["reward"])]
+    for label, values in bound_episodes(task).items():
+        rows += [{"task": task, "policy": label, "spec": label, "seed": "",
+                  "evaluation": "reference", "episode": e, "reward": float(v)}
+                 for e, v in enumerate(values)]
+    bound = load_references()[task].upper_bound
+    if bound is not None:
+        episode = {sd: e for e, sd in enumerate(seeds)}
+        rows += [{"task": task, "policy": "upper_bound", "spec": "upper_bound", "seed": "",
+                  "evaluation": "bound", "episode": episode[sd], "reward": float(v)}
+                 for sd, v in zip(bound.seeds, bound.values, strict=True) if sd in episode]
+    return rows
+
+
 def evaluate_all(tasks: dict[str, dict], folders: dict, episodes: int) -> list[dict]:
-    """Per-episode returns of every learned policy (greedy, sampled) and the references."""
+    """Per-episode returns of every learned policy (greedy, sampled) and the references
+    (:func:`reference_rows`)."""
     from netsense.benchmark.protocol import eval_seeds, evaluate
 
     seeds = eval_seeds(episodes)
     rows = []
     for task, over in tasks.items():
-        control = over.get("control")
-        refs = {"never": "never", "best_decentralised": best_decentralised(task)}
-        scr_over = {"control": {"mode": control}} if control else {}
-        for label, spec in refs.items():
-            m = evaluate(task, spec, seeds, scr_over)
-            rows += [{"task": task, "policy": label, "spec": spec, "seed": "",
-                      "evaluation": "scripted", "episode": e, "reward": float(v)}
-                     for e, v in enumerate(m["reward"])]
-        for label, values in bound_episodes(task).items():
-            rows += [{"task": task, "policy": label, "spec": label, "seed": "",
-                      "evaluation": "bound", "episode": e, "reward": float(v)}
-                     for e, v in enumerate(values)]
+        rows += reference_rows(task, episodes, over.get("control"))
         for (t, learner, seed), folder in folders.items():
             if t != task:
                 continue
@@ -264,18 +285,26 @@ def evaluate_all(tasks: dict[str, dict], folders: dict, episodes: int) -> list[d
 # %% aggregates (the benchmark suite's statistics, netsense.benchmark.scores)
 def summarise(rows: list[dict], learners: list[str]) -> list[dict]:
     """Per task and learner: IQM [CI] over seeds x episodes, probability of improvement
-    over the best decentralised scripted policy, fraction of the gap to the causal bound
-    closed (the suite's statistics: :mod:`netsense.benchmark.scores`).
+    over the best decentralised rule, and the fraction of two gaps the learner closes: to
+    the causal lookahead reference (``gap_closed``) and to the certified upper bound
+    (``bound_gap_closed``) (the suite's statistics: :mod:`netsense.benchmark.scores`).
 
     The learner's IQM is compared with the references' IQM over their own episodes (the
-    same 100 for the scripted policy, the bound's first ones), one statistic on both sides:
-    an episode's return has a long lower tail, so an IQM lies above the mean of the same
-    returns, and a learner's IQM against a reference's mean would credit it with gap it
-    did not close (a policy identical to the scripted one would close some). ``reaches``:
-    the learner's interval reaches the scripted IQM (its upper end at or above it); the
-    reference means are kept beside them."""
+    same 100 for the rule, the first ones for the lookahead and the bound), one statistic
+    on both sides: an episode's return has a long lower tail, so an IQM lies above the
+    mean of the same returns, and a learner's IQM against a reference's mean would credit
+    it with gap it did not close (a policy identical to the rule would close some).
+    ``reaches``: the learner's interval reaches the rule's IQM (its upper end at or above
+    it); the reference means are kept beside them."""
     from netsense.benchmark.scores import iqm as aggregate_iqm
     from netsense.benchmark.scores import iqm_interval, probability_of_improvement
+
+    def stat(values: np.ndarray, f) -> float:
+        return float(f(values)) if values.size else math.nan
+
+    def closed(iqm: float, low: float, high: float) -> float:
+        gap = high - low
+        return (iqm - low) / gap if gap > 0 else math.nan
 
     tasks = list(dict.fromkeys(r["task"] for r in rows))
     out = []
@@ -283,9 +312,11 @@ def summarise(rows: list[dict], learners: list[str]) -> list[dict]:
         rs = [r for r in rows if r["task"] == task]
         ref = {p: np.array([r["reward"] for r in rs if r["policy"] == p])
                for p in ("never", "best_decentralised", "reference:causal",
-                         "reference:clairvoyant")}
+                         "reference:clairvoyant", "upper_bound")}
         best = ref["best_decentralised"]
-        causal = ref["reference:causal"]
+        b_iqm = aggregate_iqm(best)
+        c_iqm = stat(ref["reference:causal"], aggregate_iqm)
+        u_iqm = stat(ref["upper_bound"], aggregate_iqm)
         for learner in learners:
             for kind in ("greedy", "sampled", "best-validated"):
                 seeds = sorted({r["seed"] for r in rs if r["policy"] == learner
@@ -297,26 +328,24 @@ def summarise(rows: list[dict], learners: list[str]) -> list[dict]:
                             for s in seeds]
                 flat = np.concatenate(per_seed)[:, None]  # (seeds x episodes, 1 task)
                 iqm, lo, hi = iqm_interval(flat)
-                p_imp = probability_of_improvement(flat.ravel(), best)
-                b_mean = float(best.mean())
-                c_mean = float(causal.mean()) if causal.size else math.nan
-                n_mean = float(ref["never"].mean())
-                b_iqm = aggregate_iqm(best)
-                c_iqm = aggregate_iqm(causal) if causal.size else math.nan
-                gap = c_iqm - b_iqm
-                closed = (iqm - b_iqm) / gap if gap > 0 else math.nan
                 out.append({"task": task, "learner": learner, "evaluation": kind,
                             "seeds": len(seeds), "episodes": int(flat.shape[0]),
                             "iqm": iqm, "iqm_ci_low": lo, "iqm_ci_high": hi,
                             "seed_means": ";".join(f"{v.mean():.2f}" for v in per_seed),
-                            "best_decentralised": b_mean,
+                            "best_decentralised": float(best.mean()),
                             "best_decentralised_spec": next(r["spec"] for r in rs
                                                             if r["policy"] ==
                                                             "best_decentralised"),
                             "best_decentralised_iqm": b_iqm,
-                            "causal_bound": c_mean, "causal_bound_iqm": c_iqm,
-                            "never": n_mean, "p_improvement": p_imp,
-                            "reaches": bool(hi >= b_iqm), "gap_closed": closed})
+                            "causal_reference": stat(ref["reference:causal"], np.mean),
+                            "causal_reference_iqm": c_iqm,
+                            "upper_bound": stat(ref["upper_bound"], np.mean),
+                            "upper_bound_iqm": u_iqm,
+                            "never": float(ref["never"].mean()),
+                            "p_improvement": probability_of_improvement(flat.ravel(), best),
+                            "reaches": bool(hi >= b_iqm),
+                            "gap_closed": closed(iqm, b_iqm, c_iqm),
+                            "bound_gap_closed": closed(iqm, b_iqm, u_iqm)})
     return out
 
 
@@ -346,6 +375,7 @@ REFERENCE_LINES = {
     "best_decentralised": ("0.35", "--", 0.7,
                            "best decentralised scripted, test episodes"),
     "reference:causal": ("C3", ":", 1.1, "causal full-information reference, test episodes"),
+    "upper_bound": ("C2", "-", 1.1, "certified upper bound, test episodes"),
     "never": ("0.5", "-.", 1.1, "never, test episodes")}
 
 
@@ -395,7 +425,7 @@ def plot_curves(curves: dict, refs: dict, path: Path) -> None:
         ax.axis("off")
     axes.flat[0].legend(fontsize=6, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _savefig(fig, path)
     plt.close(fig)
 
 
@@ -450,10 +480,25 @@ def write_csv(path: Path, rows: list[dict]) -> None:
     cols: list[str] = []
     for r in rows:
         cols += [c for c in r if c not in cols]
-    with path.open("w", newline="") as fh:
+    from netsense.rl.atomic import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)
         w.writeheader()
         w.writerows(rows)
+
+
+def _write(path: Path, text: str) -> None:
+    from netsense.rl.atomic import write_atomic
+
+    write_atomic(path, text)
+
+
+def _savefig(fig, path: Path) -> None:
+    from netsense.rl.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix[1:] or "png")
 
 
 def _f(v: float, d: int = 1) -> str:
@@ -462,19 +507,21 @@ def _f(v: float, d: int = 1) -> str:
 
 def markdown_summary(rows: list[dict]) -> str:
     lines = ["| task | learner | agent-steps | evaluation | IQM return [95 % CI] | best "
-             "decentralised scripted: IQM (mean) | causal reference: IQM (mean) | never | "
-             "reaches scripted | P(learned > scripted) | gap closed (IQMs) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "decentralised rule: IQM (mean) | causal reference: IQM (mean) | upper bound: "
+             "IQM (mean) | never | reaches the rule | P(learned > rule) | gap closed to "
+             "the causal reference | to the bound |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
             f"| {r['task']} | {r['learner']} | {r.get('agent_steps', 0) / 1e6:.1f}M | "
             f"{r['evaluation']} | {_f(r['iqm'])} "
             f"[{_f(r['iqm_ci_low'])}, {_f(r['iqm_ci_high'])}] | "
             f"{_f(r['best_decentralised_iqm'])} ({_f(r['best_decentralised'])}, "
-            f"`{r['best_decentralised_spec']}`) | {_f(r['causal_bound_iqm'])} "
-            f"({_f(r['causal_bound'])}) | {_f(r['never'])} | "
+            f"`{r['best_decentralised_spec']}`) | {_f(r['causal_reference_iqm'])} "
+            f"({_f(r['causal_reference'])}) | {_f(r['upper_bound_iqm'])} "
+            f"({_f(r['upper_bound'])}) | {_f(r['never'])} | "
             f"{'yes' if r['reaches'] else 'no'} | {r['p_improvement']:.2f} | "
-            f"{_f(100 * r['gap_closed'], 0)} % |")
+            f"{_f(100 * r['gap_closed'], 0)} % | {_f(100 * r['bound_gap_closed'], 0)} % |")
     return "\n".join(lines) + "\n"
 
 
@@ -512,6 +559,11 @@ def cmd_summary(args, cfg: dict) -> None:
         rows = [dict(r, reward=float(r["reward"])) for r in csv.DictReader(fh)]
     learned = [r for r in rows if r["evaluation"] in ("greedy", "sampled", "best-validated")]
     tasks = list(dict.fromkeys(r["task"] for r in rows))
+    if args.refresh_references:  # the references again, on the learned rows' episodes
+        episodes = 1 + max(int(r["episode"]) for r in learned)
+        rows = [r for t in tasks for r in reference_rows(
+            t, episodes, cfg["tasks"].get(t, {}).get("control"))] + learned
+        write_csv(out / "episodes.csv", rows)
     learners = list(dict.fromkeys(r["policy"] for r in learned))
     folders = {(r["task"], r["policy"], int(r["seed"])):
                out / "runs" / r["task"] / r["policy"] / f"seed_{r['seed']}" for r in learned}
@@ -528,12 +580,15 @@ def write_summaries(out: Path, rows: list[dict], folders: dict, tasks: list[str]
             json.loads((d / "summary.json").read_text())["agent_steps"]
             for (t, ln, _), d in folders.items() if t == r["task"] and ln == r["learner"]]))
     write_csv(out / "summary.csv", summary)
-    (out / "summary.md").write_text(markdown_summary(summary))
+    from netsense.rl.atomic import write_atomic
+
+    write_atomic(out / "summary.md", markdown_summary(summary))
     curves = learning_curves(folders, learners)
     refs = {t: {p: float(np.mean([r["reward"] for r in rows if r["task"] == t
                                   and r["policy"] == p])) if any(
         r["task"] == t and r["policy"] == p for r in rows) else math.nan
-        for p in ("never", "best_decentralised", "reference:causal")} for t in tasks}
+        for p in ("never", "best_decentralised", "reference:causal", "upper_bound")}
+        for t in tasks}
     lines = []
     for t in curves:
         spec = next(r["spec"] for r in rows if r["task"] == t
@@ -586,7 +641,7 @@ def cmd_ablation(args, cfg: dict) -> None:
                          "agent_steps_per_s")}})
     write_csv(out.parent / "ablation.csv", rows)
     table = _ablation_table(rows, tasks, names)
-    (out.parent / "ablation.md").write_text(table)
+    _write(out.parent / "ablation.md", table)
     _plot_ablation(rows, tasks, names, out.parent / "ablation.png")
     print(table)
 
@@ -634,7 +689,7 @@ def _plot_ablation(rows, tasks, names, path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _savefig(fig, path)
     plt.close(fig)
 
 
@@ -685,7 +740,7 @@ def cmd_diagnose(args, cfg: dict) -> None:
     lines += [f"| {r['task']} | {r['gamma']} | {r['agent']} | {r['kind']} | {r['gap']:+.4f} "
               f"[± {r['gap_se']:.4f}] | {r['gap_over_sd']:+.4f} (s.d. {r['return_sd']:.2f}) |"
               for r in rows]
-    (out / "diagnosis.md").write_text("\n".join(lines) + "\n")
+    _write(out / "diagnosis.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -826,7 +881,7 @@ def channel_rules(args) -> None:
               f"[{r['vs_tdma_ci_low']:+.2f}, {r['vs_tdma_ci_high']:+.2f}] | "
               f"{100 * r['collided_steps']:.1f} % | "
               f"{r['delivered_per_step']:.2f} |" for r in rows]
-    (args.out / "channel_rules.md").write_text("\n".join(lines) + "\n")
+    _write(args.out / "channel_rules.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -944,7 +999,7 @@ def relay_landscape(args) -> None:
     lines += [f"| {r['q']:g} | {r['p']:g} | {r['return']:.1f} [{r['ci_low']:.1f}, "
               f"{r['ci_high']:.1f}] | {r['return_sd']:.1f} | {r['sent_rate']:.3f} |"
               for r in rows]
-    (args.out / "substates_relay.md").write_text("\n".join(lines) + "\n")
+    _write(args.out / "substates_relay.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -982,7 +1037,7 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
         if rs[0]["run"]:
             label += f" ({len(rs)} seed" + "s" * (len(rs) > 1) + ")"
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    (args.out / f"{name}.md").write_text("\n".join(lines) + "\n")
+    _write(args.out / f"{name}.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -1005,6 +1060,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workers", type=int, default=1,
                    help="training processes at once (one core each; default 1)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--refresh-references", action="store_true",
+                   help="summary: evaluate the references again (the suite's best "
+                        "decentralised rule, the lookaheads, the upper bound) and rewrite "
+                        "them into episodes.csv before summarising")
     args = p.parse_args(argv)
     cfg = load_config(args.config)
     commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
