@@ -159,6 +159,10 @@ def test_no_committed_policy_beats_the_bound():
                 for r in _rows(RESULTS / "comm_bounds/episodes.csv")]
     sources += [(r["task"], r["learner"], int(r["episode_seed"]), float(r["return"]))
                 for r in _rows(RESULTS / "suite_scores/episodes.csv")]
+    for path in sorted((RESULTS / "learners").glob("**/episodes.csv")):  # every learner
+        sources += [(r["task"], "learned", 1_000_000 + int(r["episode"]), float(r["reward"]))
+                    for r in _rows(path) if r["evaluation"] in ("greedy", "sampled",
+                                                                "best-validated")]
     kinds = set()
     for task, policy, seed, ret in sources:
         if (task, seed) in bounds:
@@ -166,4 +170,4 @@ def test_no_committed_policy_beats_the_bound():
             checked += 1
             kinds.add(policy.split("(")[0].split(":")[0])
     assert checked > 10_000
-    assert {"reference", "oracle", "gated", "acked", "phased", "whittle"} <= kinds
+    assert {"reference", "oracle", "gated", "acked", "phased", "whittle", "learned"} <= kinds
