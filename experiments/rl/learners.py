@@ -9,6 +9,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py diagnose    # one decision's signal against the noise
     python experiments/rl/learners.py channel     # how the learners use the collision channel
     python experiments/rl/learners.py substates   # which substates the learners send
+    python experiments/rl/learners.py memory      # where the learners would need memory
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
 again where a run's ``policy.pt`` exists (by default an existing run is evaluated as it is,
@@ -1003,6 +1004,96 @@ def relay_landscape(args) -> None:
     print("\n".join(lines))
 
 
+#: Task -> (the informed rule that wins there, the best rule that does not read its field).
+MEMORY_TASKS = {"comm_fading-v0": ("acked(sources:0)", "event:3"),
+                "comm_schedule-v0": ("phased(event:2)", "event:2")}
+
+
+def memory_use(task: str, rule: str, spec: str, seeds: list[int]) -> dict:
+    """How the policy ``spec`` (a scripted spec or ``learned:PATH``) decides on ``task``
+    where the informed ``rule`` needs memory: on the policy's own trajectory, the rule's
+    gate is computed from the agent's observations (the rule's memory of its own last
+    acks, :mod:`netsense.env.comm_informed`), and every agent-step is classed by the gate
+    (open: the rule would let its base speak; closed: the agent's last evidence says its
+    message would be lost) and by whether that evidence is in view in the current
+    observation (the agent sent at the step before, so ``acks`` are about its own last
+    message) or only in memory (older). Returns the mean return (checked equal to the
+    protocol's evaluation of ``spec``) and the send rate in each class: a policy that
+    reads only the current observation cannot tell "closed, in memory" from "open, in
+    memory" (the rows a memory makes the difference on)."""
+    from netsense.benchmark.protocol import evaluate
+    from netsense.benchmark.rollouts import learned_overrides
+    from netsense.env.comm_policies import make_comm_policy
+    from netsense.rl.scripted import scripted_actions
+
+    learned = spec.startswith("learned:")
+    path = spec.partition(":")[2] if learned else None
+    over = learned_overrides(task, path, None) if learned else {}
+    counts = np.zeros((2, 2, 2))  # gate open?, evidence in view?, sent?
+
+    def actor(core, _seeds):
+        if learned:
+            from netsense.rl.checkpoint import load_policy
+
+            pol = load_policy(path, core, deterministic=True)
+            act0 = pol.act
+        else:
+            act0 = scripted_actions(spec, core)
+        probe = make_comm_policy(rule, core)
+        silence = core.layout.silence.start
+
+        def act(obs, mask):
+            a = np.asarray(act0(obs, mask))
+            gate = probe.gate(np.asarray(obs))  # the rule's memory, on this trajectory
+            view = np.asarray(obs)[..., silence] == 0
+            sent = a.reshape(*gate.shape, -1).any(-1)  # (B, N)
+            for g in (0, 1):
+                for v in (0, 1):
+                    sel = (gate == g) & (view == v)
+                    counts[g, v, 1] += (sel & sent).sum()
+                    counts[g, v, 0] += (sel & ~sent).sum()
+            return a
+
+        return act
+
+    ret = evaluate(task, spec, seeds, over, actor=actor)["reward"]
+    want = evaluate(task, spec, seeds)["reward"]
+    if not np.allclose(ret, want, atol=1e-6):
+        raise RuntimeError(f"{spec}: the probed episodes differ from the protocol's")
+    rate = counts[..., 1] / np.maximum(counts.sum(-1), 1)
+    share = counts.sum(-1) / counts.sum()
+    return {"return": float(ret.mean()),
+            "send_open_view": float(rate[1, 1]), "send_open_memory": float(rate[1, 0]),
+            "send_closed_view": float(rate[0, 1]), "send_closed_memory": float(rate[0, 0]),
+            "closed_share": float(share[0].sum()),
+            "closed_memory_share": float(share[0, 0] / max(share[0].sum(), 1e-12))}
+
+
+#: Columns of the memory table: (key, header, scale, decimals, unit).
+MEMORY_COLUMNS = (("return", "return", 1, 1, ""),
+                  ("send_open_view", "P(send): gate open, evidence in view", 1, 2, ""),
+                  ("send_open_memory", "open, in memory", 1, 2, ""),
+                  ("send_closed_view", "closed, in view", 1, 2, ""),
+                  ("send_closed_memory", "closed, in memory", 1, 2, ""),
+                  ("closed_share", "agent-steps with the gate closed", 100, 1, " %"),
+                  ("closed_memory_share", "of them, evidence only in memory", 100, 1,
+                   " %"))
+
+
+def cmd_memory(args, cfg: dict) -> None:
+    """Why the feed-forward learners stop below the memory rules (``acked`` on
+    ``comm_fading-v0``, ``phased`` on ``comm_schedule-v0``): :func:`memory_use` of the rule,
+    its base rule's best generic counterpart and every final policy of the task under
+    ``--out``; writes ``memory_<task>.{csv,md}``."""
+    from functools import partial
+
+    for task, (rule, generic) in MEMORY_TASKS.items():
+        if args.tasks and task not in args.tasks:
+            continue
+        policy_use(args, task, partial(memory_use, task, rule), [rule, generic],
+                   MEMORY_COLUMNS, f"memory_{task.removesuffix('-v0')}")
+
+
 def policy_use(args, task: str, measure, scripted: list[str], columns, name: str) -> None:
     """``measure(spec, seeds)`` for the ``scripted`` specs and every final policy of
     ``task`` under ``--out`` (all its results folders), on the protocol's evaluation
@@ -1044,7 +1135,7 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
-                                       "substates"))
+                                       "substates", "memory"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -1067,7 +1158,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     cfg = load_config(args.config)
     commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
-                "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates}
+                "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
+                "memory": cmd_memory}
     commands[args.command](args, cfg)
     return 0
 
