@@ -1,0 +1,35 @@
+"""The memory diagnostic of experiments/rl/learners.py: the informed rule's gate, computed
+from the observations of whichever policy acts, reproduces the rule's own decisions."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SEEDS = [1_000_000, 1_000_001]
+
+
+@pytest.fixture(scope="module")
+def learners():
+    spec = importlib.util.spec_from_file_location("learners", ROOT / "experiments" / "rl" /
+                                                  "learners.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["learners"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("task", ["comm_fading-v0", "comm_schedule-v0"])
+def test_the_rule_never_sends_through_its_own_closed_gate(learners, task):
+    """On the rule's own trajectory the probe's gate is the rule's: it sends only where the
+    gate is open, while the base rule it wraps sends through closed gates."""
+    rule, generic = learners.MEMORY_TASKS[task]
+    own = learners.memory_use(task, rule, rule, SEEDS)
+    assert own["closed_share"] > 0.05
+    assert own["send_closed_view"] == 0 and own["send_closed_memory"] == 0
+    base = rule.split("(", 1)[1].rstrip(")")
+    other = learners.memory_use(task, rule, base, SEEDS)
+    assert other["send_closed_view"] + other["send_closed_memory"] > 0.1
+    assert own["return"] > other["return"]  # the gate is what the rule gains by
