@@ -10,9 +10,10 @@ May import: :mod:`netsense.kernels`, :mod:`netsense.sensing` (noise models of a 
 
 from netsense.systems.decomposition import Decomposition, decompose, is_observable
 from netsense.systems.design import ObserverDesign, deadbeat_gain, design_observer, rate_gain
-from netsense.systems.plants import Plant, fig1_scalar, random_structured
+from netsense.systems.plants import Plant, fig1_scalar, oscillator_bank, random_structured
 
 __all__ = [
     "Decomposition", "ObserverDesign", "Plant", "deadbeat_gain", "decompose",
-    "design_observer", "fig1_scalar", "is_observable", "random_structured", "rate_gain",
+    "design_observer", "fig1_scalar", "is_observable", "oscillator_bank", "random_structured",
+    "rate_gain",
 ]

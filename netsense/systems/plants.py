@@ -264,3 +264,79 @@ def random_structured(n: int, num_agents: int, *, num_sources: int | None = None
         if sum(1 for s in dec.sizes if s > 0) == num_sources:
             return Plant(A=A, C=Cs, name=f"random_structured(n={n}, N={num_agents})")
     raise ValueError(f"could not draw an observable structured plant in {max_tries} tries")
+
+
+#: Rotation angles of the five oscillators of ``comm_process_noise-v0``, cycled by
+#: :func:`oscillator_bank` over any number of oscillators.
+OSCILLATOR_THETAS = (0.1, 0.2, 0.3, 0.5, 0.7)
+
+
+def oscillator_bank(num_agents: int, *, agents_per_oscillator: int = 2,
+                    spectral_radius: float = 0.99,
+                    thetas: Sequence[float] = OSCILLATOR_THETAS) -> Plant:
+    """A bank of independent damped oscillators, one measured by each group of agents.
+
+    With ``p`` = ``agents_per_oscillator`` and ``m = N / p`` oscillators,
+
+    .. math::  x_j[k+1] = \\rho R(\\theta_j) x_j[k] (+ w_j[k]), \\qquad
+               y_{p j}[k] = x_j[k] (+ v_{p j}[k]), \\qquad j = 0, \\dots, m - 1,
+
+    where :math:`R(\\theta)` is the 2-D rotation by :math:`\\theta` and :math:`\\theta_j`
+    = ``thetas[j mod len(thetas)]``: ``A`` (``n = 2m``) is block diagonal with ``2 x 2``
+    blocks, agent ``p j`` (a source) measures block ``j`` and the other ``p - 1`` agents
+    of its group measure nothing (relays). Every eigenvalue has modulus :math:`\\rho`
+    (``spectral_radius``). With ``N = 10`` and the defaults this is the plant of
+    ``comm_process_noise-v0``; it exists so that the tasks at scale (``N`` up to 1000)
+    need no matrix written into their scenario files.
+
+    Parameters
+    ----------
+    num_agents : int
+        ``N``, a positive multiple of ``agents_per_oscillator``.
+    agents_per_oscillator : int
+        Agents per oscillator ``p >= 1`` (one source and ``p - 1`` relays).
+    spectral_radius : float
+        :math:`\\rho > 0`, the modulus of every eigenvalue.
+    thetas : sequence of float
+        Rotation angles per step (radians), cycled over the oscillators.
+
+    Returns
+    -------
+    Plant
+        Without noise models (a scenario adds them from its ``[noise]`` section).
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter, before any matrix is allocated: ``num_agents`` not a
+        positive multiple of ``agents_per_oscillator``, ``spectral_radius <= 0``, an empty
+        or non-finite ``thetas``.
+    """
+    p = checks.integer("agents_per_oscillator", agents_per_oscillator, 1)
+    N = checks.integer("num_agents", num_agents, 1)
+    if N % p:
+        raise ValueError(f"num_agents must be a multiple of agents_per_oscillator = {p}, "
+                         f"got {N}")
+    rho = checks.number("spectral_radius", spectral_radius, 0, lo_open=True)
+    if isinstance(thetas, (str, bytes)) or not isinstance(thetas, (Sequence, np.ndarray)):
+        raise ValueError(f"thetas must be a sequence of numbers, got {thetas!r:.60}")
+    th = [checks.number(f"thetas[{i}]", t) for i, t in enumerate(thetas)]
+    if not th:
+        raise ValueError("thetas must hold at least one angle")
+    m = N // p
+    n = 2 * m
+    ang = np.asarray(th, dtype=float)[np.arange(m) % len(th)]
+    c, s = rho * np.cos(ang), rho * np.sin(ang)
+    A = np.zeros((n, n))
+    i0, i1 = np.arange(0, n, 2), np.arange(1, n, 2)
+    A[i0, i0], A[i0, i1], A[i1, i0], A[i1, i1] = c, -s, s, c
+    empty = np.zeros((0, n))
+    Cs = []
+    for i in range(N):
+        if i % p:
+            Cs.append(empty)
+        else:
+            Ci = np.zeros((2, n))
+            Ci[0, 2 * (i // p)] = Ci[1, 2 * (i // p) + 1] = 1.0
+            Cs.append(Ci)
+    return Plant(A=A, C=tuple(Cs), name=f"oscillator_bank(N={N}, m={m}, rho={rho:g})")
