@@ -21,6 +21,9 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     kind = "fig1_scalar"               # a = 2.0
     # kind = "random_structured"       # n, num_agents, seed, [num_sources,
     #                                    outputs_per_source, spectral_radius]
+    # kind = "oscillator_bank"         # num_agents, [agents_per_oscillator = 2,
+    #                                    spectral_radius = 0.99, thetas]: N / p damped
+    #                                    oscillators, agent p j measures block j
     # kind = "matrices"                # A = [[...]], C = [[[...]], [], ...] (one per agent),
     #                                    [W = [[...]]: x[k+1] = A x[k] + W w[k], n x p]
 
@@ -29,7 +32,10 @@ File format (every key optional unless marked *required*; unknown keys raise)::
     # markov and gossip accept base = {kind = "circulant", offsets = [1, 3]} or
     # base = {kind = "complete"} instead of an explicit base_edges list; markov takes
     # draws = "all" (default: one uniform per node pair and step, the -v0 stream) or
-    # "base" (one per base link: O(N D) draws, a different realisation)
+    # "base" (one per base link: O(N D) draws, a different realisation);
+    # base = {kind = "geometric", radius = 0.2, seed = 0}: sensors placed uniformly in
+    # the unit square (one layout per seed), linked within the radius
+    # (netsense.graphs.geometric)
 
     [design]                           # netsense.design_observer
     deadbeat = false
@@ -116,6 +122,8 @@ _PLANT_FIELDS = {
     "random_structured": ({"kind", "n", "num_agents", "seed"},
                           {"num_sources", "outputs_per_source", "spectral_radius"}),
     "matrices": ({"kind", "A", "C"}, {"W"}),
+    "oscillator_bank": ({"kind", "num_agents"},
+                        {"agents_per_oscillator", "spectral_radius", "thetas"}),
 }
 #: ``[source_estimator]`` kinds: (required, optional) fields besides ``kind``.
 _SOURCE_FIELDS = {
@@ -276,6 +284,15 @@ class Scenario:
             raise _err(source, "channel.capacity", "is required in a [channel] section "
                        "(leave the section out for no shared channel)")
         _build_control(control, channel, source)  # checks the fields
+        if kind == "oscillator_bank":
+            _oscillator_fields(plant, source)  # a bad N fails before anything is built
+        base = raw["graph"].get("base")
+        if isinstance(base, dict) and base.get("kind") == "geometric":
+            _geometric_base(base, source)  # so does a bad radius
+        N = _declared_agents(plant)
+        if channel and N is not None and channel["capacity"] > N:
+            raise _err(source, "channel.capacity", f"must be <= the number of agents N = "
+                       f"{N}, got {channel['capacity']}")
         sc = cls(id=id, horizon=horizon, plant=plant, graph=dict(raw["graph"]),
                  description=desc, x0_std=float(x0), initial_transmit=it,
                  divergence_limit=None if lim is None else float(lim), design=design,
@@ -511,7 +528,7 @@ def load_file(path, scenario_id: str | None = None) -> Scenario:
 def build_plant(sc: Scenario):
     """The :class:`netsense.systems.plants.Plant` of a scenario (with its noise models)."""
     from netsense.sensing.noise import noise_from_dict
-    from netsense.systems.plants import Plant, fig1_scalar, random_structured
+    from netsense.systems.plants import Plant, fig1_scalar, oscillator_bank, random_structured
 
     p = dict(sc.plant)
     kind = p.pop("kind")
@@ -530,6 +547,8 @@ def build_plant(sc: Scenario):
                 p["spectral_radius"] = _field(src, "plant.spectral_radius", checks.number,
                                               p["spectral_radius"], 0, lo_open=True)
             plant = random_structured(n, N, rng=seed, **p)
+        elif kind == "oscillator_bank":
+            plant = oscillator_bank(**_oscillator_fields(p, src))
         else:
             A, Cs = _matrices(p["A"], p["C"], src)
             W = None
@@ -557,6 +576,43 @@ def build_plant(sc: Scenario):
             except (ValueError, TypeError) as exc:
                 raise _err(sc.source, f"noise.{key}", str(exc)) from exc
     return dataclasses.replace(plant, **noise) if noise else plant
+
+
+def _declared_agents(plant: dict) -> int | None:
+    """``N`` as a ``[plant]`` table states it, without building the plant (None when it
+    cannot be read cheaply)."""
+    kind = plant.get("kind")
+    if kind == "fig1_scalar":
+        return 3
+    if kind == "matrices":
+        C = plant.get("C")
+        return len(C) if isinstance(C, list) else None
+    N = plant.get("num_agents")
+    return N if isinstance(N, int) and not isinstance(N, bool) else None
+
+
+def _oscillator_fields(p: dict, source: str) -> dict:
+    """The keywords of :func:`netsense.systems.plants.oscillator_bank` from a ``[plant]``
+    table of kind ``oscillator_bank`` (without ``kind``); errors name the field."""
+    out = {"num_agents": _field(source, "plant.num_agents", checks.integer,
+                                p["num_agents"], 1)}
+    if "agents_per_oscillator" in p:
+        out["agents_per_oscillator"] = _field(source, "plant.agents_per_oscillator",
+                                              checks.integer, p["agents_per_oscillator"], 1)
+    if "spectral_radius" in p:
+        out["spectral_radius"] = _field(source, "plant.spectral_radius", checks.number,
+                                        p["spectral_radius"], 0, lo_open=True)
+    if "thetas" in p:
+        th = p["thetas"]
+        if not isinstance(th, list) or not th or not all(_numbers(v) for v in th):
+            raise _err(source, "plant.thetas", f"must be a non-empty list of numbers, "
+                       f"got {th!r:.60}")
+        out["thetas"] = tuple(float(v) for v in th)
+    if out["num_agents"] % out.get("agents_per_oscillator", 2):
+        raise _err(source, "plant.num_agents", f"must be a multiple of "
+                   f"agents_per_oscillator = {out.get('agents_per_oscillator', 2)}, got "
+                   f"{out['num_agents']}")
+    return out
 
 
 def _numbers(v: Any) -> bool:
@@ -602,7 +658,24 @@ def _base_edges(spec: dict, N: int, source: str) -> list[list[int]]:
         if set(spec) != {"kind"}:
             raise _err(source, "graph.base", "complete takes no other field")
         return [[l, i] for l in range(N) for i in range(N) if l != i]
-    raise _err(source, "graph.base.kind", f"must be 'circulant' or 'complete', got {kind!r}")
+    if kind == "geometric":
+        from netsense.graphs.geometric import geometric_edges
+
+        r, seed = _geometric_base(spec, source)
+        return geometric_edges(N, r, seed)
+    raise _err(source, "graph.base.kind", f"must be 'circulant', 'complete' or 'geometric', "
+               f"got {kind!r}")
+
+
+def _geometric_base(spec: dict, source: str) -> tuple[float, int]:
+    """``radius`` and ``seed`` of ``graph.base = {kind = "geometric", ...}``, checked."""
+    from netsense.graphs.geometric import check_geometric_spec
+
+    try:
+        return check_geometric_spec(spec)
+    except ValueError as exc:
+        name = str(exc).split(":")[0].split(" ")[0]
+        raise _err(source, f"graph.base.{name}", str(exc)) from None
 
 
 def build_graphs(sc: Scenario):
