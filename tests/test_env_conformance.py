@@ -28,11 +28,17 @@ SCENARIOS = list_scenarios()
 
 def short(sid: str) -> dict:
     """Horizon overrides that keep the suite fast (the large scenario is N = 100; the task at
-    N = 1000, ``comm_channel_kofn_n1000-v0``, runs 2 steps: the AEC and state checks step
-    its 1000 agents one at a time, about 2 s per step of the env)."""
+    N = 1000, ``comm_channel_kofn_n1000-v0``, runs 2 steps: the AEC checks step its 1000
+    agents one at a time, and its state check is marked slow, see :data:`STATE_CASES`)."""
     if "_n1000-" in sid:
         return {"horizon": 2}
     return {"horizon": 4 if sid.startswith("large") else 15}
+
+
+#: The state check at N = 1000 reads the N^2 state at each of the N agents' AEC steps
+#: (about 30 s whatever the horizon): marked slow.
+STATE_CASES = [pytest.param(s, marks=pytest.mark.slow) if "_n1000-" in s else s
+               for s in SCENARIOS]
 
 
 @pytest.fixture(autouse=True)
@@ -62,7 +68,7 @@ def test_aec_api(sid):
     api_test(parallel_to_aec(make(sid, **short(sid))), num_cycles=30)
 
 
-@pytest.mark.parametrize("sid", SCENARIOS)
+@pytest.mark.parametrize("sid", STATE_CASES)
 def test_state(sid):
     par = make(sid, invalid_actions="keep", **short(sid))
     state_test(parallel_to_aec(make(sid, invalid_actions="keep", **short(sid))), par,
