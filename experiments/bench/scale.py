@@ -60,6 +60,7 @@ import csv
 import gc
 import importlib.util
 import io
+import json
 import math
 import os
 import platform
@@ -233,8 +234,10 @@ def measure_env(model, block_s: float, repeats: int, seed: int = 0) -> float:
 def measure_memory(model, B: int, steps: int, seed: int = 0) -> dict:
     """Live bytes (``tracemalloc``) after building, resetting and stepping the core at
     batch ``B`` for ``steps`` steps (its arrays, pre-drawn chunks and last outputs), and
-    after building, resetting and stepping one PettingZoo env the same way; the core's
-    own array bytes (:func:`netsense.speed.memory.core_state_bytes`)."""
+    after building, resetting and stepping one PettingZoo env the same way (then again
+    once its ``state_space`` is built: ``env_state_space_bytes``, what an env held before
+    that space was built on first use); the core's own array bytes
+    (:func:`netsense.speed.memory.core_state_bytes`)."""
     from netsense.engine.core import BatchedCore
     from netsense.env.pettingzoo_env import NetSenseEnv
     from netsense.speed.memory import core_state_bytes
@@ -260,6 +263,9 @@ def measure_memory(model, B: int, steps: int, seed: int = 0) -> dict:
                     obj.step(act)
             gc.collect()
             out[f"{what}_bytes"] = tracemalloc.get_traced_memory()[0] - base
+            if what == "env":  # what the env held when it built state_space up front
+                _ = obj.state_space
+                out["env_state_space_bytes"] = tracemalloc.get_traced_memory()[0] - base
         finally:
             tracemalloc.stop()
         if what == "core":
@@ -295,6 +301,25 @@ def measure_train(N: int, iters: int, **fields) -> dict:
             "learn_s": rows[-1]["learn_s"] - rows[0]["learn_s"],
             "wall_s": rows[-1]["wall_s"] - rows[0]["wall_s"], "iterations": len(rows),
             "num_envs": cfg.num_envs}
+
+
+def learner_macs(N: int, obs_dim: int, M: int, hidden: Sequence[int] = (64, 64),
+                 critic_hidden: Sequence[int] = (128, 128)) -> dict[str, float]:
+    """Multiply-adds of one forward pass per agent-step of the defaults' networks, from the
+    layer widths: the actor's MLP once per agent (``obs_dim`` inputs, two actions) and the
+    team critic's once per member on the global state (:func:`netsense.rl.envs.state_size`
+    inputs), shared by its ``N`` agents. The agent features the actor appends are left
+    out (a few inputs)."""
+    from netsense.rl.envs import state_size
+
+    def mlp(inputs: int, widths: Sequence[int], outputs: int) -> int:
+        sizes = [inputs, *widths, outputs]
+        return sum(a * b for a, b in zip(sizes, sizes[1:], strict=False))
+
+    actor = mlp(obs_dim, hidden, 2)
+    critic = mlp(state_size(N, M), critic_hidden, 1)
+    return {"actor_macs_per_agent_step": float(actor),
+            "critic_macs_per_agent_step": critic / N}
 
 
 # %% Profiles
@@ -360,6 +385,7 @@ def profile_train(N: int, iters: int) -> dict[str, float]:
     sec["other"] = wall - sum(sec.values())
     out = {s: v / wall for s, v in sec.items()}
     out["total_s"] = wall
+    out["agent_steps"] = float(cfg.steps)
     return out
 
 
@@ -371,7 +397,9 @@ COLUMNS = ("N", "B", "n", "M", "D", "env_agent_steps_per_s", "env_cost_us",
            "core_jsc_cost_vs_N50", "core_jsc_D", "train_agent_steps_per_s", "train_cost_us",
            "train_cost_vs_N10", "train_collect_s", "train_learn_s", "train_note",
            "core_bytes_per_agent", "core_array_bytes_per_agent", "env_bytes_per_agent",
-           "train_state_MB", "vmas")
+           "env_state_space_bytes_per_agent",
+           "train_state_MB", "actor_macs_per_agent_step", "critic_macs_per_agent_step",
+           "vmas")
 VMAS_NOTE = "not installed here (cannot be): not measured"
 
 
@@ -384,6 +412,20 @@ def write_csv(rows: Sequence[dict], path: Path) -> None:
         w.writeheader()
         for r in rows:
             w.writerow({k: _fmt(r.get(k, "")) for k in COLUMNS})
+
+
+def read_csv(path: Path) -> list[dict]:
+    """The rows of :func:`write_csv`, numbers as numbers (an empty cell as ``nan``)."""
+    def num(k: str, v: str):
+        if k in ("train_note", "vmas"):
+            return v
+        if v == "":
+            return float("nan")
+        return int(v) if k in ("N", "B", "n", "M", "D", "core_BN_const_B", "core_jsc_D") \
+            else float(v)
+
+    with open(path, newline="") as fh:
+        return [{k: num(k, v) for k, v in r.items()} for r in csv.DictReader(fh)]
 
 
 def _fmt(v):
@@ -413,8 +455,8 @@ def markdown(rows: Sequence[dict], profiles: dict, meta: dict) -> str:
              "this run. VMAS: " + VMAS_NOTE + ".", "",
              "| N | env agent-steps/s (us) | core B = 64 agent-steps/s (us) | core cost vs "
              "N = 50 | core B N = 10^4: B, agent-steps/s | vs N = 50 | core, jsc graphs "
-             "(D) | vs N = 50 | training agent-steps/s (us) | vs N = 10 | core / env bytes "
-             "per agent |",
+             "(D) | vs N = 50 | training agent-steps/s (us) | vs N = 10 | bytes per agent: core "
+             "/ env (env with `state_space` built) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         tr = (f"{_n(r['train_agent_steps_per_s'])} ({_n(r['train_cost_us'], '.2f')})"
@@ -426,7 +468,8 @@ def markdown(rows: Sequence[dict], profiles: dict, meta: dict) -> str:
             f"{_n(r['core_BN_const_agent_steps_per_s'])} | {_x(r['core_BN_const_cost_vs_N50'])} "
             f"| {_n(r['core_jsc_agent_steps_per_s'])} ({r['core_jsc_D']}) "
             f"| {_x(r['core_jsc_cost_vs_N50'])} | {tr} | {_x(r['train_cost_vs_N10'])} "
-            f"| {_n(r['core_bytes_per_agent'])} / {_n(r['env_bytes_per_agent'])} |")
+            f"| {_n(r['core_bytes_per_agent'])} / {_n(r['env_bytes_per_agent'])} "
+            f"({_n(r['env_state_space_bytes_per_agent'])}) |")
     core_r = by.get(1000, {}).get("core_cost_vs_N50", float("nan"))
     train_r = by.get(200, {}).get("train_cost_vs_N10", float("nan"))
     lines += ["", "Targets (cost per agent-step, this run):", "",
@@ -435,12 +478,20 @@ def markdown(rows: Sequence[dict], profiles: dict, meta: dict) -> str:
               f"{_x(by.get(1000, {}).get('core_BN_const_cost_vs_N50', float('nan')))});",
               f"* training at the defaults, N = 200 against N = 10: {_x(train_r)} -> "
               f"{_verdict(train_r)}.", ""]
+    lines += ["Learner multiply-adds per agent-step (one forward pass, from the layer widths): "
+              + "; ".join(f"N = {r['N']}: actor {_n(r['actor_macs_per_agent_step'])}, team "
+                          f"critic {_n(r['critic_macs_per_agent_step'])}" for r in rows)
+              + ". The critic reads the global state, whose N x N adjacency makes its "
+              "first layer grow like N^2 per member, N per agent-step.", ""]
     for title, prof in profiles.items():
         lines += [f"## {title}", ""]
         if isinstance(prof, dict):
-            total = prof.get("total_s", float("nan"))
-            lines += [f"{total:.1f} s profiled.", "", "| stage | share |", "|---|---|"]
-            lines += [f"| {s} | {v:.1%} |" for s, v in prof.items() if s != "total_s"]
+            total, steps = prof["total_s"], prof["agent_steps"]
+            lines += [f"{total:.1f} s profiled, {steps:,.0f} agent-steps (the start "
+                      "included).", "", "| stage | share | us per agent-step |",
+                      "|---|---|---|"]
+            lines += [f"| {s} | {v:.1%} | {v * total / steps * 1e6:.2f} |"
+                      for s, v in prof.items() if s not in ("total_s", "agent_steps")]
         else:
             lines += ["| function (own time) | ms per step | share |", "|---|---|---|"]
             lines += [f"| `{w}` | {ms:.3f} | {sh:.1%} |" for w, ms, sh in prof]
@@ -493,7 +544,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
     """Measure, write the outputs; returns the CSV path."""
     from tqdm.auto import tqdm
 
-    from netsense.rl.atomic import write_atomic
+    from netsense.rl.atomic import write_atomic, write_json
     from netsense.rl.config import PPOConfig
     from netsense.speed.report import source_revision
 
@@ -516,6 +567,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
     p.add_argument("--smoke", action="store_true", help="tiny sizes, seconds (tests)")
     p.add_argument("--out", default=str(RESULTS))
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--replot", action="store_true",
+                   help="rewrite scale.md and scale.png from scale.csv and "
+                        "scale_profiles.json in --out (no measurement)")
     args = p.parse_args(argv)
     if args.train_iters < 2:
         p.error(f"--train-iters must be at least 2, got {args.train_iters}")
@@ -523,10 +577,17 @@ def main(argv: Sequence[str] | None = None) -> Path:
         args.N, args.batch, args.repeats, args.block_seconds = [6, 12], 4, 1, 0.01
         args.memory_steps, args.profile_steps, args.train_iters = 2, 2, 2
         args.profile_train_iters = 1
+    out = Path(args.out)
+    stem = "scale_smoke" if args.smoke else "scale"
+    if args.replot:
+        rows = read_csv(out / f"{stem}.csv")
+        doc = json.loads((out / f"{stem}_profiles.json").read_text())
+        write_atomic(out / f"{stem}.md", markdown(rows, doc["profiles"], doc["meta"]) + "\n")
+        plot(rows, out / f"{stem}.png")
+        return out / f"{stem}.csv"
     Ns = sorted(set(args.N))
     ref_core = 50 if 50 in Ns else Ns[0]
     ref_train = 10 if 10 in Ns else Ns[0]
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     quiet = args.no_progress
     defaults = PPOConfig(BASE)
@@ -561,9 +622,15 @@ def main(argv: Sequence[str] | None = None) -> Path:
         r["core_array_bytes_per_agent"] = bytes_per_agent(mem["core_array_bytes"],
                                                           args.batch, N)
         r["env_bytes_per_agent"] = bytes_per_agent(mem["env_bytes"], 1, N)
+        r["env_state_space_bytes_per_agent"] = bytes_per_agent(mem["env_state_space_bytes"],
+                                                               1, N)
         bar.update()
         state = train_state_bytes(N, len(sources(N)), defaults.num_envs, defaults.rollout)
         r["train_state_MB"] = state / 2**20
+        from netsense.engine.core import BatchedCore
+
+        r.update(learner_macs(N, BatchedCore(model, 1).layout.size, len(sources(N)),
+                              defaults.hidden, defaults.critic_hidden))
         r["train_agent_steps_per_s"] = float("nan")
         r["train_note"] = ""
         if args.no_train:
@@ -607,7 +674,6 @@ def main(argv: Sequence[str] | None = None) -> Path:
                 profiles[f"training at N = {N} (serial, one torch thread, "
                          f"{args.profile_train_iters} iterations)"] = profile_train(
                     N, args.profile_train_iters)
-    stem = "scale_smoke" if args.smoke else "scale"
     csv_path = out / f"{stem}.csv"
     write_csv(rows, csv_path)
     meta = {"when": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC",
@@ -615,6 +681,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
             "rev": source_revision(),
             "command": "python experiments/bench/scale.py" + (
                 " " + " ".join(argv if argv is not None else sys.argv[1:])).rstrip()}
+    write_json(out / f"{stem}_profiles.json", {"profiles": profiles, "meta": meta})
     write_atomic(out / f"{stem}.md", markdown(rows, profiles, meta) + "\n")
     plot(rows, out / f"{stem}.png")
     print(f"wrote {csv_path} and {stem}.md, {stem}.png")

@@ -344,14 +344,27 @@ class NetSenseEnv(ParallelEnv):
         self._obs_space = (spaces.Dict({"observation": box, "action_mask": mask})
                            if action_mask_in == "observation" else box)
         self._act_space = FlatMaskMultiDiscrete(c.nvec)
-        n_state = c.n + c.N * c.n + c.N * c.N
-        self.state_space = spaces.Box(low=-np.inf, high=np.inf, shape=(n_state,),
-                                      dtype=np.float64)
+        self._state_space: spaces.Box | None = None  # built on first use (state_space)
         self._seed_rng: np.random.Generator | None = None
         self._renderer = None
         self.history: list[np.ndarray] = []
 
     # ------------------------------------------------------------------ spaces
+    @property
+    def state_space(self) -> spaces.Box:
+        """The space of :meth:`state`: ``n + N n + N^2`` unbounded float64 entries.
+
+        Built on first use and cached: gymnasium's ``Box`` holds four arrays of that
+        length (18 MB at ``N = 1,000``, most of an env's memory there), which stepping
+        never reads.
+        """
+        if getattr(self, "_state_space", None) is None:
+            c = self.core
+            self._state_space = spaces.Box(low=-np.inf, high=np.inf,
+                                           shape=(c.n + c.N * c.n + c.N * c.N,),
+                                           dtype=np.float64)
+        return self._state_space
+
     def observation_space(self, agent: str) -> gymnasium.Space:
         """The same (cached) space object for every agent."""
         self._check_agent(agent)
