@@ -91,6 +91,9 @@ OFFSETS = (1, 3, 7)
 AGENTS_PER_BATCH = 10_000
 #: Graph processes of :func:`scale_overrides`.
 GRAPHS = ("markov", "jsc")
+#: Registered scale tasks measured beside the family where they exist (``{N}``: the agent
+#: count): the K-of-N collision channel and the spatial network of docs/tasks.md.
+REGISTERED = {"kofn": "comm_channel_kofn_n{N}-v0", "spatial": "comm_spatial_n{N}-v0"}
 #: Targets: the core's cost per agent-step at N = 1,000 within 2x of N = 50; training's at
 #: N = 200 within 2x of N = 10.
 TARGET = 2.0
@@ -153,6 +156,15 @@ def scale_model(N: int, graph: str = "markov"):
     from netsense.env.registry import build_model, load, with_overrides
 
     return build_model(with_overrides(load(BASE), **scale_overrides(N, graph)))
+
+
+def registered_model(family: str, N: int):
+    """The model of the registered scale task of ``family`` (:data:`REGISTERED`) with ``N``
+    agents, or None where no such scenario is registered."""
+    from netsense.env.registry import build_model, list_scenarios, load
+
+    sid = REGISTERED[family].format(N=N)
+    return build_model(load(sid)) if sid in list_scenarios() else None
 
 
 # %% Arithmetic of the table
@@ -394,7 +406,10 @@ COLUMNS = ("N", "B", "n", "M", "D", "env_agent_steps_per_s", "env_cost_us",
            "core_agent_steps_per_s", "core_cost_us", "core_cost_vs_N50",
            "core_BN_const_B", "core_BN_const_agent_steps_per_s", "core_BN_const_cost_us",
            "core_BN_const_cost_vs_N50", "core_jsc_agent_steps_per_s", "core_jsc_cost_us",
-           "core_jsc_cost_vs_N50", "core_jsc_D", "train_agent_steps_per_s", "train_cost_us",
+           "core_jsc_cost_vs_N50", "core_jsc_D", "core_kofn_agent_steps_per_s",
+           "core_kofn_cost_us", "core_kofn_cost_vs_N50", "core_kofn_D",
+           "core_spatial_agent_steps_per_s", "core_spatial_cost_us", "core_spatial_cost_vs_N50",
+           "core_spatial_D", "train_agent_steps_per_s", "train_cost_us",
            "train_cost_vs_N10", "train_collect_s", "train_learn_s", "train_note",
            "core_bytes_per_agent", "core_array_bytes_per_agent", "env_bytes_per_agent",
            "env_state_space_bytes_per_agent",
@@ -421,8 +436,8 @@ def read_csv(path: Path) -> list[dict]:
             return v
         if v == "":
             return float("nan")
-        return int(v) if k in ("N", "B", "n", "M", "D", "core_BN_const_B", "core_jsc_D") \
-            else float(v)
+        return int(v) if k in ("N", "B", "n", "M", "D", "core_BN_const_B", "core_jsc_D",
+                               "core_kofn_D", "core_spatial_D") else float(v)
 
     with open(path, newline="") as fh:
         return [{k: num(k, v) for k, v in r.items()} for r in csv.DictReader(fh)]
@@ -430,7 +445,7 @@ def read_csv(path: Path) -> list[dict]:
 
 def _fmt(v):
     if isinstance(v, float):
-        return "" if not math.isfinite(v) else f"{v:.6g}"
+        return "" if not math.isfinite(v) else f"{v:.9g}"
     return v
 
 
@@ -470,6 +485,13 @@ def markdown(rows: Sequence[dict], profiles: dict, meta: dict) -> str:
             f"| {_x(r['core_jsc_cost_vs_N50'])} | {tr} | {_x(r['train_cost_vs_N10'])} "
             f"| {_n(r['core_bytes_per_agent'])} / {_n(r['env_bytes_per_agent'])} "
             f"({_n(r['env_state_space_bytes_per_agent'])}) |")
+    lines += ["", "Registered scale tasks (docs/tasks.md), the core at B = 64 where the id is "
+              "registered: " + "; ".join(
+                  f"`{REGISTERED[f].format(N=r['N'])}` "
+                  f"{_n(r[f'core_{f}_agent_steps_per_s'])} agent-steps/s, cost "
+                  f"{_x(r[f'core_{f}_cost_vs_N50'])} N = 50's (D = {r[f'core_{f}_D']})"
+                  for f in REGISTERED for r in rows
+                  if math.isfinite(r[f"core_{f}_agent_steps_per_s"])) + "."]
     core_r = by.get(1000, {}).get("core_cost_vs_N50", float("nan"))
     train_r = by.get(200, {}).get("train_cost_vs_N10", float("nan"))
     lines += ["", "Targets (cost per agent-step, this run):", "",
@@ -520,6 +542,8 @@ def plot(rows: Sequence[dict], path: Path) -> None:
                               ("core_cost_us", "batched core, B = 64", "s-"),
                               ("core_BN_const_cost_us", "batched core, B N = 10^4", "s--"),
                               ("core_jsc_cost_us", "batched core, jsc graphs, B = 64", "x:"),
+                              ("core_kofn_cost_us", "core, registered K-of-N tasks", "d:"),
+                              ("core_spatial_cost_us", "core, registered spatial tasks", "v:"),
                               ("train_cost_us", "training (defaults)", "^-")):
         pts = [(r["N"], r[key]) for r in rows if math.isfinite(r[key])]
         if pts:
@@ -615,6 +639,11 @@ def main(argv: Sequence[str] | None = None) -> Path:
         bar.set_postfix(N=N, what="core jsc")
         r["core_jsc_agent_steps_per_s"] = measure_core(jsc, args.batch, args.block_seconds,
                                                        1 if N >= 1000 else args.repeats)
+        for fam in REGISTERED:  # the registered scale tasks, where they exist
+            reg = registered_model(fam, N)
+            r[f"core_{fam}_agent_steps_per_s"] = float("nan") if reg is None else \
+                measure_core(reg, args.batch, args.block_seconds, args.repeats)
+            r[f"core_{fam}_D"] = "" if reg is None else int(reg.graphs.max_in_degree)
         bar.update()
         bar.set_postfix(N=N, what="memory")
         mem = measure_memory(model, args.batch, args.memory_steps)
@@ -648,6 +677,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
         rows.append(r)
     bar.close()
     for key, ref in (("core", ref_core), ("core_BN_const", ref_core), ("core_jsc", ref_core),
+                     ("core_kofn", ref_core), ("core_spatial", ref_core),
                      ("train", ref_train), ("env", ref_core)):
         rates = {r["N"]: r[f"{key}_agent_steps_per_s"] for r in rows}
         ratio = cost_ratio(rates, ref)
