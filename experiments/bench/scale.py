@@ -28,7 +28,8 @@ b. **core**: agent-steps/s of :meth:`netsense.engine.core.BatchedCore.step` at `
    ``--repeats`` blocks of at least ``--block-seconds`` each;
 c. **training**: agent-steps/s of :func:`netsense.rl.ppo.train_ppo` at the
    :class:`netsense.rl.config.PPOConfig` defaults (B = 256, T = 32, MAPPO with the team
-   critic, overlapped collection) for ``--train-iters`` iterations; the median of the
+   critic, overlapped collection) for ``--train-iters`` iterations, more at small N (at
+   least ``--train-min-steps`` agent-steps after the first iteration); the median of the
    per-iteration rates after the first (the first collection has nothing to overlap). At
    ``N = 1,000`` the defaults' rollout does not fit in memory: the team critic's global
    state (:func:`netsense.rl.envs.global_state`) holds the ``N x N`` adjacency, so it is
@@ -410,7 +411,8 @@ COLUMNS = ("N", "B", "n", "M", "D", "env_agent_steps_per_s", "env_cost_us",
            "core_kofn_cost_us", "core_kofn_cost_vs_N50", "core_kofn_D",
            "core_spatial_agent_steps_per_s", "core_spatial_cost_us", "core_spatial_cost_vs_N50",
            "core_spatial_D", "train_agent_steps_per_s", "train_cost_us",
-           "train_cost_vs_N10", "train_collect_s", "train_learn_s", "train_note",
+           "train_cost_vs_N10", "train_iterations", "train_collect_s", "train_learn_s",
+           "train_note",
            "core_bytes_per_agent", "core_array_bytes_per_agent", "env_bytes_per_agent",
            "env_state_space_bytes_per_agent",
            "train_state_MB", "actor_macs_per_agent_step", "critic_macs_per_agent_step",
@@ -437,7 +439,8 @@ def read_csv(path: Path) -> list[dict]:
         if v == "":
             return float("nan")
         return int(v) if k in ("N", "B", "n", "M", "D", "core_BN_const_B", "core_jsc_D",
-                               "core_kofn_D", "core_spatial_D") else float(v)
+                               "core_kofn_D", "core_spatial_D", "train_iterations") \
+            else float(v)
 
     with open(path, newline="") as fh:
         return [{k: num(k, v) for k, v in r.items()} for r in csv.DictReader(fh)]
@@ -581,6 +584,10 @@ def main(argv: Sequence[str] | None = None) -> Path:
     p.add_argument("--train-iters", type=int, default=3,
                    help="training iterations per N (the rate: median of those after the "
                         "first; at least 2)")
+    p.add_argument("--train-min-steps", type=int, default=1_000_000,
+                   help="at least this many agent-steps after the first iteration per N "
+                        "(more iterations at small N, whose iterations are short and so "
+                        "most exposed to other jobs' load)")
     p.add_argument("--train-max-gb", type=float, default=4.0,
                    help="skip training where one rollout's global states exceed this")
     p.add_argument("--memory-steps", type=int, default=8)
@@ -670,7 +677,10 @@ def main(argv: Sequence[str] | None = None) -> Path:
         else:
             bar.set_postfix(N=N, what="training")
             fields = {"num_envs": 4, "minibatch": 16} if args.smoke else {}
-            t = measure_train(N, args.train_iters, **fields)
+            per_iter = (fields.get("num_envs", defaults.num_envs) * defaults.rollout * N)
+            iters = max(args.train_iters, 1 + math.ceil(args.train_min_steps / per_iter))
+            t = measure_train(N, 2 if args.smoke else iters, **fields)
+            r["train_iterations"] = t["iterations"]
             r["train_agent_steps_per_s"] = t["agent_steps_per_s"]
             r["train_collect_s"], r["train_learn_s"] = t["collect_s"], t["learn_s"]
         bar.update()
