@@ -13,8 +13,8 @@ existing run is evaluated as it is) writes into ``experiments/results/rl/transfe
    for :data:`STEPS` agent-steps per seed (:data:`FIELDS`: a budget, not a verdict), one
    run at a time, one torch thread; ``policy.pt`` is the final actor (critic stripped),
    with ``log.csv``, ``config.json``, ``summary.json``.
-2. **Episodes** ``episodes.csv``: every final policy, greedy, on the protocol's held-out
-   seeds (:func:`netsense.benchmark.protocol.eval_seeds`) of each target of
+2. **Episodes** ``episodes.csv``: every final policy, greedy and sampled, on the
+   protocol's held-out seeds (:func:`netsense.benchmark.protocol.eval_seeds`) of each target of
    :data:`TARGETS` (N = 50 itself; zero-shot at N = 10 on ``comm_channel_k2-v0``, the
    K = N / 5 channel at N = 10, whose graph is a random jointly connected one, not the
    circulant with Markov link failures; N = 200 and N = 1,000 on the K-of-N tasks), beside
@@ -25,7 +25,8 @@ existing run is evaluated as it is) writes into ``experiments/results/rl/transfe
    return over seeds x episodes with its 95 % stratified-bootstrap interval
    (:func:`netsense.benchmark.scores.iqm_interval`), the rule's and ``never``'s IQM, and
    the probability of improvement P(learned > rule) (rliable's, over all pairs of
-   episodes, :func:`netsense.benchmark.scores.probability_of_improvement`); the per-seed
+   episodes, :func:`netsense.benchmark.scores.probability_of_improvement`), and the same
+   for the policies sampled instead of greedy (``learned_sampled:``); the per-seed greedy
    IQMs in ``per_seed.csv``.
 4. **Plot** ``transfer.png``: return per agent-step against N (log axis), learned (IQM and
    interval, every seed thin), the rule and ``never``.
@@ -139,23 +140,24 @@ def best_decentralised(task: str) -> str:
 
 def evaluate_all(policies: dict[int, Path], targets: list[Target], scale: float = 1.0,
                  progress: bool = True) -> list[dict]:
-    """Per-episode rows of every policy (greedy), the target's best decentralised rule and
-    ``never`` on each target's evaluation seeds (``scale`` x its episodes, at least 2)."""
+    """Per-episode rows of every policy (greedy, kind ``learned``, and sampled, kind
+    ``sampled``), the target's best decentralised rule and ``never`` on each target's
+    evaluation seeds (``scale`` x its episodes, at least 2)."""
     from tqdm.auto import tqdm
 
     from netsense.benchmark.protocol import eval_seeds, evaluate
 
     jobs = [(t, kind, s) for t in targets
             for kind, s in [("rule", None), ("never", None)]
-            + [("learned", s) for s in policies]]
+            + [(k, s) for s in policies for k in ("learned", "sampled")]]
     rows = []
     for t, kind, s in tqdm(jobs, desc="transfer evaluation", unit="run", disable=not progress):
         seeds = eval_seeds(max(2, round(t.episodes * scale)))
         spec = {"rule": best_decentralised(t.task), "never": "never"}.get(kind)
-        if kind == "learned":
-            spec = f"learned:{policies[s]}"
+        if kind in ("learned", "sampled"):
+            spec = f"{'learned' if kind == 'learned' else 'learned_sampled'}:{policies[s]}"
         m = evaluate(t.task, spec, seeds)
-        label = spec if kind != "learned" else "learned"
+        label = kind if kind in ("learned", "sampled") else spec
         rows += [{"N": t.N, "task": t.task, "kind": kind, "policy": label,
                   "seed": "" if s is None else s, "episode_seed": sd,
                   "reward": float(m["reward"][e]),
@@ -165,19 +167,26 @@ def evaluate_all(policies: dict[int, Path], targets: list[Target], scale: float 
     return rows
 
 
-def transfer_table(rows: list[dict]) -> tuple[list[dict], list[dict]]:
+def transfer_table(rows: list[dict], reps: int | None = None) -> tuple[list[dict], list[dict]]:
     """``(table, per_seed)``: per N the learned IQM [95 % CI] over seeds x episodes, the
-    rule's and ``never``'s IQM [CI], P(learned > rule); per N and seed the learned IQM."""
-    from netsense.benchmark.scores import iqm, iqm_interval, probability_of_improvement
+    rule's and ``never``'s IQM [CI], P(learned > rule); per N and seed the learned IQM.
+    ``reps``: bootstrap resamples (default :data:`netsense.benchmark.scores.REPS`)."""
+    from netsense.benchmark.scores import REPS, iqm, probability_of_improvement
+    from netsense.benchmark.scores import iqm_interval as _interval
+
+    def iqm_interval(v: np.ndarray) -> tuple[float, float, float]:
+        return _interval(v, reps=REPS if reps is None else int(reps))
 
     table, per_seed = [], []
     for N in sorted({int(r["N"]) for r in rows}):
         at = [r for r in rows if int(r["N"]) == N]
         pick = {k: np.array([r["reward"] for r in at if r["kind"] == k])
-                for k in ("learned", "rule", "never")}
+                for k in ("learned", "sampled", "rule", "never")}
         msgs = {k: float(np.mean([r["msgs_per_agent_step"] for r in at if r["kind"] == k]))
-                for k in ("learned", "rule")}
+                if len(pick[k]) else float("nan") for k in ("learned", "sampled", "rule")}
         li, ll, lh = iqm_interval(pick["learned"])
+        si, sl, sh = iqm_interval(pick["sampled"]) if len(pick["sampled"]) else (
+            (float("nan"),) * 3)
         ri, rl, rh = iqm_interval(pick["rule"])
         ni = iqm(pick["never"])
         seeds = sorted({int(r["seed"]) for r in at if r["kind"] == "learned"})
@@ -189,7 +198,11 @@ def transfer_table(rows: list[dict]) -> tuple[list[dict], list[dict]]:
             "rule": next(r["policy"] for r in at if r["kind"] == "rule"),
             "rule_iqm": ri, "rule_ci_low": rl, "rule_ci_high": rh, "rule_msgs": msgs["rule"],
             "never_iqm": ni,
+            "sampled_iqm": si, "sampled_ci_low": sl, "sampled_ci_high": sh,
+            "sampled_msgs": msgs["sampled"],
             "p_learned_beats_rule": probability_of_improvement(pick["learned"], pick["rule"]),
+            "p_sampled_beats_rule": probability_of_improvement(pick["sampled"], pick["rule"])
+            if len(pick["sampled"]) else float("nan"),
             "p_learned_beats_never": probability_of_improvement(pick["learned"],
                                                                 pick["never"])})
         for s in seeds:
@@ -217,24 +230,28 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 def markdown(table: list[dict], steps: int) -> str:
     """The transfer table in Markdown."""
     lines = [f"Set-network MAPPO trained on `{TRAIN_TASK}` ({steps:,} agent-steps per seed: "
-             "a budget, not a verdict), greedy, evaluated on the protocol's held-out seeds; "
+             "a budget, not a verdict), greedy (and sampled), evaluated on the protocol's "
+             "held-out seeds; "
              "IQM return over seeds x episodes [95 % stratified-bootstrap CI].", "",
              "| N | task | seeds x episodes | learned IQM [95 % CI] | learned msgs/agent-step "
              "| best decentralised rule | rule IQM [95 % CI] | never IQM "
-             "| P(learned > rule) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| P(learned > rule) | sampled IQM [95 % CI] | sampled msgs/agent-step |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in table:
         lines.append(
             f"| {r['N']} | `{r['task']}` | {r['seeds']} x {r['episodes']} | "
             f"{r['learned_iqm']:.1f} [{r['learned_ci_low']:.1f}, {r['learned_ci_high']:.1f}]"
             f" | {r['learned_msgs']:.3f} | `{r['rule']}` | {r['rule_iqm']:.1f} "
             f"[{r['rule_ci_low']:.1f}, {r['rule_ci_high']:.1f}] | {r['never_iqm']:.1f} | "
-            f"{r['p_learned_beats_rule']:.2f} |")
+            f"{r['p_learned_beats_rule']:.2f} | {r['sampled_iqm']:.1f} "
+            f"[{r['sampled_ci_low']:.1f}, {r['sampled_ci_high']:.1f}] | "
+            f"{r['sampled_msgs']:.3f} |")
     return "\n".join(lines) + "\n"
 
 
 def plot(table: list[dict], per_seed: list[dict], path: Path) -> None:
-    """Return per agent-step against N: learned (IQM, interval, seeds), rule, never."""
+    """Return per agent-step against N: learned greedy (IQM, interval, seeds) and sampled,
+    the rule, ``never``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -254,6 +271,8 @@ def plot(table: list[dict], per_seed: list[dict], path: Path) -> None:
                     [r["learned_ci_high"] - r["learned_iqm"] for r in table]]) / H
     ax.errorbar(Ns, li, yerr=err, color="C0", marker="o", capsize=3,
                 label="set network, trained at N = 50 (IQM, 95 % CI; seeds thin)")
+    ax.plot(Ns, [r["sampled_iqm"] / H for r in table], color="C0", ls=":", marker=".",
+            label="the same, sampled (IQM)")
     ax.plot(Ns, [r["rule_iqm"] / H for r in table], color="C1", marker="s",
             label="best decentralised rule of each task")
     for r in table:
