@@ -26,10 +26,10 @@ existing run is evaluated as it is) writes into ``experiments/results/rl/transfe
    (:func:`netsense.benchmark.scores.iqm_interval`), the rule's and ``never``'s IQM, and
    the probability of improvement P(learned > rule) (rliable's, over all pairs of
    episodes, :func:`netsense.benchmark.scores.probability_of_improvement`), and the same
-   for the policies sampled instead of greedy (``learned_sampled:``); the per-seed greedy
-   IQMs in ``per_seed.csv``.
-4. **Plot** ``transfer.png``: return per agent-step against N (log axis), learned (IQM and
-   interval, every seed thin), the rule and ``never``.
+   for the policies sampled instead of greedy (``learned_sampled:``); the per-seed IQMs
+   and message rates, greedy and sampled, in ``per_seed.csv``.
+4. **Plot** ``transfer.png``: return per agent-step against N (log axis), learned greedy
+   (IQM and interval) and sampled (IQM), every seed thin, the rule and ``never``.
 
 Every file is written atomically (:mod:`netsense.rl.atomic`).
 """
@@ -168,8 +168,9 @@ def evaluate_all(policies: dict[int, Path], targets: list[Target], scale: float 
 
 
 def transfer_table(rows: list[dict], reps: int | None = None) -> tuple[list[dict], list[dict]]:
-    """``(table, per_seed)``: per N the learned IQM [95 % CI] over seeds x episodes, the
-    rule's and ``never``'s IQM [CI], P(learned > rule); per N and seed the learned IQM.
+    """``(table, per_seed)``: per N the learned IQM [95 % CI] over seeds x episodes (greedy
+    and sampled), the rule's and ``never``'s IQM [CI], P(learned > rule); per N and seed
+    the learned IQM and message rate (greedy and sampled).
     ``reps``: bootstrap resamples (default :data:`netsense.benchmark.scores.REPS`)."""
     from netsense.benchmark.scores import REPS, iqm, probability_of_improvement
     from netsense.benchmark.scores import iqm_interval as _interval
@@ -210,7 +211,12 @@ def transfer_table(rows: list[dict], reps: int | None = None) -> tuple[list[dict
                           and int(r["seed"]) == s])
             m = float(np.mean([r["msgs_per_agent_step"] for r in at
                                if r["kind"] == "learned" and int(r["seed"]) == s]))
-            per_seed.append({"N": N, "seed": s, "learned_iqm": iqm(v), "learned_msgs": m})
+            row = {"N": N, "seed": s, "learned_iqm": iqm(v), "learned_msgs": m}
+            sv = [r for r in at if r["kind"] == "sampled" and int(r["seed"]) == s]
+            if sv:
+                row["sampled_iqm"] = iqm([r["reward"] for r in sv])
+                row["sampled_msgs"] = float(np.mean([r["msgs_per_agent_step"] for r in sv]))
+            per_seed.append(row)
     return table, per_seed
 
 
@@ -261,18 +267,21 @@ def plot(table: list[dict], per_seed: list[dict], path: Path) -> None:
 
     H = 200.0  # every target's horizon: per agent-step = return / H
     Ns = np.array([r["N"] for r in table])
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    fig, ax = plt.subplots(figsize=(6.4, 5.0))
     for s in sorted({r["seed"] for r in per_seed}):
         p = [r for r in per_seed if r["seed"] == s]
         ax.plot([r["N"] for r in p], [r["learned_iqm"] / H for r in p], color="C0",
                 alpha=0.25, lw=0.8)
+        if all("sampled_iqm" in r for r in p):
+            ax.plot([r["N"] for r in p], [r["sampled_iqm"] / H for r in p], color="C2",
+                    alpha=0.5, lw=0.8, ls=":")
     li = np.array([r["learned_iqm"] for r in table]) / H
     err = np.array([[r["learned_iqm"] - r["learned_ci_low"] for r in table],
                     [r["learned_ci_high"] - r["learned_iqm"] for r in table]]) / H
     ax.errorbar(Ns, li, yerr=err, color="C0", marker="o", capsize=3,
                 label="set network, trained at N = 50 (IQM, 95 % CI; seeds thin)")
-    ax.plot(Ns, [r["sampled_iqm"] / H for r in table], color="C0", ls=":", marker=".",
-            label="the same, sampled (IQM)")
+    ax.plot(Ns, [r["sampled_iqm"] / H for r in table], color="C2", ls=":", marker=".",
+            label="the same, sampled (IQM; seeds thin)")
     ax.plot(Ns, [r["rule_iqm"] / H for r in table], color="C1", marker="s",
             label="best decentralised rule of each task")
     for r in table:
@@ -285,7 +294,7 @@ def plot(table: list[dict], per_seed: list[dict], path: Path) -> None:
     ax.set_xlabel("N (agents); N = 10 is comm_channel_k2-v0")
     ax.set_ylabel("return per agent-step")
     ax.set_title("Transfer across N: K-of-N channel, K = N / 5")
-    ax.legend(fontsize=7, loc="best")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")
