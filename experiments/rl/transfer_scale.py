@@ -1,8 +1,8 @@
 """Policies that transfer across N: the set-network learner trained from scratch on the
 K-of-N collision channel at N = 50, scored there and zero-shot at N = 10, 200 and 1,000.
 
-``python experiments/rl/transfer_scale.py`` (about 25 minutes of training and 10 of
-evaluation on the busy 2-core machine; ``--seeds``, ``--steps``, ``--episodes-scale``
+``python experiments/rl/transfer_scale.py`` (15 minutes of training and 15 of evaluation,
+measured on the busy 2-core machine; ``--seeds``, ``--steps``, ``--episodes-scale``
 shrink it, ``--retrain`` trains again where a run's ``policy.pt`` exists, by default an
 existing run is evaluated as it is) writes into ``experiments/results/rl/transfer_scale/``:
 
@@ -51,9 +51,10 @@ RESULTS = ROOT / "experiments" / "results" / "rl" / "transfer_scale"
 FRONTIER = ROOT / "experiments" / "results" / "rl" / "scale_tasks" / "summary.csv"
 TRAIN_TASK = "comm_channel_kofn_n50-v0"
 SEEDS = (0, 1, 2, 3, 4)
-#: Agent-steps per seed: 20 iterations of 32 environments x 32 steps x 50 agents, what five
-#: seeds train in about 25 minutes on the busy 2-core machine (~3,500 agent-steps/s
-#: measured in a short run, one torch thread). A budget, not a verdict.
+#: Agent-steps per seed: 20 iterations of 32 environments x 32 steps x 50 agents, sized for
+#: five seeds in about 25 minutes on the busy 2-core machine from a short run's ~3,500
+#: agent-steps/s (one torch thread); the committed runs went at 5,700 on average (15 min
+#: for all five) as the other load eased. A budget, not a verdict.
 STEPS = 1_024_000
 #: The run's :class:`netsense.rl.config.PPOConfig` fields beyond the scenario, seed and
 #: steps (the recipe's defaults otherwise: team critic, team reward, entropy decayed to 0).
