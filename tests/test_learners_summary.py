@@ -83,9 +83,11 @@ def test_aggregate_is_the_suites_normalisation(learners, monkeypatch):
     ref = TaskReferences(task, "transmit", EpisodeValues(seeds, never), "event:2",
                          EpisodeValues(seeds, never + 10), None, None,
                          EpisodeValues(seeds, bound))
-    monkeypatch.setattr(references, "load_references", lambda path=None: {task: ref})
+    # the suite imported before anything is patched: its module-level name would otherwise
+    # bind the stand-in for good, and monkeypatch would "restore" it to the stand-in
     import netsense.benchmark.suite as suite
 
+    monkeypatch.setattr(references, "load_references", lambda path=None: {task: ref})
     monkeypatch.setattr(suite, "load_references", lambda path=None: {task: ref})
     ret = {0: never + 0.25 * (bound - never), 1: never + 0.75 * (bound - never)}
     rows = [{"task": task, "policy": "mlp", "spec": "mlp", "seed": s,
