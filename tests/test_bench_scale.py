@@ -75,6 +75,10 @@ def test_cost_and_ratios_from_known_rates():
     assert math.isnan(scale.cost_ratio({10: 1e6, 50: float("nan")}, 10)[50])
     assert math.isnan(scale.cost_ratio({10: 1e6}, 50)[10])  # no reference
     assert scale.bytes_per_agent(64 * 1000 * 512, 64, 1000) == 512
+
+
+def test_critic_state_bytes_from_the_state_layout():
+    pytest.importorskip("torch")  # the training environment's state layout
     # the defaults' rollout of global states: 33 x 256 states of 1 + 2N + N^2 + 2NM floats
     assert scale.train_state_bytes(10, 5, 256, 32) == 4 * 33 * 256 * (1 + 20 + 100 + 100)
 

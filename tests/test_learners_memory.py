@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+pytest.importorskip("torch")  # the learned policies' loader, and training's scripted actors
+
 ROOT = Path(__file__).resolve().parents[1]
 SEEDS = [1_000_000, 1_000_001]
 

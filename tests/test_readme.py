@@ -32,6 +32,8 @@ def test_docs_python_blocks_run(page, tmp_path, monkeypatch):
         for module in OPTIONAL:
             if re.search(rf"\b(import|from) {module}\b", code):
                 pytest.importorskip(module, reason=f"{page.name} needs {module} (an extra)")
+        if re.search(r"\b(import|from) netsense\.rl\b", code):  # the trainer: torch's extra
+            pytest.importorskip("torch", reason=f"{page.name} needs netsense.rl (torch)")
         exec(compile(code, str(page), "exec"), {})
 
 
