@@ -154,6 +154,9 @@ def test_never_callable_scores_zero(tmp_path):
         stored = data["tasks"][r["task"]]["never"]["returns"][:3]
         assert r["iqm"] == pytest.approx(np.mean(stored))  # 3 values: trims none
         assert r["best_decentralised"] == data["tasks"][r["task"]]["best_decentralised"]["spec"]
+        # the bound scores 1: here never + 100 on each of the three episodes
+        assert r["upper_bound_mean"] == pytest.approx(np.mean(stored) + 100.0)
+        assert r["upper_bound_ci_low"] <= r["upper_bound_mean"] <= r["upper_bound_ci_high"]
 
 
 def test_no_bound_is_not_normalised():

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from netsense.benchmark.intervals import bootstrap_ci
 from netsense.benchmark.references import SUITE_TASKS, TaskReferences, load_references
 from netsense.benchmark.suite_output import AGGREGATE, TABLE_COLUMNS
 
@@ -495,12 +496,13 @@ def summarise(rows: Sequence[dict], references: Mapping[str, TaskReferences]) ->
             mat = np.array([[r["return"] for r in rs if r["seed"] == s] for s in run_seeds])
             point, lo, hi = iqm_interval(mat.ravel())
             s_mat, s_seeds = _score_on(mat, ep, ref)
-            above = 0
+            above, bound = 0, (math.nan, math.nan, math.nan)
             if ref.upper_bound is not None:
                 common = [i for i, e in enumerate(ep) if e in set(ref.upper_bound.seeds)]
                 if common:
                     ub = ref.upper_bound.on([ep[i] for i in common])
                     above = int((mat[:, common] > ub + 1e-9 * np.abs(ub)).sum())
+                    bound = bootstrap_ci(ub)
             if above:
                 warnings.warn(f"{learner} on {task}: {above} returns above the certified "
                               "upper bound: the bound or the evaluation is wrong",
@@ -515,7 +517,8 @@ def summarise(rows: Sequence[dict], references: Mapping[str, TaskReferences]) ->
                    "best_decentralised_score": iqm(dec_score) if dec_score.size else math.nan,
                    "best_reference": ref.best_reference or "",
                    "best_reference_score": iqm(ref_score) if ref_score.size else math.nan,
-                   "above_bound": above}
+                   "upper_bound_mean": bound[0], "upper_bound_ci_low": bound[1],
+                   "upper_bound_ci_high": bound[2], "above_bound": above}
             if s_seeds:
                 row["score"], row["score_ci_low"], row["score_ci_high"] = iqm_interval(
                     s_mat.ravel())

@@ -34,6 +34,7 @@ TABLE_COLUMNS = ("task", "learner", "seeds", "episodes", "iqm", "iqm_ci_low", "i
                  "best_decentralised", "best_decentralised_iqm", "p_improvement",
                  "score_episodes", "score", "score_ci_low", "score_ci_high",
                  "best_decentralised_score", "best_reference", "best_reference_score",
+                 "upper_bound_mean", "upper_bound_ci_low", "upper_bound_ci_high",
                  "above_bound")
 #: ``task`` of the aggregate rows.
 AGGREGATE = "aggregate"
@@ -58,7 +59,9 @@ def read_table(path: str | Path) -> list[dict]:
     with Path(path).open() as fh:
         rows = list(csv.DictReader(fh))
     text = {"task", "learner", "best_decentralised", "best_reference"}
-    return [{c: (r[c] if c in text else (float(r[c]) if r[c] != "" else math.nan))
+    # a table written before a column existed reads it as NaN
+    return [{c: (r.get(c, "") if c in text else (float(r[c]) if r.get(c, "") != ""
+                                                  else math.nan))
              for c in TABLE_COLUMNS} for r in rows]
 
 
