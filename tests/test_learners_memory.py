@@ -1,26 +1,17 @@
 """The memory diagnostic of experiments/rl/learners.py: the informed rule's gate, computed
 from the observations of whichever policy acts, reproduces the rule's own decisions."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
+from experiment_loader import load_experiment
 
 pytest.importorskip("torch")  # the learned policies' loader, and training's scripted actors
 
-ROOT = Path(__file__).resolve().parents[1]
 SEEDS = [1_000_000, 1_000_001]
 
 
 @pytest.fixture(scope="module")
 def learners():
-    spec = importlib.util.spec_from_file_location("learners", ROOT / "experiments" / "rl" /
-                                                  "learners.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["learners"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_experiment("rl/learners")
 
 
 @pytest.mark.parametrize("task", ["comm_fading-v0", "comm_schedule-v0"])

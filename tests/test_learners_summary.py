@@ -2,26 +2,16 @@
 probability of improvement and the fraction of the gap closed, on returns whose answers
 are known."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from experiment_loader import load_experiment
 
 pytest.importorskip("rliable")
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def learners():
-    spec = importlib.util.spec_from_file_location("learners", ROOT / "experiments" / "rl" /
-                                                  "learners.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["learners"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_experiment("rl/learners")
 
 
 def _rows(learned: dict[int, np.ndarray], best: np.ndarray, causal: np.ndarray,
