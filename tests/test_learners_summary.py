@@ -298,3 +298,17 @@ def test_curve_reference_is_the_scripted_policy_on_the_curves_episodes(learners,
     test = evaluate(learners.CHANNEL_TASK, "tdma:1", eval_seeds(4))
     assert got == pytest.approx(same["reward"].mean(), abs=1e-4)
     assert abs(got - test["reward"].mean()) > 0.1
+
+
+def test_time_to_rule_counts_only_a_curve_that_stays(learners):
+    def log(curve):
+        return [{"agent_steps": str(1000 * (i + 1)), "wall_s": str(10.0 * (i + 1)),
+                 "eval_return": "" if v is None else str(v)} for i, v in enumerate(curve)]
+
+    # crosses at the 2nd evaluation, falls back, then reaches for good at the 4th
+    assert learners.time_to_rule(log([-5, -1, -3, -2, None, -1]), -2.0) == (4000, 40.0)
+    # rows without an evaluation are skipped, not read as below the rule
+    assert learners.time_to_rule(log([None, -1, None, -1.5]), -2.0) == (2000, 20.0)
+    # the last evaluation below the rule: never reached, whatever came before
+    assert learners.time_to_rule(log([-1, -1, -3]), -2.0) is None
+    assert learners.time_to_rule(log([None, None]), -2.0) is None

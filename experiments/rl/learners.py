@@ -10,6 +10,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py channel     # how the learners use the collision channel
     python experiments/rl/learners.py substates   # which substates the learners send
     python experiments/rl/learners.py memory      # where the learners would need memory
+    python experiments/rl/learners.py time-to-rule   # when training reaches the rule
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
 again where a run's ``policy.pt`` exists (by default an existing run is evaluated as it is,
@@ -81,6 +82,13 @@ on.
 ``ablation.png`` (final greedy and sampled evaluation return per variant, mean and range
 over the seeds, and the diagnostics that explain it: explained variance, entropy, action
 gap).
+
+**time-to-rule** writes ``time_to_rule.csv`` / ``time_to_rule.md`` into ``--out`` (a
+results folder): per task and learner, how many seeds reach the best decentralised rule
+during training and stay there to the end of the run (the monitoring evaluation's greedy
+return against the rule's on the same episodes, ``curve_refs.csv``), with the median
+agent-steps and wall-clock minutes they took (the runs' own clocks: on the machine and
+with the workers they trained with).
 """
 
 # %%
@@ -1094,6 +1102,67 @@ def cmd_memory(args, cfg: dict) -> None:
                    MEMORY_COLUMNS, f"memory_{task.removesuffix('-v0')}")
 
 
+def time_to_rule(log: list[dict], rule: float) -> tuple[int, float] | None:
+    """``(agent_steps, wall_s)`` of the first evaluation from which the run's greedy
+    evaluation return (``eval_return``, the monitoring evaluation during training) stays at
+    or above ``rule`` to the end of the run; ``None`` when its last evaluation is below.
+    "Stays" rather than "touches": a curve that crosses the rule once and falls back has
+    not given the user a policy that reaches it."""
+    ev = [(int(r["agent_steps"]), float(r["wall_s"]), float(r["eval_return"]))
+          for r in log if r.get("eval_return")]
+    first = None
+    for steps, wall, ret in ev:
+        if ret >= rule:
+            first = first or (steps, wall)
+        else:
+            first = None
+    return first
+
+
+def cmd_time(args, cfg: dict) -> None:
+    """``time_to_rule.{csv,md}`` in ``--out``: per task and learner of its runs, how many
+    seeds reach the best decentralised rule during training (:func:`time_to_rule`, on the
+    monitoring evaluation's episodes against the rule's return on those same episodes,
+    ``curve_refs.csv``) and the median agent-steps and wall-clock minutes they took."""
+    out = args.out
+    with (out / "curve_refs.csv").open() as fh:
+        refs = {r["task"]: (r["spec"], float(r["return"])) for r in csv.DictReader(fh)
+                if r["policy"] == "best_decentralised" and r["episodes"] == "validation"}
+    rows = []
+    for task in sorted((out / "runs").iterdir()):
+        if not task.is_dir() or task.name not in refs or (args.tasks and task.name not in
+                                                           args.tasks):
+            continue
+        spec, rule = refs[task.name]
+        for learner in sorted(d for d in task.iterdir() if d.is_dir()):
+            runs = sorted(r for r in learner.glob("seed_*") if (r / "log.csv").exists())
+            if not runs:
+                continue
+            hits = [time_to_rule(read_log(r), rule) for r in runs]
+            got = [h for h in hits if h is not None]
+            cfg_run = json.loads((runs[0] / "config.json").read_text())
+            rows.append({"task": task.name, "learner": learner.name, "rule": spec,
+                         "rule_return": rule, "seeds": len(runs), "reached": len(got),
+                         "agent_steps": float(np.median([h[0] for h in got])) if got
+                         else float("nan"),
+                         "minutes": float(np.median([h[1] for h in got])) / 60 if got
+                         else float("nan"),
+                         "budget": int(cfg_run["steps"])})
+    if not rows:
+        raise ValueError(f"{out}: no runs with a learning curve and a rule's validation "
+                         "return (curve_refs.csv)")
+    write_csv(out / "time_to_rule.csv", rows)
+    lines = ["| task | learner | rule (validation return) | seeds that reach it and stay | "
+             "median agent-steps | median minutes | budget |", "|---" * 7 + "|"]
+    for r in rows:
+        lines.append(f"| {r['task']} | {r['learner']} | `{r['rule']}` ({r['rule_return']:.1f})"
+                     f" | {r['reached']} of {r['seeds']} | "
+                     + (f"{r['agent_steps'] / 1e6:.2f}M | {r['minutes']:.1f} |"
+                        if r["reached"] else "– | – |") + f" {r['budget'] / 1e6:.0f}M |")
+    _write(out / "time_to_rule.md", "\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 def policy_use(args, task: str, measure, scripted: list[str], columns, name: str) -> None:
     """``measure(spec, seeds)`` for the ``scripted`` specs and every final policy of
     ``task`` under ``--out`` (all its results folders), on the protocol's evaluation
@@ -1135,7 +1204,7 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
-                                       "substates", "memory"))
+                                       "substates", "memory", "time-to-rule"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -1159,7 +1228,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = load_config(args.config)
     commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
                 "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
-                "memory": cmd_memory}
+                "memory": cmd_memory, "time-to-rule": cmd_time}
     commands[args.command](args, cfg)
     return 0
 
