@@ -1148,6 +1148,9 @@ def cmd_time(args, cfg: dict) -> None:
                          "minutes": float(np.median([h[1] for h in got])) / 60 if got
                          else float("nan"),
                          "budget": int(cfg_run["steps"])})
+            r = rows[-1]
+            r["agent_steps_text"] = f"{r['agent_steps'] / 1e6:.2f}M" if got else "–"
+            r["minutes_text"] = f"{r['minutes']:.1f}" if got else "–"
     if not rows:
         raise ValueError(f"{out}: no runs with a learning curve and a rule's validation "
                          "return (curve_refs.csv)")
@@ -1157,8 +1160,8 @@ def cmd_time(args, cfg: dict) -> None:
     for r in rows:
         lines.append(f"| {r['task']} | {r['learner']} | `{r['rule']}` ({r['rule_return']:.1f})"
                      f" | {r['reached']} of {r['seeds']} | "
-                     + (f"{r['agent_steps'] / 1e6:.2f}M | {r['minutes']:.1f} |"
-                        if r["reached"] else "– | – |") + f" {r['budget'] / 1e6:.0f}M |")
+                     + f"{r['agent_steps_text']} | {r['minutes_text']} | "
+                     f"{r['budget'] / 1e6:.0f}M |")
     _write(out / "time_to_rule.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
