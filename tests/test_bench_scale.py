@@ -81,6 +81,12 @@ def test_critic_state_bytes_from_the_state_layout():
     pytest.importorskip("torch")  # the training environment's state layout
     # the defaults' rollout of global states: 33 x 256 states of 1 + 2N + N^2 + 2NM floats
     assert scale.train_state_bytes(10, 5, 256, 32) == 4 * 33 * 256 * (1 + 20 + 100 + 100)
+    # on Markov link failures the state carries the N D base links, not N^2 pairs
+    model = scale.scale_model(40)
+    E = scale.support_edges(model)
+    assert E == int(model.graphs.base.sum()) == 40 * model.graphs.max_in_degree  # circulant
+    assert scale.train_state_bytes(40, 5, 256, 32, E) == \
+        4 * 33 * 256 * (1 + 80 + E + 400)
 
 
 def test_plant_needs_one_agent_per_oscillator():

@@ -144,6 +144,42 @@ def test_env_specs_and_masked_random_rollout(control):
     assert torch.isfinite(td["next", "agents", "reward"]).all()
 
 
+@pytest.mark.parametrize("scenario", ["comm_channel_kofn_n50-v0", "comm_spatial_n50-v0",
+                                      "comm_process_noise-v0"])
+def test_global_state_carries_the_adjacency_on_the_graphs_support(scenario):
+    """Markov link failures fix a support (the base graph): the state carries the adjacency
+    there only, losing nothing (every other entry stays False at every step); a process
+    with no support (random jointly connected graphs) keeps all N^2 entries."""
+    from netsense.rl.envs import NetSenseBatchedEnv, global_state, make_core, state_edges
+
+    core = make_core(scenario, 3, control="transmit", horizon=40)
+    env = NetSenseBatchedEnv(core, seed=4)
+    N, M = core.N, core.M
+    support = core.model.graphs.edge_support
+    E = N * N if support is None else int(support.sum())
+    assert state_edges(core) == (None if support is None else E)
+    if support is not None:
+        assert E < N * N / 5  # the point: it grows like N D, not N^2
+    assert env.state_dim == 1 + 2 * N + E + 2 * N * M
+    core.reset(seed=4)
+    rng = np.random.default_rng(0)
+    changed = False
+    first = None
+    for _ in range(25):
+        s = global_state(core)
+        adj = core.adjacency
+        got = s[:, 1 + 2 * N:1 + 2 * N + E].astype(bool)
+        if support is None:
+            np.testing.assert_array_equal(got, adj.reshape(3, -1))
+        else:
+            assert not adj[:, ~support].any()
+            np.testing.assert_array_equal(got, adj[:, support])
+        first = got if first is None else first
+        changed |= not np.array_equal(got, first)
+        core.step(rng.integers(0, 2, (3, N, 1)))
+    assert changed  # the links do switch, so the comparison saw more than one graph
+
+
 def test_env_reset_seeds_members_like_the_core():
     from netsense.engine.core import BatchedCore
     from netsense.env.vector import load_model

@@ -30,10 +30,10 @@ c. **training**: agent-steps/s of :func:`netsense.rl.ppo.train_ppo` at the
    :class:`netsense.rl.config.PPOConfig` defaults (B = 256, T = 32, MAPPO with the team
    critic, overlapped collection) for ``--train-iters`` iterations, more at small N (at
    least ``--train-min-steps`` agent-steps after the first iteration); the median of the
-   per-iteration rates after the first (the first collection has nothing to overlap). At
-   ``N = 1,000`` the defaults' rollout does not fit in memory: the team critic's global
-   state (:func:`netsense.rl.envs.global_state`) holds the ``N x N`` adjacency, so it is
-   skipped with its size stated;
+   per-iteration rates after the first (the first collection has nothing to overlap). The
+   team critic's global state (:func:`netsense.rl.envs.global_state`) holds the adjacency
+   on the graph process's support (here the ``N D`` base links), so it grows like ``N``;
+   a rollout whose states would pass ``--train-max-gb`` is skipped with its size stated;
 d. **memory**: live bytes (``tracemalloc``) of building, resetting and stepping the core at
    ``B = 64`` (and the env), divided by ``B N`` (``N``).
 
@@ -287,12 +287,22 @@ def measure_memory(model, B: int, steps: int, seed: int = 0) -> dict:
     return out
 
 
-def train_state_bytes(N: int, M: int, num_envs: int, rollout: int) -> int:
+def support_edges(model) -> int | None:
+    """Adjacency entries of the team critic's global state for ``model``: the edges of its
+    graph process's support (:func:`netsense.rl.envs.state_edges`), ``None`` for all
+    ``N^2``."""
+    support = model.graphs.edge_support
+    return None if support is None else int(support.sum())
+
+
+def train_state_bytes(N: int, M: int, num_envs: int, rollout: int,
+                      edges: int | None = None) -> int:
     """Bytes of the team critic's global states over one rollout at the defaults
-    (``(rollout + 1) num_envs`` states of :func:`netsense.rl.envs.state_size` float32)."""
+    (``(rollout + 1) num_envs`` states of :func:`netsense.rl.envs.state_size` float32,
+    ``edges`` adjacency entries each)."""
     from netsense.rl.envs import state_size
 
-    return 4 * (rollout + 1) * num_envs * state_size(N, M)
+    return 4 * (rollout + 1) * num_envs * state_size(N, M, edges)
 
 
 def measure_train(N: int, iters: int, **fields) -> dict:
@@ -317,12 +327,13 @@ def measure_train(N: int, iters: int, **fields) -> dict:
 
 
 def learner_macs(N: int, obs_dim: int, M: int, hidden: Sequence[int] = (64, 64),
-                 critic_hidden: Sequence[int] = (128, 128)) -> dict[str, float]:
+                 critic_hidden: Sequence[int] = (128, 128), edges: int | None = None
+                 ) -> dict[str, float]:
     """Multiply-adds of one forward pass per agent-step of the defaults' networks, from the
     layer widths: the actor's MLP once per agent (``obs_dim`` inputs, two actions) and the
     team critic's once per member on the global state (:func:`netsense.rl.envs.state_size`
-    inputs), shared by its ``N`` agents. The agent features the actor appends are left
-    out (a few inputs)."""
+    inputs, ``edges`` adjacency entries), shared by its ``N`` agents. The agent features
+    the actor appends are left out (a few inputs)."""
     from netsense.rl.envs import state_size
 
     def mlp(inputs: int, widths: Sequence[int], outputs: int) -> int:
@@ -330,7 +341,7 @@ def learner_macs(N: int, obs_dim: int, M: int, hidden: Sequence[int] = (64, 64),
         return sum(a * b for a, b in zip(sizes, sizes[1:], strict=False))
 
     actor = mlp(obs_dim, hidden, 2)
-    critic = mlp(state_size(N, M), critic_hidden, 1)
+    critic = mlp(state_size(N, M, edges), critic_hidden, 1)
     return {"actor_macs_per_agent_step": float(actor),
             "critic_macs_per_agent_step": critic / N}
 
@@ -506,8 +517,9 @@ def markdown(rows: Sequence[dict], profiles: dict, meta: dict) -> str:
     lines += ["Learner multiply-adds per agent-step (one forward pass, from the layer widths): "
               + "; ".join(f"N = {r['N']}: actor {_n(r['actor_macs_per_agent_step'])}, team "
                           f"critic {_n(r['critic_macs_per_agent_step'])}" for r in rows)
-              + ". The critic reads the global state, whose N x N adjacency makes its "
-              "first layer grow like N^2 per member, N per agent-step.", ""]
+              + ". The critic reads the global state once per member: its size grows "
+              "like N (the adjacency on the base graph's N D links, the freshness "
+              "indices' N M), so per agent-step its cost stays flat.", ""]
     for title, prof in profiles.items():
         lines += [f"## {title}", ""]
         if isinstance(prof, dict):
@@ -661,19 +673,21 @@ def main(argv: Sequence[str] | None = None) -> Path:
         r["env_state_space_bytes_per_agent"] = bytes_per_agent(mem["env_state_space_bytes"],
                                                                1, N)
         bar.update()
-        state = train_state_bytes(N, len(sources(N)), defaults.num_envs, defaults.rollout)
+        edges = support_edges(model)
+        state = train_state_bytes(N, len(sources(N)), defaults.num_envs, defaults.rollout,
+                                  edges)
         r["train_state_MB"] = state / 2**20
         from netsense.engine.core import BatchedCore
 
         r.update(learner_macs(N, BatchedCore(model, 1).layout.size, len(sources(N)),
-                              defaults.hidden, defaults.critic_hidden))
+                              defaults.hidden, defaults.critic_hidden, edges))
         r["train_agent_steps_per_s"] = float("nan")
         r["train_note"] = ""
         if args.no_train:
             r["train_note"] = "--no-train"
         elif state > args.train_max_gb * 2**30:
             r["train_note"] = (f"the team critic's global states of one rollout take "
-                               f"{state / 2**30:.1f} GiB (N x N adjacency per state)")
+                               f"{state / 2**30:.1f} GiB")
         else:
             bar.set_postfix(N=N, what="training")
             fields = {"num_envs": 4, "minibatch": 16} if args.smoke else {}

@@ -249,6 +249,13 @@ class GraphProcess:
         """Upper bound on any node's in-degree (fixes the env's slot count)."""
         return self.num_nodes - 1
 
+    @property
+    def edge_support(self) -> np.ndarray | None:
+        """``(N, N)`` bool: the pairs ``[i, l]`` that can be an edge ``l -> i`` of some
+        graph of the process (every other entry of every ``G[k]`` is ``False``), or
+        ``None`` where the process does not fix one (the default: any pair can be)."""
+        return None
+
     def slot_sample_bytes(self, num_steps: int) -> int:
         """Bytes of temporaries per run of :meth:`sample_slots_many` (batches are drawn
         in groups that keep them near a budget); here ``(K, N, N)`` graphs and their slot
@@ -466,6 +473,11 @@ class MarkovLinkFailures(_SlotTableProcess):
     @property
     def max_in_degree(self) -> int:
         return int(self.base.sum(-1).max())
+
+    @property
+    def edge_support(self) -> np.ndarray:
+        """The base graph: a link that is up is a base edge."""
+        return self.base
 
     def slot_sample_bytes(self, num_steps):
         # per run: its stacked and returned N x N link states, its E link states and slot

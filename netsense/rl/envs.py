@@ -56,7 +56,7 @@ from netsense.kernels.update import OMEGA
 from netsense.rl import credit
 
 __all__ = ["CONTROLS", "NetSenseBatchedEnv", "global_state", "make_core", "resolve_device",
-           "state_size"]
+           "state_edges", "state_size"]
 
 #: Control modes :func:`make_core` accepts (``None``: the scenario's own ``[control]``).
 CONTROLS = (None, *MODES)
@@ -173,26 +173,74 @@ def resolve_device(device, name: str = "device") -> torch.device:
     return dev
 
 
-def state_size(N: int, M: int) -> int:
-    """Length of :func:`global_state`: ``1 + 2 N + N^2 + 2 N M``."""
-    return 1 + 2 * N + N * N + 2 * N * M
+def state_size(N: int, M: int, edges: int | None = None) -> int:
+    """Length of :func:`global_state`: ``1 + 2 N + E + 2 N M`` with ``E = edges``, the
+    adjacency entries the state carries (``N^2`` when ``None``: :func:`state_edges`)."""
+    return 1 + 2 * N + (N * N if edges is None else int(edges)) + 2 * N * M
+
+
+class _SupportSlots:
+    """Where each edge of a graph process's support sits: ``base[i, j]`` the ``j``-th
+    possible in-neighbour of node ``i`` (ascending; ``-1`` pads), ``valid`` its mask; the
+    state's adjacency entries are ``base[valid]``'s, in row-major order."""
+
+    def __init__(self, support: np.ndarray):
+        support = np.asarray(support, bool)
+        deg = support.sum(-1)
+        width = max(int(deg.max(initial=0)), 1)
+        self.base = np.full((support.shape[0], width), -1, np.int64)
+        self.valid = np.arange(width)[None, :] < deg[:, None]
+        self.base[self.valid] = np.nonzero(support)[1]
+        self.edges = int(deg.sum())
+
+    def entries(self, nbr: np.ndarray) -> np.ndarray:
+        """``(B, E)`` bool: which support edges are up, from the slot table ``nbr``
+        ``(B, N, D)`` (``-1`` = empty slot)."""
+        up = (nbr[:, :, None, :] == self.base[None, :, :, None]).any(-1)
+        return up[:, self.valid]
+
+
+def _support_slots(core) -> _SupportSlots | None:
+    support = getattr(core.model.graphs, "edge_support", None)
+    if support is None:
+        return None
+    cached = getattr(core, "_state_support", None)
+    if cached is None:
+        cached = _SupportSlots(support)
+        core._state_support = cached
+    return cached
+
+
+def state_edges(core) -> int | None:
+    """The number of adjacency entries :func:`global_state` carries for ``core``: the
+    edges of the graph process's support (:attr:`netsense.graphs.processes.GraphProcess.
+    edge_support`, e.g. the base graph of Markov link failures), or ``None`` (all ``N^2``
+    pairs) where the process fixes none."""
+    slots = _support_slots(core)
+    return None if slots is None else slots.edges
 
 
 def global_state(core) -> np.ndarray:
     """``(B, S)`` float32 global state of every member, each entry bounded.
 
-    ``[k / H, e (N), t (N), G[k] (N x N), max(tau, 0) / H (N x M), [tau = omega] (N x M)]``:
+    ``[k / H, e (N), t (N), G[k] (E), max(tau, 0) / H (N x M), [tau = omega] (N x M)]``:
     time, the agents' clipped normalised errors of the last step, the transmit flags for
     the next step, the adjacency of the current graph and every agent's freshness indices
-    (true ones, a liar's claims aside). ``S`` = :func:`state_size`.
+    (true ones, a liar's claims aside). ``S`` = :func:`state_size`. The adjacency is all
+    ``N x N`` entries, row-major, where the graph process fixes no support; where it does
+    (:func:`state_edges`: Markov link failures on a base graph), only the ``E`` entries on
+    the support, row-major: nothing is lost (every other entry is always ``False``) and the
+    state grows like ``N D`` instead of ``N^2``.
     """
     B = core.B
     H = float(core.horizon)
     tau = core.tau
-    parts = [core.k[:, None] / H, core.errors, core.transmit,
-             core.adjacency.reshape(B, -1), (np.maximum(tau, 0) / H).reshape(B, -1),
-             (tau == OMEGA).reshape(B, -1)]
-    out = np.empty((B, state_size(core.N, core.M)), dtype=np.float32)
+    slots = _support_slots(core)
+    adjacency = (core.adjacency.reshape(B, -1) if slots is None
+                 else slots.entries(core.nbr))
+    parts = [core.k[:, None] / H, core.errors, core.transmit, adjacency,
+             (np.maximum(tau, 0) / H).reshape(B, -1), (tau == OMEGA).reshape(B, -1)]
+    out = np.empty((B, state_size(core.N, core.M, adjacency.shape[1])), dtype=np.float32)
     o = 0
     for p in parts:
         out[:, o:o + p.shape[1]] = p
@@ -243,7 +291,7 @@ class NetSenseBatchedEnv(EnvBase):
         K, A = int(self.nvec.sum()), int(self.nvec.size)
         if K != int(core.mask_size):
             raise ValueError(f"core.mask_size ({core.mask_size}) != sum(core.nvec) ({K})")
-        self.state_dim = state_size(N, core.M)
+        self.state_dim = state_size(N, core.M, state_edges(core))
         rc = core.model.reward
         self._w = (float(rc.error_weight), float(rc.team_weight))
         self._alive = np.asarray(core.alive, bool)
