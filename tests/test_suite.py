@@ -160,15 +160,40 @@ def test_never_callable_scores_zero(tmp_path):
 
 
 def test_no_bound_is_not_normalised():
+    """The tasks at scale have no upper bound (its LP does not scale to N = 50): the suite
+    scores them by name, without a normalised score."""
+    from netsense.benchmark.references import SCALE_TASKS
     from netsense.benchmark.suite import score
     from netsense.benchmark.suite_output import markdown_table
 
     refs = load_references()
-    if refs[TASK].upper_bound is not None:
-        pytest.skip("the references hold a bound for this task")
-    res = score({"never": _never}, [TASK], 2, progress=False)
+    task = SCALE_TASKS[0]
+    assert refs[task].upper_bound is None
+    res = score({"never": _never}, [task], 2, progress=False)
     assert math.isnan(res.table[0]["score"]) and res.table[0]["score_episodes"] == 0
+    assert res.table[0]["iqm"] == pytest.approx(refs[task].never.values[:2].mean())
     assert "– (no bound)" in markdown_table(res.table)
+
+
+def test_scale_tasks_are_scored_only_by_name(tmp_path):
+    """The references hold the tasks at scale with their best decentralised rule and the
+    best centralised scheduler as the reference; the default task list is the nine."""
+    from netsense.benchmark.references import SCALE_TASKS, SUITE_TASKS
+    from netsense.benchmark.suite import score
+
+    refs = load_references()
+    assert tuple(refs)[:len(SUITE_TASKS)] == SUITE_TASKS
+    for task in SCALE_TASKS:
+        ref = refs[task]
+        assert ref.best_reference.startswith("oldest:")  # a centralised scheduler
+        # the frontier's ordering holds on the stored episodes: the rule beats never
+        assert ref.best_decentralised_returns.values.mean() > ref.never.values.mean()
+    data = json.loads(REFS.read_text())
+    data["tasks"] = {t: data["tasks"][t] for t in SCALE_TASKS}
+    only_scale = tmp_path / "scale.json"
+    only_scale.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="none of the suite's nine tasks"):
+        score({"never": _never}, None, 2, references=only_scale, progress=False)
 
 
 def test_stale_references_refused(tmp_path):

@@ -15,6 +15,12 @@ references (:mod:`netsense.benchmark.references`), from:
   the file or a task's rows are missing, the task gets no bound (said on the console), and
   the suite then refuses to normalise it.
 
+The tasks at scale (:data:`netsense.benchmark.references.SCALE_TASKS`) come from their
+frontier, ``experiments/results/rl/scale_tasks/frontier_<task>.csv``
+(``experiments/rl/scale_tasks.py``): the best decentralised rule as above and, as the
+reference, the best centralised scheduler (kind ``centralised``, ``oldest:K``), each run
+again here on the 100 episodes; no upper bound (its linear program does not scale to them).
+
 Run from the repository root (about 10 s)::
 
     python experiments/rl/suite_references.py
@@ -32,6 +38,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 RL = ROOT / "experiments" / "results" / "rl"
 FRONTIERS = RL / "comm_tasks"
+SCALE_FRONTIERS = RL / "scale_tasks"
 REFERENCE_EPISODES = RL / "comm_bounds" / "episodes.csv"
 UPPER_BOUNDS = RL / "upper_bounds" / "episodes.csv"
 OUT = ROOT / "netsense" / "benchmark" / "data" / "suite_references.json"
@@ -46,16 +53,17 @@ def _rel(path: Path) -> str:
         return str(path)
 
 
-def best_decentralised(task: str, folder: Path = FRONTIERS) -> dict:
-    """The row of kind ``decentralised`` with the highest mean return in the task's
-    frontier CSV."""
+def best_decentralised(task: str, folder: Path = FRONTIERS, kind: str = "decentralised"
+                       ) -> dict:
+    """The row of kind ``kind`` with the highest mean return in the task's frontier CSV."""
     path = folder / f"frontier_{task}.csv"
     if not path.exists():
-        raise ValueError(f"{path}: no frontier for {task}; run experiments/rl/comm_tasks.py")
+        raise ValueError(f"{path}: no frontier for {task}; run experiments/rl/comm_tasks.py "
+                         "(experiments/rl/scale_tasks.py for a task at scale)")
     with path.open() as fh:
-        rows = [r for r in csv.DictReader(fh) if r.get("kind") == "decentralised"]
+        rows = [r for r in csv.DictReader(fh) if r.get("kind") == kind]
     if not rows:
-        raise ValueError(f"{path}: no row of kind 'decentralised'")
+        raise ValueError(f"{path}: no row of kind {kind!r}")
     return max(rows, key=lambda r: float(r["reward_mean"]))
 
 
@@ -97,7 +105,7 @@ def build(episodes: int = 100, frontiers: Path = FRONTIERS,
           references: Path = REFERENCE_EPISODES, bounds: Path = UPPER_BOUNDS) -> dict:
     """The references file's content (:mod:`netsense.benchmark.references`)."""
     from netsense.benchmark.protocol import eval_seeds, evaluate, frontier_overrides
-    from netsense.benchmark.references import FORMAT, FORMAT_VERSION, SUITE_TASKS
+    from netsense.benchmark.references import FORMAT, FORMAT_VERSION, SCALE_TASKS, SUITE_TASKS
 
     seeds = eval_seeds(episodes)
     ub = upper_bounds(bounds)
@@ -105,9 +113,10 @@ def build(episodes: int = 100, frontiers: Path = FRONTIERS,
         print(f"NOTE: {_rel(bounds)} does not exist: no task gets an upper bound, and the "
               "suite will not normalise scores until it is written and this script re-run")
     tasks = {}
-    for task in SUITE_TASKS:
+    for task in SUITE_TASKS + SCALE_TASKS:
+        scale = task in SCALE_TASKS
         over = frontier_overrides(task)
-        best = best_decentralised(task, frontiers)
+        best = best_decentralised(task, SCALE_FRONTIERS if scale else frontiers)
         never = evaluate(task, "never", seeds, over)["reward"]
         dec = evaluate(task, best["policy"], seeds, over)["reward"]
         if int(best["episodes"]) == episodes and abs(
@@ -115,24 +124,31 @@ def build(episodes: int = 100, frontiers: Path = FRONTIERS,
             raise ValueError(f"{task}: {best['policy']} returns {dec.mean():.6g} here and "
                              f"{best['reward_mean']} in its frontier CSV: the frontier is "
                              "stale; run experiments/rl/comm_tasks.py again")
-        refs = reference_episodes(task, references)
+        refs = {} if scale else reference_episodes(task, references)
+        folder = SCALE_FRONTIERS if scale else frontiers
         entry = {"control": best["control"],
                  "never": {"seeds": seeds, "returns": [float(v) for v in never]},
                  "best_decentralised": {"spec": best["policy"], "seeds": seeds,
                                         "returns": [float(v) for v in dec]},
                  "best_reference": None, "upper_bound": None,
-                 "sources": {"frontier": _rel(frontiers / f"frontier_{task}.csv")}}
+                 "sources": {"frontier": _rel(folder / f"frontier_{task}.csv")}}
+        if scale:  # the best centralised scheduler, run again on the same episodes
+            cen = best_decentralised(task, folder, "centralised")["policy"]
+            refs = {cen: dict(zip(seeds, evaluate(task, cen, seeds, over)["reward"].tolist(),
+                                  strict=True))}
         if refs:
             name = max(refs, key=lambda k: sum(refs[k].values()) / len(refs[k]))
             s = sorted(refs[name])
             entry["best_reference"] = {"name": name, "seeds": s,
                                        "returns": [refs[name][k] for k in s]}
             entry["sources"]["best_reference"] = _rel(references)
+        if scale:
+            entry["sources"]["best_reference"] = entry["sources"]["frontier"]
         if task in ub:
             s = sorted(ub[task])
             entry["upper_bound"] = {"seeds": s, "values": [ub[task][k] for k in s]}
             entry["sources"]["upper_bound"] = _rel(bounds)
-        elif bounds.exists():
+        elif bounds.exists() and not scale:
             print(f"NOTE: {_rel(bounds)} holds no upper bound for {task}: the task gets "
                   "none")
         tasks[task] = entry

@@ -18,6 +18,12 @@ communication task of :data:`SUITE_TASKS`, on the protocol's evaluation episodes
   it on that episode) and its seeds: score 1; ``null`` where no bound exists, and then
   the suite does not normalise that task.
 
+The file may also hold the tasks at scale of :data:`SCALE_TASKS` (``N = 50``): the suite
+scores them when asked by name (``tasks=``), never in its default nine-task aggregate.
+The bound's linear program does not scale to them, so they have no ``upper_bound``; their
+``best_reference`` is the best centralised scheduler of their frontier (``oldest:K``), a
+rule that sees every agent's state, not a lookahead.
+
 Every table and plot of :mod:`netsense.benchmark.suite` reads the references from
 :func:`load_references`. The file is data: it is parsed as JSON and checked, never run.
 """
@@ -33,13 +39,16 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "REFERENCES_FILE", "SUITE_TASKS", "EpisodeValues",
-           "TaskReferences", "load_references", "references_json"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "REFERENCES_FILE", "SCALE_TASKS", "SUITE_TASKS",
+           "EpisodeValues", "TaskReferences", "load_references", "references_json"]
 
 #: The communication tasks of the suite, in the order of its tables.
 SUITE_TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
                "message_cost-v0", "message_cost-v1", "comm_announced-v0", "comm_fading-v0",
                "comm_schedule-v0", "comm_schedule-v1")
+#: Tasks at scale the suite scores on request (``tasks=``), outside its default nine; no
+#: upper bound (module docstring).
+SCALE_TASKS = ("comm_channel_kofn_n50-v0", "comm_spatial_n50-v0")
 FORMAT = "netsense-suite-references"
 FORMAT_VERSION = 1
 #: The package data file (inside ``netsense/benchmark``).
@@ -177,11 +186,12 @@ def references_json(data) -> dict[str, TaskReferences]:
     if not isinstance(tasks, Mapping) or not tasks:
         raise ValueError("'tasks' must be a non-empty object of task -> references")
     out = {}
+    known = SUITE_TASKS + SCALE_TASKS
     for task, d in tasks.items():
-        if task not in SUITE_TASKS:
-            raise ValueError(f"tasks: {task!r} is not a suite task {SUITE_TASKS}")
+        if task not in known:
+            raise ValueError(f"tasks: {task!r} is not a suite task {known}")
         out[task] = _task(task, d, f"tasks.{task}")
-    return {t: out[t] for t in SUITE_TASKS if t in out}
+    return {t: out[t] for t in known if t in out}
 
 
 def load_references(path: str | Path | None = None) -> dict[str, TaskReferences]:

@@ -42,7 +42,12 @@ from pathlib import Path
 import numpy as np
 
 from netsense.benchmark.intervals import bootstrap_ci
-from netsense.benchmark.references import SUITE_TASKS, TaskReferences, load_references
+from netsense.benchmark.references import (
+    SCALE_TASKS,
+    SUITE_TASKS,
+    TaskReferences,
+    load_references,
+)
 from netsense.benchmark.suite_output import AGGREGATE, TABLE_COLUMNS
 
 __all__ = ["AGGREGATE", "SUITE_TASKS", "TABLE_COLUMNS", "Builder", "SuiteResult", "builder",
@@ -132,10 +137,10 @@ def _file_run(path: Path, task: str | None, seed: int | None,
     if task is not None and ftask != task:
         raise ValueError(f"{path}: a policy of {ftask}, given for {task}")
     if ftask not in refs:
-        if ftask in SUITE_TASKS:
+        if ftask in SUITE_TASKS + SCALE_TASKS:
             return None  # a task left out of this scoring (``tasks``)
         raise ValueError(f"{path}: a policy of {ftask}, which is not a suite task "
-                         f"{SUITE_TASKS}")
+                         f"{SUITE_TASKS + SCALE_TASKS}")
     if mode is not None and mode != refs[ftask].control:
         raise ValueError(f"{path}: acts in control mode {mode!r}; the suite scores "
                          f"{ftask} in {refs[ftask].control!r}")
@@ -165,10 +170,11 @@ def runs_folder(path: str | Path, tasks: Sequence[str] | None = None
         raise ValueError(f"{root}: not a folder")
     wanted = SUITE_TASKS if tasks is None else tuple(tasks)
     out: dict[str, dict[str, list]] = {}
-    found = [d for d in sorted(root.iterdir()) if d.is_dir() and d.name in SUITE_TASKS]
+    known = SUITE_TASKS + SCALE_TASKS
+    found = [d for d in sorted(root.iterdir()) if d.is_dir() and d.name in known]
     if not found:
         raise ValueError(f"{root}: no task folder; a runs folder holds DIR/<task>/[<learner>/]"
-                         f"seed_<s>/ for tasks among {SUITE_TASKS}")
+                         f"seed_<s>/ for tasks among {known}")
     for tdir in found:
         if tdir.name not in wanted:
             continue
@@ -215,7 +221,7 @@ def _expand(name: str, spec, refs: Mapping[str, TaskReferences]
                          "mapping)")
 
     if isinstance(spec, Mapping):
-        unknown = sorted(set(spec) - set(SUITE_TASKS))
+        unknown = sorted(set(spec) - set(SUITE_TASKS + SCALE_TASKS))
         if unknown:
             raise ValueError(f"policy {name!r}: {unknown} are not suite tasks")
         out: dict[str, list[_Run]] = {}
@@ -314,7 +320,9 @@ def score(policies: Mapping[str, object], tasks: Sequence[str] | None = None,
         callable ``act(obs, mask)``, :func:`builder` ``(fn)``, a list of those (training
         seeds) or a ``{task: ...}`` mapping).
     tasks : sequence of str, optional
-        Tasks to score (default: every task of the references).
+        Tasks to score (default: the nine communication tasks of
+        :data:`~netsense.benchmark.references.SUITE_TASKS` the references hold; a task at
+        scale, :data:`~netsense.benchmark.references.SCALE_TASKS`, only by name).
     episodes : int
         Evaluation episodes, the protocol's first ``episodes`` seeds (at most the
         references' 100).
@@ -347,6 +355,11 @@ def score(policies: Mapping[str, object], tasks: Sequence[str] | None = None,
             raise ValueError(f"tasks {unknown} are not in the suite's references "
                              f"{tuple(refs)}")
         refs = {t: refs[t] for t in tasks}
+    else:
+        refs = {t: r for t, r in refs.items() if t in SUITE_TASKS}
+        if not refs:
+            raise ValueError("the references hold none of the suite's nine tasks; name the "
+                             "tasks to score (tasks=)")
     n_ref = min(len(r.never.seeds) for r in refs.values())
     if isinstance(episodes, bool) or int(episodes) != episodes or not 1 <= episodes <= n_ref:
         raise ValueError(f"episodes must be an integer in 1..{n_ref} (the references' "
