@@ -115,3 +115,29 @@ def test_written_files_have_the_usual_permissions(tmp_path):
         assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o644
     finally:
         os.umask(mask)
+
+
+def test_save_figure_writes_the_suffix_format_whole_or_not_at_all(tmp_path, monkeypatch):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from netsense.rl.atomic import save_figure
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    png, svg = save_figure(fig, tmp_path / "f.png"), save_figure(fig, tmp_path / "f.svg")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the format of the suffix,
+    assert b"<svg" in svg.read_bytes()[:500]  # not guessed from the temporary's name
+    (tmp_path / "g.png").write_text(OLD)
+
+    def crash(*args, **kwargs):
+        raise _Crash("killed mid-write")
+
+    monkeypatch.setattr(fig, "savefig", crash)
+    with pytest.raises(_Crash):
+        save_figure(fig, tmp_path / "g.png")
+    assert (tmp_path / "g.png").read_text() == OLD
+    assert not list(tmp_path.glob(".*.part"))
+    plt.close(fig)

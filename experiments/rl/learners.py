@@ -504,10 +504,9 @@ def _write(path: Path, text: str) -> None:
 
 
 def _savefig(fig, path: Path) -> None:
-    from netsense.rl.atomic import atomic_path
+    from netsense.rl.atomic import save_figure
 
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format=path.suffix[1:] or "png")
+    save_figure(fig, path)
 
 
 def _f(v: float, d: int = 1) -> str:

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from netsense.benchmark.kinds import INFORMED_FAMILIES, family_kind, reference_label
-from netsense.rl.atomic import atomic_path
+from netsense.rl.atomic import save_figure
 
 __all__ = ["plot_frontier"]
 
@@ -169,7 +169,6 @@ def plot_frontier(rows: Sequence[dict], path: str | Path) -> Path:
                  f"seeds from {r0['seed_first']}{note}; 95 % bootstrap CI", fontsize=10)
     rows_needed = int(np.ceil(len(handles) / 4))
     fig.tight_layout(rect=(0, min(0.45, 0.035 * rows_needed + 0.02), 1, 0.96))
-    with atomic_path(path) as tmp:  # the temporary name ends in .part: format given
-        fig.savefig(tmp, dpi=110, format=Path(path).suffix[1:] or "png")
+    save_figure(fig, path)
     plt.close(fig)
     return Path(path)

@@ -11,7 +11,7 @@ import numpy as np
 
 from netsense.benchmark.metrics import METRICS
 from netsense.env.policies import SCRIPTED_POLICIES
-from netsense.rl.atomic import atomic_path
+from netsense.rl.atomic import atomic_path, save_figure
 
 
 def aggregate(results: Iterable[dict]) -> list[dict]:
@@ -169,7 +169,6 @@ def _save(fig, path: str | Path) -> Path:
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:  # the temporary name ends in .part: format given
-        fig.savefig(tmp, dpi=110, format=path.suffix[1:] or "png")
+    save_figure(fig, path)
     plt.close(fig)
     return path

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.rl.atomic import atomic_path, write_atomic
+from netsense.rl.atomic import atomic_path, save_figure, write_atomic
 
 __all__ = ["AGGREGATE", "TABLE_COLUMNS", "leaderboard_markdown", "markdown_table",
            "plot_result", "read_table", "write_result"]
@@ -252,6 +252,5 @@ def plot_result(result, path: str | Path, learners: Sequence[str] | None = None)
         ax_p.axis("off")
     ax_p.set_title("performance profile", fontsize=9)
     fig.tight_layout()
-    with atomic_path(path) as tmp:  # the temporary name ends in .part: format given
-        fig.savefig(tmp, dpi=110, format=Path(path).suffix[1:] or "png")
+    save_figure(fig, path)
     plt.close(fig)

@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_atomic", "write_json"]
+__all__ = ["atomic_path", "save_figure", "write_atomic", "write_json"]
 
 
 @contextmanager
@@ -72,3 +72,13 @@ def write_json(path: str | Path, obj, **kwargs) -> Path:
     """``obj`` as indented JSON with a final newline, written atomically
     (:func:`write_atomic`); ``kwargs`` go to :func:`json.dumps` (e.g. ``default=list``)."""
     return write_atomic(path, json.dumps(obj, indent=2, **kwargs) + "\n")
+
+
+def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
+    """Save a matplotlib figure to ``path`` through :func:`atomic_path`, in the format of
+    the path's suffix (PNG without one: the temporary name ends in ``.part``, so the format
+    is given, not guessed), and return the path. The figure is left open."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix[1:] or "png")
+    return path

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from netsense.rl.atomic import atomic_path, write_atomic
+from netsense.rl.atomic import save_figure, write_atomic
 
 __all__ = ["RunLog", "plot_curve", "read_log"]
 
@@ -153,7 +153,6 @@ def plot_curve(rows: list[dict], path: Path, title: str,
     if ax.lines:
         ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    save_figure(fig, path)
     plt.close(fig)
     return path

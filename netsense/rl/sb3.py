@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from netsense.rl.atomic import atomic_path, write_atomic, write_json
+from netsense.rl.atomic import save_figure, write_atomic, write_json
 from netsense.rl.run_folder import FINISHED, RUNNING, mark
 from netsense.rl.sb3_policy import LearnedPolicy, sb3_metadata, write_sb3_metadata
 from netsense.rl.wrappers import MaskedFlatObs, mask_allows
@@ -408,7 +408,6 @@ def _plot_curve(rows: list[dict], path: Path, title: str,
     ax.set_ylabel("mean episode return per agent")
     ax.set_title(f"MaskablePPO on {title}")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    save_figure(fig, path)
     plt.close(fig)
     return path
