@@ -87,3 +87,23 @@ def test_transfer_table_statistics(transfer) -> None:
     assert (by_n[10]["seeds"], by_n[10]["episodes"]) == (2, 20)
     assert len(per_seed) == 4
     assert "| 10 | `t10` | 2 x 20 |" in transfer.markdown(table, 1000)
+
+
+def test_suite_scores_the_policy_at_n50_without_a_bound(transfer, tmp_path) -> None:
+    """The suite scores the N = 50 policies on the training task by name: its IQM is the
+    policy's own return on the same episodes, next to the rule of the suite's references,
+    and no normalised score (no bound at this size)."""
+    import math
+
+    from netsense.benchmark.protocol import eval_seeds, evaluate, frontier_overrides
+    from netsense.benchmark.references import load_references
+
+    res = transfer.write_suite(tmp_path, {0: POLICY}, episodes=2, progress=False)
+    row = next(r for r in res.table if r["task"] == transfer.TRAIN_TASK)
+    ref = load_references()[transfer.TRAIN_TASK]
+    assert row["best_decentralised"] == ref.best_decentralised
+    assert math.isnan(row["score"])
+    own = evaluate(transfer.TRAIN_TASK, f"learned:{POLICY}", eval_seeds(2),
+                   frontier_overrides(transfer.TRAIN_TASK))["reward"]
+    assert row["iqm"] == pytest.approx(np.mean(own))  # 2 episodes: the IQM trims none
+    assert (tmp_path / "suite" / "table.csv").exists()

@@ -1,17 +1,18 @@
 """Policies that transfer across N: the set-network learner trained from scratch on the
 K-of-N collision channel at N = 50, scored there and zero-shot at N = 10, 200 and 1,000.
 
-``python experiments/rl/transfer_scale.py`` (15 minutes of training and 15 of evaluation,
-measured on the busy 2-core machine; ``--seeds``, ``--steps``, ``--episodes-scale``
+``python experiments/rl/transfer_scale.py --workers 2`` (about 30 minutes of training and
+15 of evaluation on the 2-core machine; ``--seeds``, ``--steps``, ``--episodes-scale``
 shrink it, ``--retrain`` trains again where a run's ``policy.pt`` exists, by default an
-existing run is evaluated as it is) writes into ``experiments/results/rl/transfer_scale/``:
+existing run is evaluated as it is; ``--workers`` trains that many seeds at once) writes
+into ``experiments/results/rl/transfer_scale/``:
 
 1. **Runs** ``runs/seed_<s>/``: MAPPO with the set actor
    (:class:`netsense.rl.set_network.SetPolicyNet`, ``--network set``: its parameters do
    not depend on ``N``, ``D``, ``M``; it reads neither the agent one-hot of the MLP actor
    nor any ``N``-sized field of the observation) trained on ``comm_channel_kofn_n50-v0``
    for :data:`STEPS` agent-steps per seed (:data:`FIELDS`: a budget, not a verdict), one
-   run at a time, one torch thread; ``policy.pt`` is the final actor (critic stripped),
+   torch thread per run; ``policy.pt`` is the final actor (critic stripped),
    with ``log.csv``, ``config.json``, ``summary.json``.
 2. **Episodes** ``episodes.csv``: every final policy, greedy and sampled, on the
    protocol's held-out seeds (:func:`netsense.benchmark.protocol.eval_seeds`) of each target of
@@ -30,6 +31,11 @@ existing run is evaluated as it is) writes into ``experiments/results/rl/transfe
    and message rates, greedy and sampled, in ``per_seed.csv``.
 4. **Plot** ``transfer.png``: return per agent-step against N (log axis), learned greedy
    (IQM and interval) and sampled (IQM), every seed thin, the rule and ``never``.
+5. **Suite** ``suite/`` (``table.csv``, ``table.md``, ``episodes.csv``, ``figure.png``):
+   the benchmark suite's score of the five policies on the training task
+   (:func:`netsense.benchmark.suite.score` with ``tasks=[TRAIN_TASK]``: IQM, the best
+   decentralised rule and the best centralised scheduler of the suite's references, the
+   probability of improvement; no bound at this size, so no normalised score).
 
 Every file is written atomically (:mod:`netsense.rl.atomic`).
 """
@@ -51,11 +57,10 @@ RESULTS = ROOT / "experiments" / "results" / "rl" / "transfer_scale"
 FRONTIER = ROOT / "experiments" / "results" / "rl" / "scale_tasks" / "summary.csv"
 TRAIN_TASK = "comm_channel_kofn_n50-v0"
 SEEDS = (0, 1, 2, 3, 4)
-#: Agent-steps per seed: 20 iterations of 32 environments x 32 steps x 50 agents, sized for
-#: five seeds in about 25 minutes on the busy 2-core machine from a short run's ~3,500
-#: agent-steps/s (one torch thread); the committed runs went at 5,700 on average (15 min
-#: for all five) as the other load eased. A budget, not a verdict.
-STEPS = 1_024_000
+#: Agent-steps per seed: 80 iterations of 32 environments x 32 steps x 50 agents (the team
+#: critic's state holds the graph on the circulant's N D base links only:
+#: :func:`netsense.rl.envs.global_state`). A budget, not a verdict.
+STEPS = 4_096_000
 #: The run's :class:`netsense.rl.config.PPOConfig` fields beyond the scenario, seed and
 #: steps (the recipe's defaults otherwise: team critic, team reward, entropy decayed to 0).
 FIELDS = {"network": "set", "num_envs": 32, "rollout": 32, "minibatch": 512,
@@ -101,9 +106,9 @@ def _finish(folder: Path) -> None:
 
 
 def train(out: Path, seeds: list[int], steps: int, retrain: bool,
-          progress: bool = True) -> dict[int, Path]:
+          progress: bool = True, workers: int = 1) -> dict[int, Path]:
     """Train every seed without a ``policy.pt`` under ``out/runs`` (all with
-    ``retrain``), one at a time (:func:`netsense.rl.launch.launch`); returns
+    ``retrain``), ``workers`` at a time (:func:`netsense.rl.launch.launch`); returns
     ``{seed: policy file}``."""
     from netsense.rl.launch import Run, launch
 
@@ -115,7 +120,7 @@ def train(out: Path, seeds: list[int], steps: int, retrain: bool,
             shutil.rmtree(folder, ignore_errors=True)
             todo.append(Run(ppo_config(s, steps)))
     if todo:
-        entries = launch(todo, runs, workers=1, progress=progress)
+        entries = launch(todo, runs, workers=workers, progress=progress)
         failed = [f"{e['folder']}: {e['error']}" for e in entries if e["status"] != "ok"]
         if failed:
             raise RuntimeError(f"runs failed: {'; '.join(failed)}")
@@ -264,7 +269,7 @@ def plot(table: list[dict], per_seed: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from netsense.rl.atomic import atomic_path
+    from netsense.rl.atomic import save_figure
 
     H = 200.0  # every target's horizon: per agent-step = return / H
     Ns = np.array([r["N"] for r in table])
@@ -297,8 +302,7 @@ def plot(table: list[dict], per_seed: list[dict], path: Path) -> None:
     ax.set_title("Transfer across N: K-of-N channel, K = N / 5")
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
 
 
@@ -324,6 +328,17 @@ def write_outputs(out: Path, rows: list[dict], steps: int) -> list[dict]:
     return table
 
 
+def write_suite(out: Path, policies: dict[int, Path], episodes: int = 100,
+                progress: bool = True):
+    """The suite's score of the policies on :data:`TRAIN_TASK`, written to ``out/suite``."""
+    from netsense.benchmark.suite import score
+
+    res = score({"set network, N = 50": [str(policies[s]) for s in sorted(policies)]},
+                [TRAIN_TASK], episodes, progress=progress)
+    res.write(out / "suite")
+    return res
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command line: train (where needed), evaluate, write the table and the plot."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -336,6 +351,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes-scale", type=float, default=1.0,
                     help="fraction of each target's episodes (at least 2)")
     ap.add_argument("--retrain", action="store_true")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="training processes at once (one core each; default 1)")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
     out = args.out
@@ -343,13 +360,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.stage == "summary":
         table = write_outputs(out, read_rows(out / "episodes.csv"), args.steps)
     else:
-        policies = train(out, args.seeds, args.steps, args.retrain, not args.no_progress)
+        policies = train(out, args.seeds, args.steps, args.retrain, not args.no_progress,
+                         args.workers)
         if args.stage == "train":
             return 0
         rows = evaluate_all(policies, list(TARGETS), args.episodes_scale,
                             not args.no_progress)
         write_csv(out / "episodes.csv", rows)
         table = write_outputs(out, rows, args.steps)
+        n50 = next(t for t in TARGETS if t.task == TRAIN_TASK)
+        print(write_suite(out, policies, max(2, round(n50.episodes * args.episodes_scale)),
+                          not args.no_progress).markdown())
     print(markdown(table, args.steps))
     return 0
 
