@@ -39,8 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "REFERENCES_FILE", "SCALE_TASKS", "SUITE_TASKS",
-           "EpisodeValues", "TaskReferences", "load_references", "references_json"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "KNOWN_TASKS", "REFERENCES_FILE", "SCALE_TASKS",
+           "SUITE_TASKS", "EpisodeValues", "TaskReferences", "load_references",
+           "references_json"]
 
 #: The communication tasks of the suite, in the order of its tables.
 SUITE_TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0",
@@ -49,6 +50,8 @@ SUITE_TASKS = ("comm_process_noise-v0", "comm_substates-v0", "comm_channel_k2-v0
 #: Tasks at scale the suite scores on request (``tasks=``), outside its default nine; no
 #: upper bound (module docstring).
 SCALE_TASKS = ("comm_channel_kofn_n50-v0", "comm_spatial_n50-v0")
+#: Every task a references file may hold, in table order.
+KNOWN_TASKS = SUITE_TASKS + SCALE_TASKS
 FORMAT = "netsense-suite-references"
 FORMAT_VERSION = 1
 #: The package data file (inside ``netsense/benchmark``).
@@ -186,12 +189,11 @@ def references_json(data) -> dict[str, TaskReferences]:
     if not isinstance(tasks, Mapping) or not tasks:
         raise ValueError("'tasks' must be a non-empty object of task -> references")
     out = {}
-    known = SUITE_TASKS + SCALE_TASKS
     for task, d in tasks.items():
-        if task not in known:
-            raise ValueError(f"tasks: {task!r} is not a suite task {known}")
+        if task not in KNOWN_TASKS:
+            raise ValueError(f"tasks: {task!r} is not a suite task {KNOWN_TASKS}")
         out[task] = _task(task, d, f"tasks.{task}")
-    return {t: out[t] for t in known if t in out}
+    return {t: out[t] for t in KNOWN_TASKS if t in out}
 
 
 def load_references(path: str | Path | None = None) -> dict[str, TaskReferences]:

@@ -43,7 +43,7 @@ import numpy as np
 
 from netsense.benchmark.intervals import bootstrap_ci
 from netsense.benchmark.references import (
-    SCALE_TASKS,
+    KNOWN_TASKS,
     SUITE_TASKS,
     TaskReferences,
     load_references,
@@ -137,10 +137,10 @@ def _file_run(path: Path, task: str | None, seed: int | None,
     if task is not None and ftask != task:
         raise ValueError(f"{path}: a policy of {ftask}, given for {task}")
     if ftask not in refs:
-        if ftask in SUITE_TASKS + SCALE_TASKS:
+        if ftask in KNOWN_TASKS:
             return None  # a task left out of this scoring (``tasks``)
         raise ValueError(f"{path}: a policy of {ftask}, which is not a suite task "
-                         f"{SUITE_TASKS + SCALE_TASKS}")
+                         f"{KNOWN_TASKS}")
     if mode is not None and mode != refs[ftask].control:
         raise ValueError(f"{path}: acts in control mode {mode!r}; the suite scores "
                          f"{ftask} in {refs[ftask].control!r}")
@@ -170,11 +170,10 @@ def runs_folder(path: str | Path, tasks: Sequence[str] | None = None
         raise ValueError(f"{root}: not a folder")
     wanted = SUITE_TASKS if tasks is None else tuple(tasks)
     out: dict[str, dict[str, list]] = {}
-    known = SUITE_TASKS + SCALE_TASKS
-    found = [d for d in sorted(root.iterdir()) if d.is_dir() and d.name in known]
+    found = [d for d in sorted(root.iterdir()) if d.is_dir() and d.name in KNOWN_TASKS]
     if not found:
         raise ValueError(f"{root}: no task folder; a runs folder holds DIR/<task>/[<learner>/]"
-                         f"seed_<s>/ for tasks among {known}")
+                         f"seed_<s>/ for tasks among {KNOWN_TASKS}")
     for tdir in found:
         if tdir.name not in wanted:
             continue
@@ -221,7 +220,7 @@ def _expand(name: str, spec, refs: Mapping[str, TaskReferences]
                          "mapping)")
 
     if isinstance(spec, Mapping):
-        unknown = sorted(set(spec) - set(SUITE_TASKS + SCALE_TASKS))
+        unknown = sorted(set(spec) - set(KNOWN_TASKS))
         if unknown:
             raise ValueError(f"policy {name!r}: {unknown} are not suite tasks")
         out: dict[str, list[_Run]] = {}

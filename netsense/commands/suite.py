@@ -24,12 +24,12 @@ HELP = ("Score policies (.npz or .pt files, runs folders of `netsense train`, ru
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from netsense.benchmark.references import SCALE_TASKS, SUITE_TASKS
+    from netsense.benchmark.references import KNOWN_TASKS, SCALE_TASKS
 
     parser.add_argument("action", choices=("score",), help="score: evaluate and summarise")
     parser.add_argument("policies", nargs="+", metavar="POLICY",
                         help="[NAME=]PATH of a policy file or runs folder, or [NAME=]rule:SPEC")
-    parser.add_argument("--tasks", nargs="+", choices=list(SUITE_TASKS + SCALE_TASKS),
+    parser.add_argument("--tasks", nargs="+", choices=list(KNOWN_TASKS),
                         metavar="TASK",
                         help="tasks to score (default: the nine communication tasks; the "
                              f"tasks at scale {', '.join(SCALE_TASKS)} only by name, "
