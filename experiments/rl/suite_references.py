@@ -53,8 +53,7 @@ def _rel(path: Path) -> str:
         return str(path)
 
 
-def best_decentralised(task: str, folder: Path = FRONTIERS, kind: str = "decentralised"
-                       ) -> dict:
+def best_row(task: str, folder: Path = FRONTIERS, kind: str = "decentralised") -> dict:
     """The row of kind ``kind`` with the highest mean return in the task's frontier CSV."""
     path = folder / f"frontier_{task}.csv"
     if not path.exists():
@@ -105,7 +104,7 @@ def build(episodes: int = 100, frontiers: Path = FRONTIERS,
           references: Path = REFERENCE_EPISODES, bounds: Path = UPPER_BOUNDS) -> dict:
     """The references file's content (:mod:`netsense.benchmark.references`)."""
     from netsense.benchmark.protocol import eval_seeds, evaluate, frontier_overrides
-    from netsense.benchmark.references import FORMAT, FORMAT_VERSION, SCALE_TASKS, SUITE_TASKS
+    from netsense.benchmark.references import FORMAT, FORMAT_VERSION, KNOWN_TASKS, SCALE_TASKS
 
     seeds = eval_seeds(episodes)
     ub = upper_bounds(bounds)
@@ -113,37 +112,38 @@ def build(episodes: int = 100, frontiers: Path = FRONTIERS,
         print(f"NOTE: {_rel(bounds)} does not exist: no task gets an upper bound, and the "
               "suite will not normalise scores until it is written and this script re-run")
     tasks = {}
-    for task in SUITE_TASKS + SCALE_TASKS:
+    for task in KNOWN_TASKS:
         scale = task in SCALE_TASKS
+        folder, script = ((SCALE_FRONTIERS, "scale_tasks.py") if scale
+                          else (frontiers, "comm_tasks.py"))
         over = frontier_overrides(task)
-        best = best_decentralised(task, SCALE_FRONTIERS if scale else frontiers)
+        best = best_row(task, folder)
         never = evaluate(task, "never", seeds, over)["reward"]
         dec = evaluate(task, best["policy"], seeds, over)["reward"]
         if int(best["episodes"]) == episodes and abs(
                 dec.mean() - float(best["reward_mean"])) > 1e-3 * abs(dec.mean()) + 1e-6:
             raise ValueError(f"{task}: {best['policy']} returns {dec.mean():.6g} here and "
                              f"{best['reward_mean']} in its frontier CSV: the frontier is "
-                             "stale; run experiments/rl/comm_tasks.py again")
-        refs = {} if scale else reference_episodes(task, references)
-        folder = SCALE_FRONTIERS if scale else frontiers
+                             f"stale; run experiments/rl/{script} again")
+        if scale:  # the best centralised scheduler, run again on the same episodes
+            cen = best_row(task, folder, "centralised")["policy"]
+            refs = {cen: dict(zip(seeds, evaluate(task, cen, seeds, over)["reward"].tolist(),
+                                  strict=True))}
+        else:
+            refs = reference_episodes(task, references)
         entry = {"control": best["control"],
                  "never": {"seeds": seeds, "returns": [float(v) for v in never]},
                  "best_decentralised": {"spec": best["policy"], "seeds": seeds,
                                         "returns": [float(v) for v in dec]},
                  "best_reference": None, "upper_bound": None,
                  "sources": {"frontier": _rel(folder / f"frontier_{task}.csv")}}
-        if scale:  # the best centralised scheduler, run again on the same episodes
-            cen = best_decentralised(task, folder, "centralised")["policy"]
-            refs = {cen: dict(zip(seeds, evaluate(task, cen, seeds, over)["reward"].tolist(),
-                                  strict=True))}
         if refs:
             name = max(refs, key=lambda k: sum(refs[k].values()) / len(refs[k]))
             s = sorted(refs[name])
             entry["best_reference"] = {"name": name, "seeds": s,
                                        "returns": [refs[name][k] for k in s]}
-            entry["sources"]["best_reference"] = _rel(references)
-        if scale:
-            entry["sources"]["best_reference"] = entry["sources"]["frontier"]
+            entry["sources"]["best_reference"] = (entry["sources"]["frontier"] if scale
+                                                  else _rel(references))
         if task in ub:
             s = sorted(ub[task])
             entry["upper_bound"] = {"seeds": s, "values": [ub[task][k] for k in s]}
