@@ -1137,19 +1137,17 @@ def cmd_time(args, cfg: dict) -> None:
             runs = sorted(r for r in learner.glob("seed_*") if (r / "log.csv").exists())
             if not runs:
                 continue
-            hits = [time_to_rule(read_log(r), rule) for r in runs]
-            got = [h for h in hits if h is not None]
-            cfg_run = json.loads((runs[0] / "config.json").read_text())
+            got = [h for h in (time_to_rule(read_log(r), rule) for r in runs) if h]
+            steps, minutes = ((float(np.median([h[0] for h in got])),
+                               float(np.median([h[1] for h in got])) / 60) if got
+                              else (float("nan"), float("nan")))
             rows.append({"task": task.name, "learner": learner.name, "rule": spec,
                          "rule_return": rule, "seeds": len(runs), "reached": len(got),
-                         "agent_steps": float(np.median([h[0] for h in got])) if got
-                         else float("nan"),
-                         "minutes": float(np.median([h[1] for h in got])) / 60 if got
-                         else float("nan"),
-                         "budget": int(cfg_run["steps"])})
-            r = rows[-1]
-            r["agent_steps_text"] = f"{r['agent_steps'] / 1e6:.2f}M" if got else "–"
-            r["minutes_text"] = f"{r['minutes']:.1f}" if got else "–"
+                         "agent_steps": steps, "minutes": minutes,
+                         "budget": int(json.loads((runs[0] / "config.json").read_text())
+                                       ["steps"]),
+                         "agent_steps_text": f"{steps / 1e6:.2f}M" if got else "–",
+                         "minutes_text": f"{minutes:.1f}" if got else "–"})
     if not rows:
         raise ValueError(f"{out}: no runs with a learning curve and a rule's validation "
                          "return (curve_refs.csv)")
@@ -1158,9 +1156,8 @@ def cmd_time(args, cfg: dict) -> None:
              "median agent-steps | median minutes | budget |", "|---" * 7 + "|"]
     for r in rows:
         lines.append(f"| {r['task']} | {r['learner']} | `{r['rule']}` ({r['rule_return']:.1f})"
-                     f" | {r['reached']} of {r['seeds']} | "
-                     + f"{r['agent_steps_text']} | {r['minutes_text']} | "
-                     f"{r['budget'] / 1e6:.0f}M |")
+                     f" | {r['reached']} of {r['seeds']} | {r['agent_steps_text']} | "
+                     f"{r['minutes_text']} | {r['budget'] / 1e6:.0f}M |")
     _write(out / "time_to_rule.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
