@@ -106,3 +106,12 @@ def test_smoke_run_writes_csv_md_and_png(tmp_path):
     assert all(float(r["core_agent_steps_per_s"]) > 0 for r in rows)
     assert "Targets" in (tmp_path / "scale_smoke.md").read_text()
     assert (tmp_path / "scale_smoke.png").stat().st_size > 0
+
+
+def test_steady_rate_is_the_median_after_the_first_iteration():
+    rows = [{"agent_steps": 0, "wall_s": 0.0}, {"agent_steps": 100, "wall_s": 10.0},
+            {"agent_steps": 300, "wall_s": 11.0}, {"agent_steps": 400, "wall_s": 12.0},
+            {"agent_steps": 500, "wall_s": 14.0}]
+    # rows[0] ends the first iteration; the four later ones ran at 10, 200, 100, 50 /s
+    assert scale.steady_rate(rows) == pytest.approx(75.0)
+    assert math.isnan(scale.steady_rate(rows[:1]))

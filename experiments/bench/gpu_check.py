@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import statistics
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -50,12 +50,19 @@ def measure(device: str, num_envs: int, iterations: int, smoke: bool) -> dict:
                     eval_interval=10**6, eval_envs=2, minibatch=min(2048, num_envs * rollout),
                     overrides=over)
     res = train_ppo(cfg, None, evaluate_every=False)
-    rows = res.rows
-    rates = [(b["agent_steps"] - a["agent_steps"]) / (b["wall_s"] - a["wall_s"])
-             for a, b in zip(rows, rows[1:], strict=False)]
     return {"device": device, "task": task, "num_envs": num_envs,
-            "iterations": len(rows), "agent_steps": int(res.agent_steps),
-            "agent_steps_per_s": statistics.median(rates) if rates else float("nan")}
+            "iterations": len(res.rows), "agent_steps": int(res.agent_steps),
+            "agent_steps_per_s": _scale().steady_rate(res.rows)}
+
+
+def _scale():
+    """``experiments/bench/scale.py``, whose :func:`steady_rate` times training the same
+    way."""
+    spec = importlib.util.spec_from_file_location("_gpu_check_scale",
+                                                  ROOT / "experiments" / "bench" / "scale.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -305,6 +305,14 @@ def train_state_bytes(N: int, M: int, num_envs: int, rollout: int,
     return 4 * (rollout + 1) * num_envs * state_size(N, M, edges)
 
 
+def steady_rate(rows: Sequence[dict]) -> float:
+    """Median agent-steps/s of a training log's iterations after the first (the first
+    collection has nothing to overlap); NaN with fewer than two iterations."""
+    rates = [(b["agent_steps"] - a["agent_steps"]) / (b["wall_s"] - a["wall_s"])
+             for a, b in zip(rows, rows[1:], strict=False)]
+    return statistics.median(rates) if rates else float("nan")
+
+
 def measure_train(N: int, iters: int, **fields) -> dict:
     """``iters`` iterations of the PPOConfig defaults on :func:`scale_overrides` ``(N)``:
     the median rate of the iterations after the first, collection and learning seconds."""
@@ -317,9 +325,7 @@ def measure_train(N: int, iters: int, **fields) -> dict:
                     **fields)
     res = train_ppo(cfg, None, evaluate_every=False)
     rows = res.rows
-    rates = [(b["agent_steps"] - a["agent_steps"]) / (b["wall_s"] - a["wall_s"])
-             for a, b in zip(rows, rows[1:], strict=False)]
-    return {"agent_steps_per_s": statistics.median(rates) if rates else float("nan"),
+    return {"agent_steps_per_s": steady_rate(rows),
             "collect_s": rows[-1]["collect_s"] - rows[0]["collect_s"],
             "learn_s": rows[-1]["learn_s"] - rows[0]["learn_s"],
             "wall_s": rows[-1]["wall_s"] - rows[0]["wall_s"], "iterations": len(rows),
