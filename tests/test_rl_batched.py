@@ -312,6 +312,51 @@ def test_clock_only_policy_loads_blind_to_the_state(tmp_path):
     np.testing.assert_array_equal(logits[0].numpy(), logits[1].numpy())
 
 
+def test_age_features_decay_with_the_steps_of_news_and_silence():
+    """``ages``: each news and silence entry, read in steps from its units of the horizon,
+    gives exp(-a / tau) per scale: 1 at age 0, e^-1 at a = tau, the first steps apart by
+    order-1 differences where the raw entries differ by 1 / H; other entries add nothing."""
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import AgeActor
+
+    core = make_core("comm_fading-v0", 1)
+    L, H, M = core.layout, core.horizon, core.M
+    ages = AgeActor(torch.nn.Identity(), L.news, L.silence, H, (1, 4))
+    obs = torch.zeros(3, L.size)
+    obs[:, L.news] = torch.tensor([0.0, 1.0, 4.0])[:, None] / H
+    obs[:, L.silence.start] = torch.tensor([4.0, 0.0, float(H)]) / H
+    obs[:, L.time.start] = 0.5  # not an age: no feature
+    feat = ages(obs)[:, L.size:].reshape(3, M + 1, 2).numpy()
+    steps = np.array([[0.0] * M + [4.0], [1.0] * M + [0.0], [4.0] * M + [H]])
+    want = np.exp(-steps[..., None] / np.array([1.0, 4.0]))
+    np.testing.assert_allclose(feat, want, rtol=1e-6, atol=1e-12)
+    assert feat[0, M, 1] == pytest.approx(np.exp(-1.0))  # silence 4 at tau = 4
+    np.testing.assert_array_equal(ages(obs)[:, :L.size].numpy(), obs.numpy())
+
+
+def test_age_policy_trains_saves_and_loads_and_needs_the_comm_fields(tmp_path):
+    """The policy file records ``ages``: loading rebuilds the features the weights expect;
+    a config asking for ages in full control, or with obs_norm, is refused naming it."""
+    from netsense.rl.checkpoint import load_policy
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+    from netsense.rl.ppo import train_ppo
+
+    res = train_ppo(_small("mappo", "mlp", control="transmit", ages=(1, 4), clock=(2,)),
+                    tmp_path)
+    assert res.mask_violations == 0 and np.isfinite(res.rows[-1]["eval_return"])
+    core = make_core(SCEN, 2, control="transmit", **SHORT)
+    pol = load_policy(tmp_path / "policy.pt", core)
+    o, m = core.reset(3)
+    for _ in range(4):
+        out = core.step(pol.act(o, m))
+        o, m = out.obs, out.action_mask
+    with pytest.raises(ValueError, match="PPOConfig.ages reads the news and silence"):
+        PPOConfig(SCEN, ages=(2,), control="full")
+    with pytest.raises(ValueError, match="PPOConfig.ages: the age features"):
+        PPOConfig(SCEN, ages=(2,), obs_norm=True)
+
+
 def test_set_network_runs_at_any_size_with_the_same_parameters():
     from netsense.rl.envs import make_core
     from netsense.rl.set_network import SetPolicyNet

@@ -10,6 +10,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py channel     # how the learners use the collision channel
     python experiments/rl/learners.py substates   # which substates the learners send
     python experiments/rl/learners.py memory      # where the learners would need memory
+    python experiments/rl/learners.py reaction    # comm_fading-v0: what the row shows, done
     python experiments/rl/learners.py time-to-rule   # when training reaches the rule
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
@@ -1101,6 +1102,116 @@ def cmd_memory(args, cfg: dict) -> None:
                    MEMORY_COLUMNS, f"memory_{task.removesuffix('-v0')}")
 
 
+#: The silence classes of :func:`reaction_use`: 1 .. 8 steps, then 9 or more.
+SILENCES = tuple(range(1, 9))
+#: The feed-forward twin of ``acked(sources:0)`` (:func:`acked_twin`): its label in the
+#: reaction table, and the probe the rule waits for (its default knob).
+TWIN = "feed-forward twin of acked(sources:0)"
+TWIN_PROBE = 6
+
+
+def acked_twin(core, probe: int = TWIN_PROBE):
+    """``acked:probe(sources:0)`` as a function of the current observation alone: an agent
+    that owns a substate sends unless its message of the step before was lost on every
+    out-link that it had (``acks``) or it has been silent for 1 to ``probe - 1`` steps
+    (``silence``); the others never send. Under ``sources:0`` an owner is silent only
+    where the gate closed it, so its silence is the rule's memory (after a transmission
+    without out-links the rule keeps its older evidence, which the twin cannot: where that
+    differs the episodes differ, so the reaction table checks its return against the
+    rule's)."""
+    L, H = core.layout, core.horizon
+    owner = np.asarray(core.layout.own) >= 0
+
+    def act(obs, mask):
+        o = np.asarray(obs)
+        sil = np.rint(o[..., L.silence.start] * H).astype(np.int64)
+        acks = o[..., L.acks]
+        lost = (sil == 0) & (acks < 0).any(-1) & ~(acks > 0).any(-1)
+        quiet = lost | ((sil >= 1) & (sil < probe))
+        return (owner[None] & ~quiet)[..., None].astype(np.int64)
+
+    return act
+
+
+def reaction_use(task: str, spec: str, seeds: list[int]) -> dict:
+    """What the policy ``spec`` (a scripted spec, :data:`TWIN` or ``learned:PATH``) does on
+    ``task`` (``comm_fading-v0``) with what the current observation shows: each agent-step
+    of an agent that owns a substate (the agents ``sources:0`` lets speak) is classed by
+    its own row alone — it sent at the step before and the message was ``delivered`` on
+    some out-link, ``lost`` on every out-link it had, or it had ``no out-link``; or it has
+    been silent ``s`` steps — and the table gives the send rate per class and the share of
+    those agent-steps in each. ``acked(sources:0)`` sends after a delivery, stays silent
+    after a loss and probes at silence 6: a function of this row alone (its twin)."""
+    from netsense.benchmark.protocol import evaluate
+    from netsense.benchmark.rollouts import learned_overrides
+    from netsense.rl.scripted import scripted_actions
+
+    learned = spec.startswith("learned:")
+    path = spec.partition(":")[2] if learned else None
+    over = learned_overrides(task, path, None) if learned else {}
+    classes = ("delivered", "lost", "no_link", *(f"silent_{s}" for s in SILENCES),
+               f"silent_{SILENCES[-1] + 1}_plus")
+    counts = np.zeros((len(classes), 2))
+
+    def actor(core, _seeds):
+        if learned:
+            from netsense.rl.checkpoint import load_policy
+
+            act0 = load_policy(path, core, deterministic=True).act
+        elif spec == TWIN:
+            act0 = acked_twin(core)
+        else:
+            act0 = scripted_actions(spec, core)
+        L, H = core.layout, core.horizon
+        owner = np.asarray(L.own) >= 0
+
+        def act(obs, mask):
+            a = np.asarray(act0(obs, mask))
+            o = np.asarray(obs)
+            sent = a.reshape(*o.shape[:2], -1).any(-1)
+            sil = np.rint(o[..., L.silence.start] * H).astype(np.int64)
+            acks = o[..., L.acks]
+            now = sil == 0
+            good = now & (acks > 0).any(-1)
+            lost = now & (acks < 0).any(-1) & ~good
+            sel = [good, lost, now & ~good & ~lost, *(sil == s for s in SILENCES),
+                   sil > SILENCES[-1]]
+            for c, m in enumerate(sel):
+                m = m & owner[None]
+                counts[c, 1] += (m & sent).sum()
+                counts[c, 0] += (m & ~sent).sum()
+            return a
+
+        return act
+
+    ret = evaluate(task, "never" if spec == TWIN else spec, seeds, over, actor=actor)["reward"]
+    if spec != TWIN and not np.allclose(ret, evaluate(task, spec, seeds)["reward"], atol=1e-6):
+        raise RuntimeError(f"{spec}: the probed episodes differ from the protocol's")
+    rate = counts[:, 1] / np.maximum(counts.sum(1), 1)
+    share = counts.sum(1) / max(counts.sum(), 1)
+    out = {"return": float(ret.mean())}
+    for c, name in enumerate(classes):
+        out[f"send_{name}"] = float(rate[c])
+        out[f"share_{name}"] = float(share[c])
+    return out
+
+
+def cmd_reaction(args, cfg: dict) -> None:
+    """What the learners on ``comm_fading-v0`` do with what the current observation shows,
+    beside ``acked(sources:0)`` and its feed-forward twin (:func:`reaction_use`); writes
+    ``reaction_fading.{csv,md}``."""
+    from functools import partial
+
+    task = "comm_fading-v0"
+    short = ("delivered", "lost", "no_link", "silent_1", "silent_2", "silent_5",
+             "silent_6", "silent_9_plus")
+    columns = (("return", "return", 1, 1, ""),
+               *((f"send_{c}", f"P(send): {c.replace('_', ' ')}", 1, 2, "") for c in short),
+               ("share_silent_9_plus", "owner-steps silent 9+ steps", 100, 1, " %"))
+    policy_use(args, task, partial(reaction_use, task), ["acked(sources:0)", TWIN], columns,
+               "reaction_fading")
+
+
 def time_to_rule(log: list[dict], rule: float) -> tuple[int, float] | None:
     """``(agent_steps, wall_s)`` of the first evaluation from which the run's greedy
     evaluation return (``eval_return``, the monitoring evaluation during training) stays at
@@ -1203,7 +1314,8 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
-                                       "substates", "memory", "time-to-rule"))
+                                       "substates", "memory", "reaction",
+                                       "time-to-rule"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -1227,7 +1339,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = load_config(args.config)
     commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
                 "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
-                "memory": cmd_memory, "time-to-rule": cmd_time}
+                "memory": cmd_memory, "reaction": cmd_reaction,
+                "time-to-rule": cmd_time}
     commands[args.command](args, cfg)
     return 0
 

@@ -113,6 +113,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help="with --clock: the actor reads only the clock, the time entry and "
                          "its own substate, a learned schedule blind to the state (default: "
                          "the whole observation)")
+    tr.add_argument("--ages", type=positive_int, nargs="+", default=None, metavar="TAU",
+                    help="MLP actor, communication-only modes: also read exp(-a / TAU) for "
+                         "each scale TAU (steps) of every age a in the observation's news "
+                         "and silence entries (default: none)")
     tr.add_argument("--news-gate", action="store_const", const=True, default=None,
                     help="send only what is news: in control modes transmit and substates, "
                          "the choice to send a substate (or to transmit) is closed where the "
@@ -169,7 +173,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: ``--backend sb3`` is refused instead of ignored; what is not given takes
 #: :class:`netsense.rl.config.PPOConfig`'s default).
 TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock",
-                "clock_shift", "clock_only", "news_gate", "epochs", "eval_interval",
+                "clock_shift", "clock_only", "ages", "news_gate", "epochs", "eval_interval",
                 "eval_envs", "bc", "device", "precision", "overlap", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).

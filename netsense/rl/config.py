@@ -115,6 +115,14 @@ class PPOConfig:
         Each agent reads ``clock`` in its own frame, the phases of ``k - i`` for agent
         ``i``, so that one rule shared by the agents is a staggered schedule (default
         ``False``: the common clock; needs ``clock``).
+    ages : tuple of int
+        Scales ``tau`` (steps) at which the MLP actors also read the observation's ages:
+        ``exp(-a / tau)`` for each scale and each entry ``a`` (in steps) of ``news`` and
+        ``silence`` (:class:`netsense.rl.policy.AgeActor`), the communication-only fields
+        the scripted rules read. Those entries are given in units of the horizon (one step
+        is ``1 / H = 0.005`` on the 200-step tasks), beside entries of order 1; on the
+        scale of a few steps the decays separate them. Empty (default): none. Not with
+        ``obs_norm``, the set network or full control.
     clock_only : bool
         The MLP actor reads the clock, the time entry and (with ``agent_features``) its
         own-substate one-hot only, every other observation entry held at 0
@@ -236,6 +244,7 @@ class PPOConfig:
     clock: tuple[int, ...] = ()
     clock_shift: bool = False
     clock_only: bool = False
+    ages: tuple[int, ...] = ()
     news_gate: bool = False
     value_norm: bool = True
     reward_scale: bool = False
@@ -281,6 +290,11 @@ class PPOConfig:
                              f"actor's observation; it is not available with obs_norm=True "
                              f"or network='set' (got obs_norm={self.obs_norm}, network="
                              f"{self.network!r})")
+        if self.ages and (self.obs_norm or self.network == "set"):
+            raise ValueError(f"PPOConfig.ages: the age features read the raw news and silence "
+                             f"entries of the MLP actor's observation; they are not available "
+                             f"with obs_norm=True or network='set' (got obs_norm="
+                             f"{self.obs_norm}, network={self.network!r})")
         if self.clock_shift and not self.clock:
             raise ValueError("PPOConfig.clock_shift shifts the clock's phases by the agent's "
                              "index; give the periods in PPOConfig.clock")
@@ -293,6 +307,9 @@ class PPOConfig:
             raise ValueError(f"PPOConfig.set_slots=False leaves the message slots out of the "
                              f"set network in a communication-only mode; got network="
                              f"{self.network!r}, control={self.control!r}")
+        if self.ages and explicit_mode == "full":
+            raise ValueError("PPOConfig.ages reads the news and silence fields of the "
+                             "communication-only control modes; got control 'full'")
         if self.news_gate and explicit_mode == "full":
             raise ValueError("PPOConfig.news_gate gates the send choices of the "
                              "communication-only control modes ('transmit', 'substates'); "
@@ -404,6 +421,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "clock": ("ints", 2, checks.MAX_STEPS),
     "clock_shift": ("choice", (True, False), None),
     "clock_only": ("choice", (True, False), None),
+    "ages": ("ints", 1, checks.MAX_STEPS),
     "news_gate": ("choice", (True, False), None),
     "value_norm": ("choice", (True, False), None),
     "reward_scale": ("choice", (True, False), None),

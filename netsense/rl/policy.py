@@ -24,8 +24,8 @@ from netsense.rl.memory import RecurrentActor, is_recurrent, unroll
 from netsense.rl.networks import activation_class, critic_net, mlp_actor_net
 from netsense.rl.set_network import SetPolicyNet
 
-__all__ = ["ClockActor", "NewsGateActor", "ObsNormActor", "OwnSubstateActor", "SequenceLogits",
-           "actor_net", "build_actor", "critic_module"]
+__all__ = ["AgeActor", "ClockActor", "NewsGateActor", "ObsNormActor", "OwnSubstateActor",
+           "SequenceLogits", "actor_net", "build_actor", "critic_module"]
 
 #: Logit given to a send choice the news gate closes: its probability is exactly 0 in
 #: float32 and its log-probability finite, so the entropy stays finite (``0 * -1e9``).
@@ -144,6 +144,41 @@ class ClockActor(nn.Module):
         return self.body(torch.cat([obs, torch.sin(phase), torch.cos(phase)], -1), *h)
 
 
+class AgeActor(nn.Module):
+    """An actor that also reads the observation's ages on the scale of a few steps
+    (``ages``): ``exp(-a / tau)`` for each scale ``tau`` and each entry ``a`` of the
+    communication-only fields ``news`` (``M``) and ``silence`` (1), recovered in steps from
+    their units of the horizon (``a = round(H x)``,
+    :class:`netsense.engine.control.CommControl`), appended to every observation.
+
+    The scripted rules threshold these entries at a few steps (``event:3`` sends on news
+    of three steps; ``acked`` probes six steps after a lost message), where one step is
+    ``1 / H = 0.005`` of the entry beside entries of order 1. On ``comm_fading-v0`` the
+    rule ``acked(sources:0)`` is, for the agents it lets speak, a function of the current
+    ``acks`` and ``silence`` alone, yet the feed-forward recipe learnt to stay silent for
+    tens of steps where the rule probes after six (``learners.py reaction``). The decays
+    separate the first steps by order-1 differences and saturate at 0 for long ages."""
+
+    def __init__(self, net: nn.Module, news: slice, silence: slice, horizon: int,
+                 scales: tuple[int, ...]) -> None:
+        super().__init__()
+        self.index = (int(news.start), int(news.stop), int(silence.start))
+        self.horizon = int(horizon)
+        self.register_buffer("scales", torch.as_tensor([float(t) for t in scales]))
+        self.body = net
+        self.memory = int(getattr(net, "memory", 0) or 0)
+
+    def features(self, obs: torch.Tensor) -> torch.Tensor:
+        """``(..., (M + 1) * len(scales))``: the decays, scale-major per entry."""
+        lo, hi, sil = self.index
+        ages = torch.cat([obs[..., lo:hi], obs[..., sil:sil + 1]], -1)
+        steps = torch.round(ages * self.horizon)
+        return torch.exp(-steps[..., None] / self.scales.to(obs.dtype)).flatten(-2)
+
+    def forward(self, obs: torch.Tensor, *h: torch.Tensor):
+        return self.body(torch.cat([obs, self.features(obs)], -1), *h)
+
+
 class NewsGateActor(nn.Module):
     """An actor that sends only what is news (``news_gate``): the choice "send substate
     ``j``" (control mode ``"substates"``) is closed where the observation's ``news[j]`` is
@@ -188,15 +223,21 @@ class NewsGateActor(nn.Module):
 def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     """The actor's logits network for ``core``'s layout and action layout: the set network,
     the recurrent MLP (``config.memory > 0``) or TorchRL's ``MultiAgentMLP``; the MLPs read
-    the own-substate one-hot when ``config.agent_features`` and the clock of
-    ``config.clock`` (:class:`ClockActor`), and sit behind a running
+    the own-substate one-hot when ``config.agent_features``, the clock of
+    ``config.clock`` (:class:`ClockActor`) and the age decays of ``config.ages``
+    (:class:`AgeActor`), and sit behind a running
     observation normaliser when ``config.obs_norm``; either network sits behind the news
     gate when ``config.news_gate`` (:class:`NewsGateActor`)."""
     if config.network == "set":
         net = SetPolicyNet(core.layout, core.nvec, hidden=config.set_hidden,
                            memory=config.memory, slots=config.set_slots)
         return _gated(config, core, net).to(device)
-    extra = (core.M + 1 if config.agent_features else 0) + 2 * len(config.clock)
+    if config.ages and core.layout.news is None:
+        raise ValueError("PPOConfig.ages reads the news and silence fields of the "
+                         "communication-only control modes; the core's observation has "
+                         f"none (control mode {core.control.mode!r})")
+    extra = ((core.M + 1 if config.agent_features else 0) + 2 * len(config.clock)
+             + (core.M + 1) * len(config.ages))
     if config.memory:
         net = RecurrentActor(core.layout.size + extra, int(sum(core.nvec)), config.hidden,
                              config.memory, activation_class(config.activation), device=device)
@@ -208,6 +249,8 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     if config.clock:
         net = ClockActor(net, core.layout.time.start, core.horizon, config.clock,
                          shift=config.clock_shift, clock_only=config.clock_only)
+    if config.ages:
+        net = AgeActor(net, core.layout.news, core.layout.silence, core.horizon, config.ages)
     net = ObsNormActor(net, core.layout.size) if config.obs_norm else net
     return _gated(config, core, net).to(device)
 
