@@ -312,3 +312,29 @@ def test_time_to_rule_counts_only_a_curve_that_stays(learners):
     # the last evaluation below the rule: never reached, whatever came before
     assert learners.time_to_rule(log([-1, -1, -3]), -2.0) is None
     assert learners.time_to_rule(log([None, None]), -2.0) is None
+
+
+def test_acked_rule_is_a_function_of_the_current_row(learners):
+    """On comm_fading-v0 ``acked(sources:0)`` sends after a delivery, never after a loss,
+    stays silent 1 to 5 steps and probes at 6, read from the current row alone; its
+    feed-forward twin (:func:`acked_twin`) plays the same episodes to the same returns. A
+    twin probing one step early (``probe=5``) does not."""
+    from netsense.benchmark.protocol import evaluate
+
+    seeds = [10**6, 10**6 + 1, 10**6 + 2]
+    rule = learners.reaction_use("comm_fading-v0", "acked(sources:0)", seeds)
+    assert rule["send_delivered"] == 1.0 and rule["send_lost"] == 0.0
+    assert all(rule[f"send_silent_{s}"] == 0.0 for s in range(1, 6))
+    assert rule["send_silent_6"] == 1.0 and rule["share_silent_9_plus"] == 0.0
+    twin = learners.reaction_use("comm_fading-v0", learners.TWIN, seeds)
+    assert {k: v for k, v in twin.items() if k.startswith("send_")} == \
+        {k: v for k, v in rule.items() if k.startswith("send_")}
+    want = evaluate("comm_fading-v0", "acked(sources:0)", seeds)["reward"]
+
+    def twin_of(probe):
+        return lambda core, _seeds: learners.acked_twin(core, probe)
+
+    got = evaluate("comm_fading-v0", "never", seeds, {}, actor=twin_of(6))["reward"]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    early = evaluate("comm_fading-v0", "never", seeds, {}, actor=twin_of(5))["reward"]
+    assert not np.allclose(early, want)

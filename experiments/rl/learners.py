@@ -1117,8 +1117,8 @@ def acked_twin(core, probe: int = TWIN_PROBE):
     (``silence``); the others never send. Under ``sources:0`` an owner is silent only
     where the gate closed it, so its silence is the rule's memory (after a transmission
     without out-links the rule keeps its older evidence, which the twin cannot: where that
-    differs the episodes differ, so the reaction table checks its return against the
-    rule's)."""
+    matters the episodes differ, so the reaction table gives the twin's return beside the
+    rule's; on the protocol's 100 episodes they are equal)."""
     L, H = core.layout, core.horizon
     owner = np.asarray(core.layout.own) >= 0
 
