@@ -72,6 +72,95 @@ def test_adoptions_from_full_actions():
     assert got[0, 1, 0] == 2 and (got == -1).sum() == got.size - 1
 
 
+def test_lifetime_credit_is_the_receivers_error_had_it_kept():
+    """Two cores on the same seed and the same actions, but for one adoption: receiver l
+    adopts substate j from sender s in one and keeps in the other, and nobody adopts
+    from l afterwards. At every later step the lifetime credit of s is exactly l's error
+    in the core that kept minus its error in the core that adopted, every other agent's
+    credit is 0; a new adoption of j by l ends the chain."""
+    from netsense.rl.envs import make_core
+
+    scen = "comm_process_noise-v0"
+    adopt, keep = (make_core(scen, 1, control="full", horizon=40) for _ in range(2))
+    adopt.reset(3)
+    keep.reset(3)
+    lc = credit.LifetimeCredit(adopt, np.ones(adopt.N, bool))
+    M, N = adopt.M, adopt.N
+    quiet = np.zeros((1, N, M + 1), np.int64)
+    quiet[..., M] = 1  # everyone transmits, nobody adopts
+    receivers = np.flatnonzero(np.asarray(adopt.layout.own) < 0)  # own no substate
+    for _ in range(3):
+        lc.before(adopt, quiet)
+        adopt.step(quiet)
+        keep.step(quiet)
+        lc.after(adopt)
+    while not adopt.msg[0, receivers].any():
+        adopt.step(quiet)
+        keep.step(quiet)
+    l = int(receivers[adopt.msg[0, receivers].any(-1)][0])
+    d = int(np.flatnonzero(adopt.msg[0, l])[0])  # a slot with a message
+    s, j = int(adopt.nbr[0, l, d]), 0
+    act = quiet.copy()
+    act[0, l, j] = d + 1
+    lc.before(adopt, act)
+    adopt.step(act)
+    keep.step(quiet)
+    seen = 0
+    for step in range(8):
+        got = lc.after(adopt)
+        want = keep.errors[0, l] - adopt.errors[0, l]
+        assert got[0, s] == pytest.approx(want, abs=1e-9), step
+        assert np.count_nonzero(np.delete(got[0], s)) == 0
+        seen += abs(want) > 1e-6
+        lc.before(adopt, quiet)
+        adopt.step(quiet)
+        keep.step(quiet)
+    assert seen > 0  # the adopted estimate did differ from the kept one
+    while not adopt.msg[0, l].any():
+        lc.before(adopt, quiet)
+        adopt.step(quiet)
+        lc.after(adopt)
+    d2 = int(np.flatnonzero(adopt.msg[0, l])[0])
+    s2 = int(adopt.nbr[0, l, d2])
+    act[0, l, j] = d2 + 1
+    lc.before(adopt, act)
+    adopt.step(act)
+    lc.after(adopt)
+    assert lc.sender[0, l, j] == s2  # the chain of (l, j) is the newest adoption's
+    assert np.count_nonzero(lc.sender >= 0) == 1
+    lc.restart(np.array([True]))
+    assert np.count_nonzero(lc.sender >= 0) == 0
+
+
+def test_lifetime_reward_is_the_agent_reward_plus_the_senders_credit():
+    """The env's ``lifetime`` reward is the ``agent`` reward plus the credit: equal where
+    nobody sends, and where only the owners send, different only in the owners' columns
+    (the senders; an owner whose channel stays bad earns nothing); a new episode ends every
+    chain."""
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core
+
+    envs = {r: NetSenseBatchedEnv(make_core("comm_fading-v0", 4, control="transmit"),
+                                  reward=r, seed=7) for r in ("agent", "lifetime")}
+    for env in envs.values():
+        env.restart()
+    core = envs["lifetime"].core
+    owner = np.asarray(core.layout.own) >= 0
+    credited = np.zeros(core.N, bool)
+    for k in range(40):
+        a = np.zeros((4, core.N, 1), np.int64)
+        if k >= 10:
+            a[:, owner, 0] = 1
+        r = {name: env.advance(a)[2] for name, env in envs.items()}
+        diff = r["lifetime"] - r["agent"]
+        if k < 11:  # a message sent at k is adopted at k + 1
+            np.testing.assert_array_equal(diff, 0.0)
+        credited |= (np.abs(diff) > 0).any(0)
+    assert credited[owner].any() and not credited[~owner].any()
+    assert (envs["lifetime"].lifetime_credit.sender >= 0).any()
+    envs["lifetime"].restart()
+    assert not (envs["lifetime"].lifetime_credit.sender >= 0).any()
+
+
 def test_netsense_rl_imports_no_torch():
     code = ("import sys, netsense, netsense.rl, netsense.rl.credit;"
             "print('torch' in sys.modules)")

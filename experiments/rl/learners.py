@@ -11,6 +11,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py substates   # which substates the learners send
     python experiments/rl/learners.py memory      # where the learners would need memory
     python experiments/rl/learners.py reaction    # comm_fading-v0: what the row shows, done
+    python experiments/rl/learners.py credit      # comm_fading-v0: what a message earns
     python experiments/rl/learners.py time-to-rule   # when training reaches the rule
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
@@ -1212,6 +1213,55 @@ def cmd_reaction(args, cfg: dict) -> None:
                "reaction_fading")
 
 
+#: The owners' send probabilities of :func:`credit_rates`.
+CREDIT_RATES = (0.5, 0.2, 0.1, 0.05, 0.02)
+
+
+def credit_rates(task: str = "comm_fading-v0", rates=CREDIT_RATES, episodes: int = 128,
+                 seed: int = 0) -> list[dict]:
+    """What a message earns under the ``lifetime`` sender reward
+    (:class:`netsense.rl.credit.LifetimeCredit`) where the agents that own a substate send
+    with probability ``p`` at every step and the others never: the mean credit per message
+    sent (lost ones included) against the message cost, and the team's return. Episodes
+    seeded ``seed + b`` (training seeds, not the protocol's)."""
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core
+
+    rows = []
+    for p in rates:
+        core = make_core(task, episodes, control="transmit")
+        env = NetSenseBatchedEnv(core, reward="lifetime", seed=seed)
+        env.restart()
+        rng = np.random.default_rng(seed)
+        owner = np.asarray(core.layout.own) >= 0
+        earned, sent, team = 0.0, 0, np.zeros(episodes)
+        for _ in range(core.horizon):
+            a = ((rng.random((episodes, core.N)) < p) & owner[None])[..., None]
+            a = a.astype(np.int64)
+            env.lifetime_credit.before(core, a)
+            out = core.step(a)
+            earned += float(env.lifetime_credit.after(core).sum())
+            sent += int(a.sum())
+            team += out.reward.mean(axis=1)
+        rows.append({"task": task, "owner_send_probability": p,
+                     "credit_per_message": earned / max(sent, 1),
+                     "message_cost": float(core.model.reward.message_cost),
+                     "team_return": float(team.mean())})
+    return rows
+
+
+def cmd_credit(args, cfg: dict) -> None:
+    """:func:`credit_rates` on ``comm_fading-v0``; writes ``credit_fading.{csv,md}`` into
+    ``--out``."""
+    rows = credit_rates()
+    write_csv(args.out / "credit_fading.csv", rows)
+    lines = ["| owners send with probability | lifetime credit per message | message cost | "
+             "team return |", "|---|---|---|---|"]
+    lines += [f"| {r['owner_send_probability']} | {r['credit_per_message']:.3f} | "
+              f"{r['message_cost']:.2f} | {r['team_return']:.1f} |" for r in rows]
+    _write(args.out / "credit_fading.md", "\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 def time_to_rule(log: list[dict], rule: float) -> tuple[int, float] | None:
     """``(agent_steps, wall_s)`` of the first evaluation from which the run's greedy
     evaluation return (``eval_return``, the monitoring evaluation during training) stays at
@@ -1315,7 +1365,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
                                        "substates", "memory", "reaction",
-                                       "time-to-rule"))
+                                       "credit", "time-to-rule"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -1339,7 +1389,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = load_config(args.config)
     commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
                 "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
-                "memory": cmd_memory, "reaction": cmd_reaction,
+                "memory": cmd_memory, "reaction": cmd_reaction, "credit": cmd_credit,
                 "time-to-rule": cmd_time}
     commands[args.command](args, cfg)
     return 0

@@ -39,6 +39,23 @@ learner may be trained on the reward of one of these options instead
     the transmit bit chosen at ``k - 1`` (:mod:`netsense.engine.core`, timing protocol),
     so the credit reaches the transmitting action one step late, through the discount.
 
+``lifetime``
+    the per-agent reward plus a sender credit that follows each adopted estimate over the
+    steps it stays in use (a difference reward, Wolpert & Tumer): when receiver ``l``
+    adopts substate ``j`` from sender ``i`` at step ``k``, the chain keeps
+    :math:`\\delta_{lj} = \\hat z_l - \\hat z_i` on block ``j`` (what ``l`` would hold had it
+    kept), propagated as the receiver's estimate is (eqs. (10)/(12): by the diagonal
+    block of Lemma 1's ``A`` at the adoption, by the whole block-triangular matrix after
+    it), and at every later step credits ``i`` with
+
+    .. math:: e\\big(\\hat z_l[t] + \\delta_{lj}[t]\\big) - e\\big(\\hat z_l[t]\\big),
+
+    the receiver's clipped normalised error with the kept estimate minus its error as it
+    is, until ``l`` adopts substate ``j`` again (from anyone: that message would have
+    replaced the kept one as well) or the episode ends. Summed over the steps this is the
+    sender's share of the team's error reduction that the one-step ``counterfactual``
+    credit counts only at the adoption (:class:`LifetimeCredit`).
+
 Which slot a receiver adopted: in full control the action of substate ``j`` *is* the
 adopted slot (``a_j = d + 1``); in a communication-only mode the fusion rule's choice of
 the step (``core.comm.choice``) is (:func:`adopted_slots`). Only numpy here; the TorchRL
@@ -49,11 +66,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["REWARDS", "adopted_slots", "agent_reward", "check_adoptions", "full_control",
-           "sender_credit", "shaped_reward", "team_reward"]
+__all__ = ["CREDITED", "REWARDS", "LifetimeCredit", "adopted_slots", "agent_reward",
+           "check_adoptions", "full_control", "sender_credit", "shaped_reward", "team_reward"]
 
 #: Reward options, see the module docstring.
-REWARDS = ("scenario", "team", "agent", "counterfactual")
+REWARDS = ("scenario", "team", "agent", "counterfactual", "lifetime")
+#: The options that add a sender credit to the per-agent reward.
+CREDITED = ("counterfactual", "lifetime")
 
 
 def full_control(core) -> bool:
@@ -176,7 +195,8 @@ def shaped_reward(option: str, reward: np.ndarray, errors: np.ndarray, alive: np
                   credit: np.ndarray | None = None) -> np.ndarray:
     """The reward of ``option`` (:data:`REWARDS`) from the core's reward, ``(B, N)``.
 
-    ``credit`` (:func:`sender_credit`) is required for ``"counterfactual"``.
+    ``credit`` (:func:`sender_credit`, :meth:`LifetimeCredit.after`) is required for the
+    options of :data:`CREDITED`.
     """
     if option == "scenario":
         return reward
@@ -185,8 +205,77 @@ def shaped_reward(option: str, reward: np.ndarray, errors: np.ndarray, alive: np
     if option not in REWARDS:
         raise ValueError(f"reward must be one of {REWARDS}, got {option!r}")
     out = agent_reward(reward, errors, alive, error_weight, team_weight)
-    if option == "counterfactual":
+    if option in CREDITED:
         if credit is None:
-            raise ValueError("the counterfactual reward needs the sender credit")
+            raise ValueError(f"the {option} reward needs the sender credit")
         out = out + error_weight * credit
     return out
+
+
+class LifetimeCredit:
+    """The sender credit of the ``"lifetime"`` reward (module docstring), kept per batch
+    member across steps.
+
+    Call :meth:`before` with the actions before ``core.step``, :meth:`after` after it
+    (it returns the ``(B, N)`` credit of that step) and :meth:`restart` for the members
+    whose episodes start again. Only the receivers in ``alive`` give credit.
+    """
+
+    def __init__(self, core, alive: np.ndarray) -> None:
+        check_adoptions(core)
+        B, N, M, n = int(core.B), int(core.N), int(core.M), int(core.n)
+        col = np.full(N, -1)
+        col[np.asarray(core.sources)] = np.arange(M)
+        cols = col[np.asarray(core.block_of)]  # the substate of every coordinate
+        self._block = np.zeros((M, n))
+        self._block[cols[cols >= 0], np.flatnonzero(cols >= 0)] = 1.0
+        self._diag_T = np.asarray(core.A_diag, float).T
+        self._full_T = (np.asarray(core.A_diag, float) + np.asarray(core.A_lower, float)).T
+        self._T_inv_T = np.linalg.inv(np.asarray(core.T, float)).T
+        rc = core.model.reward
+        self._floor, self._clip = float(rc.error_floor), float(rc.error_clip)
+        self._alive = np.asarray(alive, bool)
+        #: (B, N, M, n): the kept-minus-adopted difference of each chain (0: none)
+        self.delta = np.zeros((B, N, M, n))
+        #: (B, N, M): the sender each chain credits, -1 none
+        self.sender = np.full((B, N, M), -1, dtype=np.int64)
+        self._fresh = np.zeros((B, N, M), bool)
+
+    def restart(self, members: np.ndarray | None = None) -> None:
+        """End the chains of ``members`` (a ``(B,)`` bool mask; ``None``: all)."""
+        sel = slice(None) if members is None else np.asarray(members, bool)
+        self.sender[sel] = -1
+        self.delta[sel] = 0.0
+
+    def before(self, core, actions: np.ndarray) -> None:
+        """Start a chain for every adoption of this step (replacing the receiver's chain
+        on that substate)."""
+        adopted = adopted_slots(core, actions)
+        b, l, j = np.nonzero((adopted >= 0) & self._alive[None, :, None])
+        s = np.asarray(core.nbr)[b, l, adopted[b, l, j]]
+        ok = s >= 0
+        b, l, j, s = b[ok], l[ok], j[ok], s[ok]
+        self._fresh[...] = False
+        self._fresh[b, l, j] = True
+        self.sender[b, l, j] = s
+        Z = np.asarray(core.Z)
+        self.delta[b, l, j] = (Z[b, l] - Z[b, s]) * self._block[j]
+
+    def after(self, core) -> np.ndarray:
+        """``(B, N)``: each sender's credit for the step just taken (errors at ``k + 1``)."""
+        d = self.delta
+        d[...] = np.where(self._fresh[..., None], d @ self._diag_T, d @ self._full_T)
+        x = np.asarray(core.x)
+        e = np.asarray(core.Z) - (x @ self._T_inv_T)[:, None, :]  # (B, N, n)
+        scale = np.maximum(np.linalg.norm(x, axis=1), self._floor)[:, None]
+
+        def clipped(v):
+            v = np.where(np.isfinite(v), v, self._clip)
+            return np.minimum(v, self._clip)
+
+        now = clipped(np.linalg.norm(e, axis=-1) / scale)  # (B, N)
+        b, l, j = np.nonzero(self.sender >= 0)
+        kept = clipped(np.linalg.norm(e[b, l] + d[b, l, j], axis=-1) / scale[b, 0])
+        out = np.zeros(self.sender.shape[:2])
+        np.add.at(out, (b, self.sender[b, l, j]), kept - now[b, l])
+        return out

@@ -306,6 +306,11 @@ class NetSenseBatchedEnv(EnvBase):
             blocks[np.flatnonzero(cols >= 0), cols[cols >= 0]] = 1.0
             self._blocks = blocks
             self._floor, self._clip = float(rc.error_floor), float(rc.error_clip)
+        #: the chains of the ``"lifetime"`` reward (:class:`netsense.rl.credit.LifetimeCredit`;
+        #: None for the other options)
+        self.lifetime_credit = None
+        if reward == "lifetime":
+            self.lifetime_credit = credit.LifetimeCredit(core, self._alive)  # checks adoptions
         dev = self.device
         agents = Composite(
             observation=Unbounded((B, N, self.layout.size), dtype=torch.float32, device=dev),
@@ -372,6 +377,8 @@ class NetSenseBatchedEnv(EnvBase):
         """
         B = self.batch_size[0]
         sel = None if members is None or bool(np.all(members)) else np.asarray(members, bool)
+        if self.reward_option == "lifetime":
+            self.lifetime_credit.restart(sel)
         if sel is None or not self._started:
             if self._seed is not None and not self._started:
                 seeds = [self._seed + b for b in range(B)]
@@ -392,12 +399,16 @@ class NetSenseBatchedEnv(EnvBase):
         """
         core = self.core
         cr = None
-        if self.reward_option == "counterfactual":
+        if self.reward_option == "lifetime":
+            self.lifetime_credit.before(core, actions)
+        elif self.reward_option == "counterfactual":
             adopted = credit.adopted_slots(core, actions)
             eps = credit.block_errors(core.Z, core.x, self._T_inv, self._blocks,
                                       self._floor, self._clip)
             cr = credit.sender_credit(eps, adopted, core.nbr, self._alive)
         out = core.step(actions)
+        if self.reward_option == "lifetime":
+            cr = self.lifetime_credit.after(core)
         r = credit.shaped_reward(self.reward_option, out.reward, core.errors, self._alive,
                                  *self._w, credit=cr)
         return out.obs, out.action_mask, r.astype(np.float32), out.terminated, out.truncated
