@@ -338,3 +338,15 @@ def test_acked_rule_is_a_function_of_the_current_row(learners):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
     early = evaluate("comm_fading-v0", "never", seeds, {}, actor=twin_of(5))["reward"]
     assert not np.allclose(early, want)
+
+
+def test_a_rarer_message_earns_more_lifetime_credit(learners):
+    """Under the lifetime reward a message's chain lasts until the receiver adopts again,
+    so where the owners send rarely each message earns more; nobody else sends, and the
+    team's return falls with the rate (fewer fresh estimates)."""
+    pytest.importorskip("torch")
+    rows = learners.credit_rates(rates=(0.5, 0.05), episodes=16)
+    often, rare = rows
+    assert rare["credit_per_message"] > often["credit_per_message"] > 0.0
+    assert rare["team_return"] < often["team_return"]
+    assert often["message_cost"] == 0.5
