@@ -350,3 +350,39 @@ def test_a_rarer_message_earns_more_lifetime_credit(learners):
     assert rare["credit_per_message"] > often["credit_per_message"] > 0.0
     assert rare["team_return"] < often["team_return"]
     assert often["message_cost"] == 0.5
+
+
+def test_standing_picks_the_best_reaching_learner_and_names_its_restriction(learners,
+                                                                            tmp_path):
+    """Per task: the one configuration at its largest budget, and the best run whose
+    interval reaches the rule (a restricted learner named as such) over a better run that
+    does not; runs with fewer than five seeds and sampled evaluations do not count."""
+    cols = ["task", "learner", "evaluation", "seeds", "iqm", "iqm_ci_low", "iqm_ci_high",
+            "best_decentralised_spec", "best_decentralised_iqm", "reaches", "p_improvement",
+            "agent_steps"]
+
+    def folder(name, rows):
+        (tmp_path / name).mkdir()
+        lines = [",".join(cols)] + [",".join(str(v) for v in r) for r in rows]
+        (tmp_path / name / "summary.csv").write_text("\n".join(lines) + "\n")
+
+    t = "comm_substates-v0"
+    folder("a", [(t, "mlp_news_gate", "greedy", 5, -94.3, -95.2, -93.5, "event:1", -94.2,
+                  True, 0.5, 20_000_000),
+                 (t, "mlp", "greedy", 5, -90.0, -99.0, -95.0, "event:1", -94.2, False, 0.4,
+                  20_000_000),
+                 (t, "mlp", "greedy", 3, -80.0, -81.0, -79.0, "event:1", -94.2, True, 0.9,
+                  20_000_000),
+                 (t, "mlp", "sampled", 5, -80.0, -81.0, -79.0, "event:1", -94.2, True, 0.9,
+                  20_000_000)])
+    folder("b", [(t, "mlp", "greedy", 5, -108.8, -109.8, -107.9, "event:1", -94.2, False,
+                  0.15, 10_000_000)])
+    cfg = learners.load_config()
+    rows = learners.standing(tmp_path, cfg, "mlp")
+    assert [r["role"] for r in rows] == ["one configuration", "best learner"]
+    one, best = rows
+    assert one["folder"] == "a" and one["iqm"] == -90.0  # the larger budget, 5 seeds
+    assert best["learner"] == "mlp_news_gate" and best["restriction"] == "news gate"
+    assert learners.restriction(cfg["learners"]["clock_only"]) == "clock only"
+    assert learners.restriction(cfg["learners"]["mlp_clock_ages"]) == ""
+    assert learners.restriction(cfg["learners"]["mlp_lifetime"]) == "reward lifetime"

@@ -12,6 +12,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py memory      # where the learners would need memory
     python experiments/rl/learners.py reaction    # comm_fading-v0: what the row shows, done
     python experiments/rl/learners.py credit      # comm_fading-v0: what a message earns
+    python experiments/rl/learners.py standing    # per task: one configuration, best learner
     python experiments/rl/learners.py time-to-rule   # when training reaches the rule
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
@@ -1262,6 +1263,75 @@ def cmd_credit(args, cfg: dict) -> None:
     print("\n".join(lines))
 
 
+#: PPOConfig fields that restrict the policy class (docs/rl.md): a learner that sets one
+#: is task-specific in the standing table; inputs (clock, ages, memory) are not.
+RESTRICTIONS = ("news_gate", "clock_only")
+
+
+def restriction(table: dict) -> str:
+    """What a learner's config table restricts (:data:`RESTRICTIONS`), or changes in the
+    reward, as text ("" for neither)."""
+    out = [k.replace("_", " ") for k in RESTRICTIONS if table.get(k)]
+    if table.get("reward", "team") != "team":
+        out.append(f"reward {table['reward']}")
+    return ", ".join(out)
+
+
+def standing(root: Path, cfg: dict, recipe: str) -> list[dict]:
+    """Per task, from every results folder's ``summary.csv`` under ``root`` (greedy
+    evaluation, five seeds or more): the run of ``recipe`` (the candidate for one
+    configuration on every task) at its largest budget, and the best run of any learner
+    whose interval reaches the best decentralised rule (else the best run of all), with
+    its restriction of the policy class named (:func:`restriction`)."""
+    rows = []
+    for path in sorted(root.glob("*/summary.csv")):
+        with path.open(newline="") as f:
+            for r in csv.DictReader(f):
+                if r["evaluation"] == "greedy" and int(r["seeds"]) >= 5:
+                    rows.append({**r, "folder": path.parent.name})
+    out = []
+    for task in cfg["tasks"]:
+        here = [r for r in rows if r["task"] == task]
+        if not here:
+            continue
+        mine = [r for r in here if r["learner"] == recipe]
+        reach = [r for r in here if r["reaches"] == "True"]
+        best = max(reach or here, key=lambda r: float(r["iqm"]))
+        for role, r in (("one configuration", max(mine, key=lambda r: int(r["agent_steps"]))
+                         if mine else None), ("best learner", best)):
+            if r is None:
+                continue
+            table = cfg["learners"].get(r["learner"], {})
+            out.append({"task": task, "role": role, "learner": r["learner"],
+                        "folder": r["folder"], "agent_steps": int(r["agent_steps"]),
+                        "seeds": int(r["seeds"]), "iqm": float(r["iqm"]),
+                        "iqm_ci_low": float(r["iqm_ci_low"]),
+                        "iqm_ci_high": float(r["iqm_ci_high"]),
+                        "rule": r["best_decentralised_spec"],
+                        "rule_iqm": float(r["best_decentralised_iqm"]),
+                        "reaches": r["reaches"] == "True",
+                        "p_improvement": float(r["p_improvement"]),
+                        "restriction": restriction(table) or "none"})
+    return out
+
+
+def cmd_standing(args, cfg: dict) -> None:
+    """:func:`standing` of every results folder under ``--out`` (default: the learners'
+    results); ``--learners`` names the one configuration (default ``mlp_clock_ages``);
+    writes ``standing.{csv,md}`` there."""
+    recipe = (args.learners or ["mlp_clock_ages"])[0]
+    rows = standing(args.out, cfg, recipe)
+    write_csv(args.out / "standing.csv", rows)
+    lines = ["| task | | learner (folder) | seeds x agent-steps | IQM [95 % CI] | best "
+             "decentralised rule | reaches | restriction |", "|---" * 8 + "|"]
+    lines += [f"| {r['task']} | {r['role']} | {r['learner']} ({r['folder']}) | {r['seeds']} x "
+              f"{r['agent_steps'] / 1e6:.1f}M | {r['iqm']:.1f} [{r['iqm_ci_low']:.1f}, "
+              f"{r['iqm_ci_high']:.1f}] | {r['rule']} {r['rule_iqm']:.1f} | "
+              f"{'yes' if r['reaches'] else 'no'} | {r['restriction']} |" for r in rows]
+    _write(args.out / "standing.md", "\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 def time_to_rule(log: list[dict], rule: float) -> tuple[int, float] | None:
     """``(agent_steps, wall_s)`` of the first evaluation from which the run's greedy
     evaluation return (``eval_return``, the monitoring evaluation during training) stays at
@@ -1365,7 +1435,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
                                        "substates", "memory", "reaction",
-                                       "credit", "time-to-rule"))
+                                       "credit", "standing", "time-to-rule"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -1390,6 +1460,7 @@ def main(argv: list[str] | None = None) -> int:
     commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
                 "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
                 "memory": cmd_memory, "reaction": cmd_reaction, "credit": cmd_credit,
+                "standing": cmd_standing,
                 "time-to-rule": cmd_time}
     commands[args.command](args, cfg)
     return 0
