@@ -1304,12 +1304,13 @@ def standing(root: Path, cfg: dict, recipe: str) -> list[dict]:
             table = cfg["learners"].get(r["learner"], {})
             out.append({"task": task, "role": role, "learner": r["learner"],
                         "folder": r["folder"], "agent_steps": int(r["agent_steps"]),
+                        "budget": f"{int(r['agent_steps']) / 1e6:.1f}M",
                         "seeds": int(r["seeds"]), "iqm": float(r["iqm"]),
                         "iqm_ci_low": float(r["iqm_ci_low"]),
                         "iqm_ci_high": float(r["iqm_ci_high"]),
                         "rule": r["best_decentralised_spec"],
                         "rule_iqm": float(r["best_decentralised_iqm"]),
-                        "reaches": r["reaches"] == "True",
+                        "reaches": "yes" if r["reaches"] == "True" else "no",
                         "p_improvement": float(r["p_improvement"]),
                         "restriction": restriction(table) or "none"})
     return out
@@ -1327,7 +1328,7 @@ def cmd_standing(args, cfg: dict) -> None:
     lines += [f"| {r['task']} | {r['role']} | {r['learner']} ({r['folder']}) | {r['seeds']} x "
               f"{r['agent_steps'] / 1e6:.1f}M | {r['iqm']:.1f} [{r['iqm_ci_low']:.1f}, "
               f"{r['iqm_ci_high']:.1f}] | {r['rule']} {r['rule_iqm']:.1f} | "
-              f"{'yes' if r['reaches'] else 'no'} | {r['restriction']} |" for r in rows]
+              f"{r['reaches']} | {r['restriction']} |" for r in rows]
     _write(args.out / "standing.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
