@@ -364,15 +364,17 @@ def test_clock_only_actor_is_blind_to_the_state_and_not_to_the_step():
         PPOConfig("comm_channel_k2-v0", clock_only=True)
 
 
-def test_clock_policy_trains_saves_and_loads(tmp_path):
-    """A policy with a clock (and memory) round-trips through its file: loading rebuilds the
-    clock, whose inputs the weights expect."""
+@pytest.mark.parametrize("inputs", [{"clock": (2, 5), "memory": 8},
+                                    {"ages": (1, 4), "clock": (2,)}],
+                         ids=["clock-memory", "ages-clock"])
+def test_input_features_policy_trains_saves_and_loads(tmp_path, inputs):
+    """A policy with a clock (and memory), or with the age features, round-trips through
+    its file: loading rebuilds the features, whose inputs the weights expect."""
     from netsense.rl.checkpoint import load_policy
     from netsense.rl.envs import make_core
     from netsense.rl.ppo import train_ppo
 
-    res = train_ppo(_small("mappo", "mlp", control="transmit", clock=(2, 5), memory=8),
-                    tmp_path)
+    res = train_ppo(_small("mappo", "mlp", control="transmit", **inputs), tmp_path)
     assert res.mask_violations == 0 and np.isfinite(res.rows[-1]["eval_return"])
     core = make_core(SCEN, 2, control="transmit", **SHORT)
     pol = load_policy(tmp_path / "policy.pt", core)
@@ -423,23 +425,10 @@ def test_age_features_decay_with_the_steps_of_news_and_silence():
     np.testing.assert_array_equal(ages(obs)[:, :L.size].numpy(), obs.numpy())
 
 
-def test_age_policy_trains_saves_and_loads_and_needs_the_comm_fields(tmp_path):
-    """The policy file records ``ages``: loading rebuilds the features the weights expect;
-    a config asking for ages in full control, or with obs_norm, is refused naming it."""
-    from netsense.rl.checkpoint import load_policy
+def test_age_features_need_the_comm_fields_and_the_raw_observation():
+    """A config asking for ages in full control, or with obs_norm, is refused naming it."""
     from netsense.rl.config import PPOConfig
-    from netsense.rl.envs import make_core
-    from netsense.rl.ppo import train_ppo
 
-    res = train_ppo(_small("mappo", "mlp", control="transmit", ages=(1, 4), clock=(2,)),
-                    tmp_path)
-    assert res.mask_violations == 0 and np.isfinite(res.rows[-1]["eval_return"])
-    core = make_core(SCEN, 2, control="transmit", **SHORT)
-    pol = load_policy(tmp_path / "policy.pt", core)
-    o, m = core.reset(3)
-    for _ in range(4):
-        out = core.step(pol.act(o, m))
-        o, m = out.obs, out.action_mask
     with pytest.raises(ValueError, match="PPOConfig.ages reads the news and silence"):
         PPOConfig(SCEN, ages=(2,), control="full")
     with pytest.raises(ValueError, match="PPOConfig.ages: the age features"):
