@@ -1019,6 +1019,27 @@ MEMORY_TASKS = {"comm_fading-v0": ("acked(sources:0)", "event:3"),
                 "comm_schedule-v0": ("phased(event:2)", "event:2")}
 
 
+def probed_policy(task: str, spec: str):
+    """``(overrides, actions)`` of a policy the probes below run on ``task``: ``spec`` is
+    ``learned:PATH`` (greedy; its file's overrides), :data:`TWIN` or a scripted spec;
+    ``actions(core)`` builds its acting function on a core."""
+    from netsense.benchmark.rollouts import learned_overrides
+    from netsense.rl.scripted import scripted_actions
+
+    if spec.startswith("learned:"):
+        path = spec.partition(":")[2]
+
+        def learned(core):
+            from netsense.rl.checkpoint import load_policy
+
+            return load_policy(path, core, deterministic=True).act
+
+        return learned_overrides(task, path, None), learned
+    if spec == TWIN:
+        return {}, acked_twin
+    return {}, lambda core: scripted_actions(spec, core)
+
+
 def memory_use(task: str, rule: str, spec: str, seeds: list[int]) -> dict:
     """How the policy ``spec`` (a scripted spec or ``learned:PATH``) decides on ``task``
     where the informed ``rule`` needs memory: on the policy's own trajectory, the rule's
@@ -1032,23 +1053,13 @@ def memory_use(task: str, rule: str, spec: str, seeds: list[int]) -> dict:
     reads only the current observation cannot tell "closed, in memory" from "open, in
     memory" (the rows a memory makes the difference on)."""
     from netsense.benchmark.protocol import evaluate
-    from netsense.benchmark.rollouts import learned_overrides
     from netsense.env.comm_policies import make_comm_policy
-    from netsense.rl.scripted import scripted_actions
 
-    learned = spec.startswith("learned:")
-    path = spec.partition(":")[2] if learned else None
-    over = learned_overrides(task, path, None) if learned else {}
+    over, actions = probed_policy(task, spec)
     counts = np.zeros((2, 2, 2))  # gate open?, evidence in view?, sent?
 
     def actor(core, _seeds):
-        if learned:
-            from netsense.rl.checkpoint import load_policy
-
-            pol = load_policy(path, core, deterministic=True)
-            act0 = pol.act
-        else:
-            act0 = scripted_actions(spec, core)
+        act0 = actions(core)
         probe = make_comm_policy(rule, core)
         silence = core.layout.silence.start
 
@@ -1145,25 +1156,14 @@ def reaction_use(task: str, spec: str, seeds: list[int]) -> dict:
     those agent-steps in each. ``acked(sources:0)`` sends after a delivery, stays silent
     after a loss and probes at silence 6: a function of this row alone (its twin)."""
     from netsense.benchmark.protocol import evaluate
-    from netsense.benchmark.rollouts import learned_overrides
-    from netsense.rl.scripted import scripted_actions
 
-    learned = spec.startswith("learned:")
-    path = spec.partition(":")[2] if learned else None
-    over = learned_overrides(task, path, None) if learned else {}
+    over, actions = probed_policy(task, spec)
     classes = ("delivered", "lost", "no_link", *(f"silent_{s}" for s in SILENCES),
                f"silent_{SILENCES[-1] + 1}_plus")
     counts = np.zeros((len(classes), 2))
 
     def actor(core, _seeds):
-        if learned:
-            from netsense.rl.checkpoint import load_policy
-
-            act0 = load_policy(path, core, deterministic=True).act
-        elif spec == TWIN:
-            act0 = acked_twin(core)
-        else:
-            act0 = scripted_actions(spec, core)
+        act0 = actions(core)
         L, H = core.layout, core.horizon
         owner = np.asarray(L.own) >= 0
 
