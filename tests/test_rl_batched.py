@@ -33,6 +33,49 @@ def test_team_and_agent_rewards_by_hand():
                                [[-we * 0.4, -c]], atol=1e-15)
 
 
+def test_own_cost_reward_by_hand():
+    # three agents, w_e = 2, w_t = 0.25, c = 0.1; agents 1 and 2 transmitted, and agent 2
+    # does not count (its error is left out of the team mean; it keeps its cost)
+    e = np.array([[0.4, 0.8, 5.0]])
+    t = np.array([[0.0, 1.0, 1.0]])
+    we, wt, c = 2.0, 0.25, 0.1
+    alive = np.array([True, True, False])
+    ebar = 0.6
+    err = -we * ((1 - wt) * e + wt * ebar) * alive
+    core_r = err - c * t
+    got = credit.own_cost_reward(core_r, e, alive, we, wt)
+    want = err.mean() - c * t / 3  # the team's error, one's own cost at weight 1/N
+    np.testing.assert_allclose(got, want, atol=1e-15)
+    # the team reward plus the other agents' costs
+    team = credit.team_reward(core_r)
+    np.testing.assert_allclose(got - team, c * (t.sum() - t) / 3, atol=1e-15)
+    assert credit.shaped_reward("own_cost", core_r, e, alive, we, wt).tolist() == \
+        got.tolist()
+
+
+def test_own_cost_reward_through_the_env():
+    """On ``comm_fading-v0`` (team weight 1) the env's ``own_cost`` reward equals the team
+    reward where nobody sends, and otherwise the team reward plus ``c / N`` for every
+    other agent that sent at that step."""
+    from netsense.rl.envs import NetSenseBatchedEnv, make_core
+
+    envs = {r: NetSenseBatchedEnv(make_core("comm_fading-v0", 4, control="transmit"),
+                                  reward=r, seed=3) for r in ("team", "own_cost")}
+    for env in envs.values():
+        env.restart()
+    core = envs["team"].core
+    c, N = core.model.reward.message_cost, core.N
+    rng = np.random.default_rng(0)
+    for k in range(20):
+        a = (rng.random((4, N, 1)) < (0.5 if k >= 5 else 0.0)).astype(np.int64)
+        r = {name: env.advance(a)[2] for name, env in envs.items()}
+        sent = a[..., 0]
+        want = r["team"] + c * (sent.sum(1, keepdims=True) - sent) / N
+        np.testing.assert_allclose(r["own_cost"], want, rtol=0, atol=1e-5)
+        if k < 5:
+            np.testing.assert_array_equal(r["own_cost"], r["team"])
+
+
 def test_sender_credit_by_hand():
     # B = 1, N = 3, M = 2, D = 2. Agent 0 adopts substate 1 from slot 1 (= agent 2),
     # agent 1 adopts substate 0 from slot 0 (= agent 0) and substate 1 from slot 0

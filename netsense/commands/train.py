@@ -94,8 +94,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help="control mode (default: the scenario's): full, or communication "
                          "only with one bit (transmit) or one bit per substate (substates); "
                          "the scenario's fusion rule adopts")
-    tr.add_argument("--reward", choices=("scenario", "team", "agent", "counterfactual",
-                                                 "lifetime"),
+    tr.add_argument("--reward", choices=("scenario", "team", "own_cost", "agent",
+                                         "counterfactual", "lifetime"),
                     default=None, help="credit assignment (docs/rl.md; default: team)")
     tr.add_argument("--critic", choices=("team", "state", "joint", "local"), default=None,
                     help="mappo: team (default with the team reward: V(s) once per "

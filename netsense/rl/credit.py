@@ -15,6 +15,21 @@ learner may be trained on the reward of one of these options instead
 ``team``
     every agent gets the team mean, :math:`r^{team}_i = \\frac1N \\sum_l r_l`: the
     message cost is shared (``c \\bar t``) and so is the error.
+``own_cost``
+    the team's error and the agent's own message cost at the team's weight: the team
+    reward without the other agents' costs,
+
+    .. math:: r^{own}_i = \\frac1N \\sum_l r^{err}_l - \\frac{c\\, t_i}{N}
+              = r^{team}_i + \\frac{c}{N} \\sum_{l \\ne i} t_l ,
+
+    with :math:`r^{err}_l = -w_e((1 - w_t) e_l + w_t \\bar e)` (0 for the agents that do
+    not count). The other agents' transmit bits of the same step are drawn independently
+    of agent ``i``'s given the observations, so dropping them leaves the expected policy
+    gradient of that step unchanged and removes their noise from ``i``'s return; the
+    other agents' costs of later steps are dropped as well, which ignores how ``i``'s
+    message changes their later sends (a bias; the team's error is kept whole).
+    Computed from the core's reward (the costs are :math:`r^{err}_l - r_l`), so substate
+    costs count as message costs.
 ``agent``
     individual error and own cost, :math:`r^{agent}_i = -w_e e_i - c\\, t_i` for the
     agents that count (``-c t_i`` otherwise); computed from the core's reward as
@@ -67,10 +82,11 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["CREDITED", "REWARDS", "LifetimeCredit", "adopted_slots", "agent_reward",
-           "check_adoptions", "full_control", "sender_credit", "shaped_reward", "team_reward"]
+           "check_adoptions", "full_control", "own_cost_reward", "sender_credit",
+           "shaped_reward", "team_reward"]
 
 #: Reward options, see the module docstring.
-REWARDS = ("scenario", "team", "agent", "counterfactual", "lifetime")
+REWARDS = ("scenario", "team", "own_cost", "agent", "counterfactual", "lifetime")
 #: The options that add a sender credit to the per-agent reward.
 CREDITED = ("counterfactual", "lifetime")
 
@@ -117,6 +133,29 @@ def check_adoptions(core) -> None:
 def team_reward(reward: np.ndarray) -> np.ndarray:
     """:math:`\\frac1N \\sum_l r_l` for every agent, ``(B, N)``."""
     return np.broadcast_to(reward.mean(axis=1, keepdims=True), reward.shape).copy()
+
+
+def own_cost_reward(reward: np.ndarray, errors: np.ndarray, alive: np.ndarray,
+                    error_weight: float, team_weight: float) -> np.ndarray:
+    """:math:`\\frac1N \\sum_l r^{err}_l - \\mathrm{cost}_i / N`, ``(B, N)``: the team reward
+    without the other agents' message costs (the ``own_cost`` option, module docstring).
+
+    Parameters
+    ----------
+    reward : (B, N)
+        The core's reward.
+    errors : (B, N)
+        Clipped normalised errors ``e_i`` of the same step.
+    alive : (N,) bool
+        Agents whose errors count.
+    error_weight, team_weight : float
+        ``w_e`` and ``w_t`` of the scenario.
+    """
+    alive = np.asarray(alive, bool)
+    ebar = errors[:, alive].mean(axis=1, keepdims=True) if alive.any() else 0.0
+    err = -error_weight * ((1.0 - team_weight) * errors + team_weight * ebar) * alive
+    cost = err - reward  # c t_i (and the substate costs) per agent
+    return err.mean(axis=1, keepdims=True) - cost / reward.shape[1]
 
 
 def agent_reward(reward: np.ndarray, errors: np.ndarray, alive: np.ndarray,
@@ -202,6 +241,8 @@ def shaped_reward(option: str, reward: np.ndarray, errors: np.ndarray, alive: np
         return reward
     if option == "team":
         return team_reward(reward)
+    if option == "own_cost":
+        return own_cost_reward(reward, errors, alive, error_weight, team_weight)
     if option not in REWARDS:
         raise ValueError(f"reward must be one of {REWARDS}, got {option!r}")
     out = agent_reward(reward, errors, alive, error_weight, team_weight)
@@ -264,7 +305,11 @@ class LifetimeCredit:
     def after(self, core) -> np.ndarray:
         """``(B, N)``: each sender's credit for the step just taken (errors at ``k + 1``)."""
         d = self.delta
-        d[...] = np.where(self._fresh[..., None], d @ self._diag_T, d @ self._full_T)
+        moved = d @ self._full_T  # chains older than a step: the whole triangular A
+        fresh = self._fresh  # chains adopted this step: the diagonal block only
+        if fresh.any():
+            moved[fresh] = d[fresh] @ self._diag_T
+        d[...] = moved
         x = np.asarray(core.x)
         e = np.asarray(core.Z) - (x @ self._T_inv_T)[:, None, :]  # (B, N, n)
         scale = np.maximum(np.linalg.norm(x, axis=1), self._floor)[:, None]
