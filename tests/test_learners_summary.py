@@ -340,6 +340,67 @@ def test_acked_rule_is_a_function_of_the_current_row(learners):
     assert not np.allclose(early, want)
 
 
+def test_a_decision_is_worth_the_return_of_its_flip(learners):
+    """:func:`decision_visits` forks the episode where one owner makes the other choice;
+    the worth it gives a decision (the choice made minus the other, to the end) equals the
+    difference of two whole episodes through the protocol, one with that single choice
+    flipped. A scripted rule, whose memory a fork would not copy, is refused."""
+    from netsense.benchmark.protocol import evaluate
+
+    seeds = [10**6, 10**6 + 1]
+    visits = learners.decision_visits("comm_fading-v0", learners.TWIN, seeds, every=50)
+    assert {v[0] for v in visits} == {25, 75, 125, 175}
+
+    def flipping(step, member, agent):
+        def actor(core, _seeds):
+            act, k = learners.acked_twin(core), [0]
+
+            def flip(obs, mask):
+                a = np.array(act(obs, mask))
+                if k[0] == step:
+                    a[member, agent] = 1 - a[member, agent]
+                k[0] += 1
+                return a
+
+            return flip
+
+        return actor
+
+    base = evaluate("comm_fading-v0", "never", seeds, {},
+                    actor=lambda core, _s: learners.acked_twin(core))["reward"]
+    sent = next(v for v in visits if v[4])
+    silent = next(v for v in visits if not v[4])
+    for step, member, agent, _cls, _sent, worth in (sent, silent):
+        flipped = evaluate("comm_fading-v0", "never", seeds, {},
+                           actor=flipping(step, member, agent))["reward"]
+        assert worth == pytest.approx(base[member] - flipped[member], abs=1e-9)
+        others = [b for b in range(len(seeds)) if b != member]
+        np.testing.assert_array_equal(flipped[others], base[others])
+    with pytest.raises(ValueError, match="memory"):
+        learners.decision_visits("comm_fading-v0", "acked(sources:0)", seeds)
+
+
+def test_decision_values_count_only_a_clear_gain(learners, monkeypatch):
+    """Per row class: the mean worth of sending over silence, whatever was chosen; the gain
+    counts the choices against a mean beyond two standard errors, scaled to visits per
+    episode (every 10th step, 2 episodes)."""
+    lost, s9 = learners.ROW_CLASSES.index("lost"), learners.ROW_CLASSES.index("silent_9_plus")
+    one = learners.ROW_CLASSES.index("silent_1")
+    visits = ([(0, 0, 0, lost, True, -0.05)] * 3 + [(0, 0, 0, lost, False, 0.05)]  # send: -0.05
+              + [(0, 0, 0, s9, False, -0.2), (0, 0, 0, s9, False, -0.4)]  # send: +0.2, +0.4
+              + [(0, 0, 0, one, True, 1.0), (0, 0, 0, one, True, -1.0)])  # noise: no gain
+    monkeypatch.setattr(learners, "decision_visits", lambda *a, **k: visits)
+    v = learners.decision_values("comm_fading-v0", learners.TWIN, [0, 1], every=10)
+    assert v["send_lost"] == 0.75 and v["visits_lost"] == 4 * 10 / 2
+    assert v["value_lost"] == pytest.approx(-0.05) and v["value_se_lost"] == 0.0
+    assert v["gain_lost"] == pytest.approx(3 * 0.05 * 10 / 2)  # the three sends were wrong
+    assert v["value_silent_9_plus"] == pytest.approx(0.3)
+    assert v["gain_silent_9_plus"] == pytest.approx(2 * 0.3 * 10 / 2)
+    assert v["value_silent_1"] == 0.0 and v["gain_silent_1"] == 0.0
+    assert v["gain_total"] == pytest.approx(v["gain_lost"] + v["gain_silent_9_plus"])
+    assert v["visits_delivered"] == 0 and v["gain_delivered"] == 0.0
+
+
 def test_a_rarer_message_earns_more_lifetime_credit(learners):
     """Under the lifetime reward a message's chain lasts until the receiver adopts again,
     so where the owners send rarely each message earns more; nobody else sends, and the

@@ -11,6 +11,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py substates   # which substates the learners send
     python experiments/rl/learners.py memory      # where the learners would need memory
     python experiments/rl/learners.py reaction    # comm_fading-v0: what the row shows, done
+    python experiments/rl/learners.py values      # comm_fading-v0: what each choice is worth
     python experiments/rl/learners.py credit      # comm_fading-v0: what a message earns
     python experiments/rl/learners.py standing    # per task: one configuration, best learner
     python experiments/rl/learners.py time-to-rule   # when training reaches the rule
@@ -85,6 +86,13 @@ on.
 ``ablation.png`` (final greedy and sampled evaluation return per variant, mean and range
 over the seeds, and the diagnostics that explain it: explained variance, entropy, action
 gap).
+
+**values** writes ``values_fading.csv`` / ``values_fading.md`` into ``--out``: on
+``comm_fading-v0``, for the feed-forward twin of ``acked(sources:0)`` and every final
+policy under ``--out``, what each decision of an owner is worth under that policy's own
+play (:func:`decision_values`: forks of 32 evaluation episodes where one owner makes the
+other choice, realised futures), per class of its row, with the first-order gain of
+choosing by the class's value.
 
 **time-to-rule** writes ``time_to_rule.csv`` / ``time_to_rule.md`` into ``--out`` (a
 results folder): per task and learner, how many seeds reach the best decentralised rule
@@ -1146,6 +1154,25 @@ def acked_twin(core, probe: int = TWIN_PROBE):
     return act
 
 
+#: The classes of an owner's row (:func:`row_classes`), in the tables' order.
+ROW_CLASSES = ("delivered", "lost", "no_link", *(f"silent_{s}" for s in SILENCES),
+               f"silent_{SILENCES[-1] + 1}_plus")
+
+
+def row_classes(obs: np.ndarray, layout, horizon: int) -> np.ndarray:
+    """The class (an index into :data:`ROW_CLASSES`) of every agent's current row on
+    ``comm_fading-v0``: it sent at the step before and the message was ``delivered`` on some
+    out-link, ``lost`` on every out-link it had, or it had ``no out-link``; or it has been
+    silent ``s`` steps (the last class: more than :data:`SILENCES`)."""
+    o = np.asarray(obs)
+    sil = np.rint(o[..., layout.silence.start] * horizon).astype(np.int64)
+    acks = o[..., layout.acks]
+    good = (acks > 0).any(-1)
+    lost = (acks < 0).any(-1) & ~good
+    now = np.where(good, 0, np.where(lost, 1, 2))
+    return np.where(sil == 0, now, 2 + np.minimum(sil, SILENCES[-1] + 1))
+
+
 def reaction_use(task: str, spec: str, seeds: list[int]) -> dict:
     """What the policy ``spec`` (a scripted spec, :data:`TWIN` or ``learned:PATH``) does on
     ``task`` (``comm_fading-v0``) with what the current observation shows: each agent-step
@@ -1158,30 +1185,18 @@ def reaction_use(task: str, spec: str, seeds: list[int]) -> dict:
     from netsense.benchmark.protocol import evaluate
 
     over, actions = probed_policy(task, spec)
-    classes = ("delivered", "lost", "no_link", *(f"silent_{s}" for s in SILENCES),
-               f"silent_{SILENCES[-1] + 1}_plus")
+    classes = ROW_CLASSES
     counts = np.zeros((len(classes), 2))
 
     def actor(core, _seeds):
         act0 = actions(core)
-        L, H = core.layout, core.horizon
-        owner = np.asarray(L.own) >= 0
+        owner = np.asarray(core.layout.own) >= 0
 
         def act(obs, mask):
             a = np.asarray(act0(obs, mask))
-            o = np.asarray(obs)
-            sent = a.reshape(*o.shape[:2], -1).any(-1)
-            sil = np.rint(o[..., L.silence.start] * H).astype(np.int64)
-            acks = o[..., L.acks]
-            now = sil == 0
-            good = now & (acks > 0).any(-1)
-            lost = now & (acks < 0).any(-1) & ~good
-            sel = [good, lost, now & ~good & ~lost, *(sil == s for s in SILENCES),
-                   sil > SILENCES[-1]]
-            for c, m in enumerate(sel):
-                m = m & owner[None]
-                counts[c, 1] += (m & sent).sum()
-                counts[c, 0] += (m & ~sent).sum()
+            sent = a.reshape(*a.shape[:2], -1).any(-1)
+            cls = row_classes(obs, core.layout, core.horizon)[:, owner]
+            np.add.at(counts, (cls, sent[:, owner].astype(np.int64)), 1)
             return a
 
         return act
@@ -1196,6 +1211,172 @@ def reaction_use(task: str, spec: str, seeds: list[int]) -> dict:
         out[f"send_{name}"] = float(rate[c])
         out[f"share_{name}"] = float(share[c])
     return out
+
+
+#: Steps between the states :func:`decision_values` forks at (offset ``every // 2``).
+VALUE_EVERY = 10
+
+
+def decision_visits(task: str, spec: str, seeds: list[int], every: int = VALUE_EVERY
+                    ) -> list[tuple]:
+    """Every owner's decision at every ``every``-th step (from ``every // 2``) under
+    ``spec``'s own play on ``task`` (``comm_fading-v0``), with its worth: for every agent
+    that owns a substate, a fork of the episode (:func:`netsense.engine.fork.fork`, its
+    realised future: the same channel, noise and graphs) where that agent alone makes the
+    other choice at that step, and ``spec`` plays on. Returns ``(step, member, agent,
+    row class, sent, worth)`` per decision, where ``worth`` is the undiscounted team return
+    to the end of the choice made minus that of the other choice (the protocol's return
+    units; ``Q(send) - Q(silent)`` of that state under ``spec`` where it sent). ``spec``
+    must act on the current observation alone (a fork's policy starts without memory): a
+    feed-forward ``learned:PATH`` or :data:`TWIN`."""
+    from netsense.engine.core import BatchedCore
+    from netsense.engine.fork import fork
+    from netsense.env.vector import load_model
+    from netsense.rl.memory import is_recurrent
+
+    if spec != TWIN and not spec.startswith("learned:"):
+        raise ValueError(f"decision_visits needs a policy of the current observation alone "
+                         f"(a feed-forward learned:PATH or {TWIN!r}); a scripted rule keeps "
+                         f"a memory a fork does not copy, got {spec!r}")
+    over, actions = probed_policy(task, spec)
+    core = BatchedCore(load_model(task, **over)[0], len(seeds))
+    act = actions(core)
+    net = getattr(getattr(act, "__self__", None), "net", None)
+    if net is not None and is_recurrent(net):
+        raise ValueError(f"{spec}: a recurrent policy's memory is not carried into a fork")
+    L, H, B = core.layout, core.horizon, len(seeds)
+    if core.nvec.size != 1:
+        raise ValueError(f"decision_visits flips one transmit bit per agent; {task} in "
+                         f"this control mode has {core.nvec.size} choices per agent")
+    owners = np.flatnonzero(np.asarray(L.own) >= 0)
+    obs, mask = core.reset(seeds)
+    team = np.zeros((H, B))
+    visits = []  # (step, member, agent, class, sent)
+    forks = {}  # step -> (core of the flipped lanes, lanes' members, lanes' agents)
+    for k in range(H):
+        a = np.asarray(act(obs, mask))
+        if k % every == every // 2:
+            cls = row_classes(obs, L, H)
+            sent = a.reshape(B, core.N, -1).any(-1)
+            mem, ag = np.repeat(np.arange(B), len(owners)), np.tile(owners, B)
+            visits += [(k, b, i, cls[b, i], sent[b, i]) for b, i in zip(mem, ag, strict=True)]
+            forks[k] = (fork(core, mem), mem, ag)
+        out = core.step(a)
+        if out.terminated.any():
+            raise RuntimeError(f"{spec}: an episode ended early (divergence) at step {k}")
+        team[k] = out.reward.mean(axis=1)
+        obs, mask = out.obs, out.action_mask
+    to_go = np.cumsum(team[::-1], axis=0)[::-1]  # the return from step k on
+    flipped = {}
+    for k, (f, mem, ag) in forks.items():
+        fo, fm = f.observe()
+        fact, ret = actions(f), np.zeros(len(mem))
+        for j in range(k, H):
+            fa = np.array(fact(fo, fm))
+            if j == k:
+                lane = np.arange(len(mem))
+                fa[lane, ag] = 1 - fa[lane, ag].reshape(len(mem), -1).any(-1)[:, None]
+            step = f.step(fa)
+            ret += step.reward.mean(axis=1)
+            fo, fm = step.obs, step.action_mask
+        for lane, (b, i) in enumerate(zip(mem, ag, strict=True)):
+            flipped[k, b, i] = ret[lane]
+    # per visit: the choice made minus the other one
+    return [(k, b, i, int(c), bool(s), float(to_go[k, b] - flipped[k, b, i]))
+            for k, b, i, c, s in visits]
+
+
+def decision_values(task: str, spec: str, seeds: list[int], every: int = VALUE_EVERY
+                    ) -> dict:
+    """What each of an owner's decisions is worth under ``spec``'s own play on ``task``
+    (``comm_fading-v0``; :func:`decision_visits`): per row class (:data:`ROW_CLASSES`),
+    visits per episode (owners' agent-steps, scaled by ``every``), ``spec``'s send rate,
+    the mean ``Q(send) - Q(silent)`` and its standard error, and ``gain``: what choosing
+    by the class's mean value would add per episode over ``spec``'s choices in that class,
+    to first order (one step of policy improvement on the class at ``spec``'s own values;
+    0 unless the mean is beyond two standard errors)."""
+    rows = {}
+    for _k, _b, _i, c, s, diff in decision_visits(task, spec, seeds, every):
+        rows.setdefault(c, []).append((diff if s else -diff, s))
+    B = len(seeds)
+    out = {}
+    for c, name in enumerate(ROW_CLASSES):
+        v = np.array([d for d, _ in rows.get(c, [])])
+        s = np.array([x for _, x in rows.get(c, [])], dtype=bool)
+        n = len(v)
+        mean = float(v.mean()) if n else float("nan")
+        out[f"visits_{name}"] = n * every / B
+        out[f"send_{name}"] = float(s.mean()) if n else float("nan")
+        out[f"value_{name}"] = mean
+        out[f"value_se_{name}"] = float(v.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+        clear = n > 1 and abs(mean) > 2 * out[f"value_se_{name}"]
+        wrong = ((~s).sum() if mean > 0 else s.sum()) if clear else 0
+        out[f"gain_{name}"] = float(wrong * abs(mean) * every / B) if wrong else 0.0
+    out["gain_total"] = sum(out[f"gain_{c}"] for c in ROW_CLASSES)
+    return out
+
+
+#: The row classes the values table shows (:func:`decision_values`).
+VALUE_CLASSES = ("delivered", "lost", "silent_1", "silent_2", "silent_3", "silent_5",
+                 "silent_6", "silent_9_plus")
+
+
+def cmd_values(args, cfg: dict) -> None:
+    """:func:`decision_values` of :data:`TWIN` and of every final policy of
+    ``comm_fading-v0`` under ``--out`` (all its results folders), on the first 32 of the
+    protocol's evaluation episodes; writes ``values_fading.csv`` (one row per policy and
+    row class) and ``values_fading.md`` (learned runs: mean over the seeds [min, max])."""
+    from netsense.benchmark.protocol import eval_seeds
+
+    task = "comm_fading-v0"
+    seeds = eval_seeds(min(args.episodes, 32))
+    specs = [(TWIN, TWIN, "")]
+    for pol in sorted(args.out.glob(f"**/runs/{task}/*/seed_*/policy.pt")):
+        steps = json.loads((pol.parent / "summary.json").read_text())["agent_steps"]
+        specs.append((f"learned:{pol}", f"{pol.parent.parent.name}, "
+                      f"{round(steps / 1e6)}M agent-steps", str(pol.relative_to(args.out))))
+    rows = []
+    for spec, label, run in specs:
+        v = decision_values(task, spec, seeds)
+        rows += [{"policy": label, "run": run, "class": c, "visits": v[f"visits_{c}"],
+                  "send": v[f"send_{c}"], "value": v[f"value_{c}"],
+                  "value_se": v[f"value_se_{c}"], "gain": v[f"gain_{c}"]}
+                 for c in ROW_CLASSES]
+        rows.append({"policy": label, "run": run, "class": "all", "visits": float("nan"),
+                     "send": float("nan"), "value": float("nan"), "value_se": float("nan"),
+                     "gain": v["gain_total"]})
+    write_csv(args.out / "values_fading.csv", rows)
+    groups = {}
+    for r in rows:
+        groups.setdefault(r["policy"], {}).setdefault(r["class"], []).append(r)
+
+    def cell(rs, key, d):
+        x = np.array([r[key] for r in rs], dtype=float)
+        if np.isnan(x).all():
+            return "–"
+        x = x[~np.isnan(x)]
+        return f"{x.mean():+.{d}f}" if len(x) == 1 else \
+            f"{x.mean():+.{d}f} [{x.min():+.{d}f}, {x.max():+.{d}f}]"
+
+    lines = ["| policy | row | visits per episode | P(send) | Q(send) − Q(silent) | "
+             "gain per episode |", "|---|---|---|---|---|---|"]
+    for label, by in groups.items():
+        n = len(by["all"])
+        name = label + (f" ({n} seeds)" if n > 1 else "")
+        for c in (*VALUE_CLASSES, "all"):
+            rs = by[c]
+            if c == "all":
+                lines.append(f"| {name} | all rows | | | | {cell(rs, 'gain', 2)} |")
+                continue
+            se = np.array([r["value_se"] for r in rs], dtype=float)
+            value = cell(rs, "value", 3)
+            if not np.isnan(se).all():
+                value += f" (± {np.nanmean(se):.3f})"
+            lines.append(f"| {name} | {c.replace('_', ' ')} | "
+                         f"{np.mean([r['visits'] for r in rs]):.1f} | "
+                         f"{cell(rs, 'send', 2)} | {value} | {cell(rs, 'gain', 2)} |")
+    _write(args.out / "values_fading.md", "\n".join(lines) + "\n")
+    print("\n".join(lines))
 
 
 def cmd_reaction(args, cfg: dict) -> None:
@@ -1436,7 +1617,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
                                        "substates", "memory", "reaction",
-                                       "credit", "standing", "time-to-rule"))
+                                       "values", "credit", "standing", "time-to-rule"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -1460,7 +1641,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = load_config(args.config)
     commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
                 "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
-                "memory": cmd_memory, "reaction": cmd_reaction, "credit": cmd_credit,
+                "memory": cmd_memory, "reaction": cmd_reaction, "values": cmd_values,
+                "credit": cmd_credit,
                 "standing": cmd_standing,
                 "time-to-rule": cmd_time}
     commands[args.command](args, cfg)
