@@ -443,8 +443,14 @@ def plot_curves(curves: dict, refs: dict, path: Path) -> None:
         ax.grid(alpha=0.3)
     for ax in list(axes.flat)[len(tasks):]:
         ax.axis("off")
-    axes.flat[0].legend(fontsize=6, loc="lower right")
-    fig.tight_layout()
+    # the legend below the panels, where it hides no curve: the figure grows by its height
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    ncol = min(cols, len(labels))
+    below = 0.2 * -(-len(labels) // ncol) + 0.15
+    height = fig.get_figheight()
+    fig.set_figheight(height + below)
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, below / (height + below), 1, 1))
     _savefig(fig, path)
     plt.close(fig)
 
@@ -1325,7 +1331,8 @@ def cmd_values(args, cfg: dict) -> None:
     """:func:`decision_values` of :data:`TWIN` and of every final policy of
     ``comm_fading-v0`` under ``--out`` (all its results folders), on the first 32 of the
     protocol's evaluation episodes; writes ``values_fading.csv`` (one row per policy and
-    row class) and ``values_fading.md`` (learned runs: mean over the seeds [min, max])."""
+    row class; ``key`` is policy and class, what the docs' tables group by; no value: an
+    empty cell) and ``values_fading.md`` (learned runs: mean over the seeds [min, max])."""
     from netsense.benchmark.protocol import eval_seeds
 
     task = "comm_fading-v0"
@@ -1338,14 +1345,17 @@ def cmd_values(args, cfg: dict) -> None:
     rows = []
     for spec, label, run in specs:
         v = decision_values(task, spec, seeds)
-        rows += [{"policy": label, "run": run, "class": c, "visits": v[f"visits_{c}"],
-                  "send": v[f"send_{c}"], "value": v[f"value_{c}"],
-                  "value_se": v[f"value_se_{c}"], "gain": v[f"gain_{c}"]}
-                 for c in ROW_CLASSES]
-        rows.append({"policy": label, "run": run, "class": "all", "visits": float("nan"),
-                     "send": float("nan"), "value": float("nan"), "value_se": float("nan"),
-                     "gain": v["gain_total"]})
-    write_csv(args.out / "values_fading.csv", rows)
+        rows += [{"key": f"{label} / {c}", "policy": label, "run": run, "class": c,
+                  "visits": v[f"visits_{c}"], "send": v[f"send_{c}"],
+                  "value": v[f"value_{c}"], "value_se": v[f"value_se_{c}"],
+                  "gain": v[f"gain_{c}"]} for c in ROW_CLASSES]
+        rows.append({"key": f"{label} / all", "policy": label, "run": run, "class": "all",
+                     "visits": float("nan"), "send": float("nan"), "value": float("nan"),
+                     "value_se": float("nan"), "gain": v["gain_total"]})
+    # no value: an empty cell (the docs' tables print it as a dash)
+    write_csv(args.out / "values_fading.csv",
+              [{k: "" if isinstance(x, float) and math.isnan(x) else x for k, x in r.items()}
+               for r in rows])
     groups = {}
     for r in rows:
         groups.setdefault(r["policy"], {}).setdefault(r["class"], []).append(r)
