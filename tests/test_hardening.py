@@ -874,6 +874,8 @@ PPO_CONFIG = [
     ("bc_lr-inf", {"bc_lr": float("inf")}, "PPOConfig.bc_lr"),
     ("bc-unknown", {"bc": "nope"}, "PPOConfig.bc must be a scripted policy"),
     ("bc-bad-knob", {"bc": "event:x"}, "PPOConfig.bc: 'event:x'"),
+    ("bc-gate-bad-base", {"bc": "acked(nope:0)"},
+     "PPOConfig.bc: unknown communication policy 'nope'"),
     ("numba_threads-zero", {"numba_threads": 0}, "PPOConfig.numba_threads"),
     ("torch_threads-str", {"torch_threads": "1"}, "PPOConfig.torch_threads"),
     ("overlap-int", {"overlap": 1}, "PPOConfig.overlap"),
@@ -934,6 +936,8 @@ def test_ppo_config_takes_what_it_refused_as_a_type_in_its_own_type():
                     gamma=1.0, lmbda=0.0, entropy_coef=0.0, bc="event:2", seed=0,
                     device="cpu", numba_threads=None)
     assert cfg.hidden == (16, 8) and cfg.steps == 100
+    # a gate with its base rule, as the frontier writes it (acked(sources:0))
+    assert PPOConfig(COMM, bc="acked(sources:0)").bc == "acked(sources:0)"
 
 
 def _comm_core_mid_episode(B=3, mode="transmit"):

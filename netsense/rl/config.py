@@ -509,7 +509,8 @@ def _check_bc(bc) -> None:
 
     if not isinstance(bc, str):
         raise ValueError(f"PPOConfig.bc must be None or a scripted policy name, got {bc!r}")
-    if bc.partition(":")[0] in COMM_POLICIES:
+    # a baseline's name ends at its knob or at the base rule of a gate: acked(sources:0)
+    if bc.partition(":")[0].partition("(")[0] in COMM_POLICIES:
         try:
             parse_spec(bc)
         except ValueError as exc:
@@ -517,7 +518,8 @@ def _check_bc(bc) -> None:
     elif bc not in POLICIES:
         raise ValueError(f"PPOConfig.bc must be a scripted policy: one of {list(POLICIES)} "
                          f"or a communication baseline ({', '.join(COMM_POLICIES)}, with "
-                         f"an optional :knob), got {bc!r}")
+                         f"an optional :knob, a gate with its base rule in parentheses), "
+                         f"got {bc!r}")
 
 
 def _check_scenario(config) -> None:
