@@ -417,7 +417,8 @@ def test_standing_picks_the_best_reaching_learner_and_names_its_restriction(lear
                                                                             tmp_path):
     """Per task: the one configuration at its largest budget, and the best run whose
     interval reaches the rule (a restricted learner named as such) over a better run that
-    does not; runs with fewer than five seeds and sampled evaluations do not count."""
+    does not; runs with fewer than five seeds, sampled evaluations and warm-started
+    learners do not count."""
     cols = ["task", "learner", "evaluation", "seeds", "iqm", "iqm_ci_low", "iqm_ci_high",
             "best_decentralised_spec", "best_decentralised_iqm", "reaches", "p_improvement",
             "agent_steps"]
@@ -435,7 +436,9 @@ def test_standing_picks_the_best_reaching_learner_and_names_its_restriction(lear
                  (t, "mlp", "greedy", 3, -80.0, -81.0, -79.0, "event:1", -94.2, True, 0.9,
                   20_000_000),
                  (t, "mlp", "sampled", 5, -80.0, -81.0, -79.0, "event:1", -94.2, True, 0.9,
-                  20_000_000)])
+                  20_000_000),
+                 (t, "mlp_bc_acked", "greedy", 5, -70.0, -71.0, -69.0, "event:1", -94.2,
+                  True, 0.99, 20_000_000)])
     folder("b", [(t, "mlp", "greedy", 5, -108.8, -109.8, -107.9, "event:1", -94.2, False,
                   0.15, 10_000_000)])
     cfg = learners.load_config()

@@ -1470,15 +1470,17 @@ def restriction(table: dict) -> str:
 
 def standing(root: Path, cfg: dict, recipe: str) -> list[dict]:
     """Per task, from every results folder's ``summary.csv`` under ``root`` (greedy
-    evaluation, five seeds or more): the run of ``recipe`` (the candidate for one
-    configuration on every task) at its largest budget, and the best run of any learner
-    whose interval reaches the best decentralised rule (else the best run of all), with
-    its restriction of the policy class named (:func:`restriction`)."""
+    evaluation, five seeds or more, from scratch: a learner whose config warm-starts with
+    ``bc`` does not count): the run of ``recipe`` (the candidate for one configuration on
+    every task) at its largest budget, and the best run of any learner whose interval
+    reaches the best decentralised rule (else the best run of all), with its restriction
+    of the policy class named (:func:`restriction`)."""
     rows = []
     for path in sorted(root.glob("*/summary.csv")):
         with path.open(newline="") as f:
             for r in csv.DictReader(f):
-                if r["evaluation"] == "greedy" and int(r["seeds"]) >= 5:
+                scratch = "bc" not in cfg["learners"].get(r["learner"], {})
+                if r["evaluation"] == "greedy" and int(r["seeds"]) >= 5 and scratch:
                     rows.append({**r, "folder": path.parent.name})
     out = []
     for task in cfg["tasks"]:
