@@ -305,11 +305,10 @@ class LifetimeCredit:
     def after(self, core) -> np.ndarray:
         """``(B, N)``: each sender's credit for the step just taken (errors at ``k + 1``)."""
         d = self.delta
-        moved = d @ self._full_T  # chains older than a step: the whole triangular A
         fresh = self._fresh  # chains adopted this step: the diagonal block only
+        d[~fresh] = d[~fresh] @ self._full_T  # older chains: the whole triangular A
         if fresh.any():
-            moved[fresh] = d[fresh] @ self._diag_T
-        d[...] = moved
+            d[fresh] = d[fresh] @ self._diag_T
         x = np.asarray(core.x)
         e = np.asarray(core.Z) - (x @ self._T_inv_T)[:, None, :]  # (B, N, n)
         scale = np.maximum(np.linalg.norm(x, axis=1), self._floor)[:, None]
