@@ -380,6 +380,15 @@ def test_a_decision_is_worth_the_return_of_its_flip(learners):
         learners.decision_visits("comm_fading-v0", "acked(sources:0)", seeds)
 
 
+def test_decision_visits_refuse_a_recurrent_policy(learners):
+    """A fork's policy starts without the memory the recurrent policy had built."""
+    pytest.importorskip("torch")
+    gru = (learners.RESULTS / "memory_10m_gru" / "runs" / "comm_fading-v0" / "gru_clock"
+           / "seed_0" / "policy.pt")
+    with pytest.raises(ValueError, match="recurrent policy's memory"):
+        learners.decision_visits("comm_fading-v0", f"learned:{gru}", [10**6])
+
+
 def test_decision_values_count_only_a_clear_gain(learners, monkeypatch):
     """Per row class: the mean worth of sending over silence, whatever was chosen; the gain
     counts the choices against a mean beyond two standard errors, scaled to visits per

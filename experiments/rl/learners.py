@@ -1238,7 +1238,6 @@ def decision_visits(task: str, spec: str, seeds: list[int], every: int = VALUE_E
     from netsense.engine.core import BatchedCore
     from netsense.engine.fork import fork
     from netsense.env.vector import load_model
-    from netsense.rl.memory import is_recurrent
 
     if spec != TWIN and not spec.startswith("learned:"):
         raise ValueError(f"decision_visits needs a policy of the current observation alone "
@@ -1248,8 +1247,12 @@ def decision_visits(task: str, spec: str, seeds: list[int], every: int = VALUE_E
     core = BatchedCore(load_model(task, **over)[0], len(seeds))
     act = actions(core)
     net = getattr(getattr(act, "__self__", None), "net", None)
-    if net is not None and is_recurrent(net):
-        raise ValueError(f"{spec}: a recurrent policy's memory is not carried into a fork")
+    if net is not None:  # a learned policy (torch is there)
+        from netsense.rl.memory import is_recurrent
+
+        if is_recurrent(net):
+            raise ValueError(f"{spec}: a recurrent policy's memory is not carried into a "
+                             f"fork")
     L, H, B = core.layout, core.horizon, len(seeds)
     if core.nvec.size != 1:
         raise ValueError(f"decision_visits flips one transmit bit per agent; {task} in "
