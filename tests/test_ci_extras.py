@@ -14,7 +14,7 @@ import os
 import pytest
 
 EXTRAS = ["sb3_contrib", "supersuit", "stable_baselines3", "ray.rllib", "torchrl",
-          "opendssdirect", "torch", "rliable", "sklearn"]
+          "opendssdirect", "torch", "rliable", "sklearn", "cma"]
 
 IN_CI = os.environ.get("CI", "").lower() in ("1", "true")
 LIGHT = os.environ.get("NETSENSE_CI_LIGHT", "") == "1"

@@ -134,7 +134,7 @@ RL_STAGES = (
     ("evaluation",),
     ("runlog",),
     ("checkpoint",),
-    ("ppo",),
+    ("ppo", "es"),
     ("launch",),
     ("mappo", "models", "torchrl_batched"),
 )

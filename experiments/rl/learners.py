@@ -144,11 +144,34 @@ def _fields(*tables: dict) -> dict:
     return out
 
 
+#: Keys of a learner table that configure the evolution strategy (``algorithm =
+#: "es"``, :class:`netsense.rl.es.ESConfig`) rather than the actor's PPOConfig.
+ES_KEYS = ("popsize", "episodes", "sigma")
+
+
+def es_config(fields: dict):
+    """The run's :class:`netsense.rl.es.ESConfig` when its table says ``algorithm = "es"``,
+    else ``None`` (PPO); an unknown algorithm, or ES keys without it, is refused by name."""
+    algorithm = fields.get("algorithm", "ppo")
+    if algorithm not in ("ppo", "es"):
+        raise ValueError(f"learner table: algorithm must be 'ppo' or 'es', got {algorithm!r}")
+    given = {k: fields[k] for k in ES_KEYS if k in fields}
+    if algorithm == "ppo":
+        if given:
+            raise ValueError(f"learner table: {sorted(given)} configure the evolution "
+                             "strategy; set algorithm = \"es\" or remove them")
+        return None
+    from netsense.rl.es import ESConfig
+
+    return ESConfig(**given)
+
+
 def ppo_config(task: str, seed: int, fields: dict):
-    """The run's :class:`netsense.rl.config.PPOConfig`."""
+    """The run's :class:`netsense.rl.config.PPOConfig` (for an ES learner: the actor's
+    network and task, :func:`es_config`)."""
     from netsense.rl.config import PPOConfig
 
-    kw = dict(fields)
+    kw = {k: v for k, v in fields.items() if k not in ES_KEYS + ("algorithm",)}
     if "hidden" in kw:
         kw["hidden"] = tuple(kw["hidden"])
     return PPOConfig(scenario=task, seed=seed, **kw)
@@ -194,10 +217,17 @@ def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
 
     folders = [out / "runs" / t / n / f"seed_{s}" for t, n, s, _ in runs]
     by_task: dict[str, list] = {}
+    es_runs = []
     for (t, n, s, f), d in zip(runs, folders, strict=True):
         if retrain or not (d / "policy.pt").exists():
+            es = es_config(f)  # (checked before any folder is removed)
             shutil.rmtree(d, ignore_errors=True)
-            by_task.setdefault(t, []).append(Run(ppo_config(t, s, f), n))
+            if es is None:
+                by_task.setdefault(t, []).append(Run(ppo_config(t, s, f), n))
+            else:
+                es_runs.append((ppo_config(t, s, f), es, d))
+    if es_runs:
+        train_es_runs(es_runs, workers, progress)
     for task, todo in by_task.items():
         entries = launch(todo, out / "runs" / task, workers=workers, progress=progress)
         failed = [f"{e['folder']}: {e['error']}" for e in entries if e["status"] != "ok"]
@@ -206,6 +236,43 @@ def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
         for e in entries:
             _finish(out / "runs" / task / e["folder"])
     return folders
+
+
+def train_es_runs(runs: list, workers: int, progress: bool) -> None:
+    """Train ``(PPOConfig, ESConfig, folder)`` runs with :func:`netsense.rl.es.train_es`,
+    ``workers`` at a time in spawned processes (one torch thread each), then
+    :func:`_finish` each folder. A failed run raises once the others have finished."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from multiprocessing import get_context
+
+    from netsense.rl.es import train_es
+
+    if workers <= 1:
+        for config, es, folder in runs:
+            train_es(config, es, folder, progress=progress)
+            _finish(folder)
+        return
+    failed = []
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        jobs = {pool.submit(train_es, c, e, d, progress=False): d for c, e, d in runs}
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=len(jobs), desc="es runs", unit="run")
+        for job in as_completed(jobs):
+            folder = jobs[job]
+            try:
+                job.result()
+                _finish(folder)
+            except Exception as exc:  # noqa: BLE001 -- reported with the others below
+                failed.append(f"{folder}: {exc}")
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+    if failed:
+        raise RuntimeError(f"es runs failed: {'; '.join(failed)}")
 
 
 def read_log(folder: Path) -> list[dict]:

@@ -39,6 +39,8 @@ logging (``runlog``)              ``log.csv`` and TensorBoard
 checkpoints (``checkpoint``)      save / read / check policy files, ``BatchedPolicy``
 resume (``resume``)               ``resume.pt``: what a killed run continues from, read as data
 training loop (``ppo``)           ``train_ppo``: TorchRL's MAPPO / IPPO losses, schedules, logs
+evolution strategy (``es``)       ``train_es``: separable CMA-ES (pycma) over the actor's weights,
+                                  scored by the greedy return; the same files as ``ppo``
 many runs (``launch``)            ``launch``: seeds x configurations in this process, in worker
                                   processes or as Ray tasks, the same files either way
 ================================  ==================================================================
@@ -53,7 +55,7 @@ Tool layer. May import every layer up to :mod:`netsense.env`, and :mod:`netsense
 """
 
 __all__ = ["advantage", "atomic", "checkpoint", "cloning", "config", "credit",
-           "distributions", "envs", "evaluation", "launch", "mappo", "memory", "models",
+           "distributions", "envs", "es", "evaluation", "launch", "mappo", "memory", "models",
            "networks", "policy", "policy_files", "ppo", "resume", "rllib", "rollout",
            "run_folder", "runlog", "sb3", "sb3_policy", "scripted", "set_network", "torchrl",
            "torchrl_batched", "wrappers"]

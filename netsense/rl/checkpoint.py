@@ -38,8 +38,8 @@ from netsense.rl.policy_files import check_weights, content_checksum, load_tenso
 from netsense.rl.run_folder import check_finished
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "BatchedPolicy", "load_policy",
-           "policy_checksum", "policy_config", "policy_control", "read_policy",
-           "save_checkpoint", "seal_policy", "strip_critic", "write_policy"]
+           "policy_checksum", "policy_config", "policy_control", "policy_state",
+           "read_policy", "save_checkpoint", "seal_policy", "strip_critic", "write_policy"]
 
 #: ``format`` entry of a batched-trainer policy file, and the newest version read.
 FORMAT = "netsense-batched-policy"
@@ -88,19 +88,27 @@ def strip_critic(path: str | Path) -> Path:
     return write_policy(path, state)
 
 
-def save_checkpoint(path: Path, config: PPOConfig, actor_net, critic, it: int, steps: int,
-                    core) -> None:
-    """Weights with what is needed to run them elsewhere: the config, the control section
-    the policy acted in (mode and fusion, resolved from the scenario) and the layout
-    sizes it was trained on (:func:`write_policy`)."""
+def policy_state(config: PPOConfig, actor_net, it: int, steps: int, core) -> dict:
+    """The entries of a policy file for the weights of ``actor_net``: the config, the
+    control section the policy acted in (mode and fusion, resolved from the scenario),
+    the layout sizes it was trained on, the iteration and agent-steps (what
+    :func:`write_policy` writes; the evolution strategy writes this, without a critic)."""
     ctl = core.model.control
-    write_policy(path, {
+    return {
         "config": asdict(config), "actor": actor_net.state_dict(),
-        "critic": critic.state_dict(), "iteration": int(it), "agent_steps": int(steps),
+        "iteration": int(it), "agent_steps": int(steps),
         "control": {"mode": ctl.mode, "fusion": ctl.fusion},
         "trained_on": {"N": int(core.N), "D": int(core.D), "M": int(core.M),
                        "obs_dim": int(core.layout.size),
-                       "nvec": [int(v) for v in core.nvec]}})
+                       "nvec": [int(v) for v in core.nvec]}}
+
+
+def save_checkpoint(path: Path, config: PPOConfig, actor_net, critic, it: int, steps: int,
+                    core) -> None:
+    """Weights with what is needed to run them elsewhere (:func:`policy_state`) and the
+    critic (:func:`write_policy`)."""
+    write_policy(path, dict(policy_state(config, actor_net, it, steps, core),
+                            critic=critic.state_dict()))
 
 
 def _load(path: Path) -> dict:
