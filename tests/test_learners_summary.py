@@ -146,10 +146,16 @@ def test_every_learner_is_a_valid_config_on_every_task(learners):
     cfg = learners.load_config()
     for name, table in cfg["learners"].items():
         for task in cfg["tasks"]:
-            config = learners.ppo_config(task, 0, learners._fields(
-                cfg["defaults"], table, cfg["tasks"][task]))
+            fields = learners._fields(cfg["defaults"], table, cfg["tasks"][task])
+            config = learners.ppo_config(task, 0, fields)
+            es = learners.es_config(fields)  # an ES learner: its own keys, checked too
+            own = {k: v for k, v in table.items()
+                   if k not in learners.ES_KEYS + ("algorithm",)}
             assert all(getattr(config, k) == (tuple(v) if isinstance(v, list) else v)
-                       for k, v in table.items()), name
+                       for k, v in own.items()), name
+            if es is not None:
+                assert all(getattr(es, k) == table[k] for k in learners.ES_KEYS
+                           if k in table), name
 
 
 def test_intervals_are_reproducible(learners):
@@ -457,5 +463,6 @@ def test_standing_picks_the_best_reaching_learner_and_names_its_restriction(lear
     assert one["folder"] == "a" and one["iqm"] == -90.0  # the larger budget, 5 seeds
     assert best["learner"] == "mlp_news_gate" and best["restriction"] == "news gate"
     assert learners.restriction(cfg["learners"]["clock_only"]) == "clock only"
+    assert learners.restriction(cfg["learners"]["mlp_comm_fields"]) == "comm fields only"
     assert learners.restriction(cfg["learners"]["mlp_clock_ages"]) == ""
     assert learners.restriction(cfg["learners"]["mlp_lifetime"]) == "reward lifetime"

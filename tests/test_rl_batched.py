@@ -407,6 +407,39 @@ def test_clock_only_actor_is_blind_to_the_state_and_not_to_the_step():
         PPOConfig("comm_channel_k2-v0", clock_only=True)
 
 
+def test_comm_fields_actor_reads_the_communication_fields_and_no_other():
+    """``comm_fields_only``: changing the measurements and the estimator's slots leaves
+    the logits unchanged, changing the acks or the silence does not; the kept entries are
+    exactly the communication fields and the time entry."""
+    from netsense.rl.config import PPOConfig
+    from netsense.rl.envs import make_core
+    from netsense.rl.policy import CommFieldsActor, actor_net
+
+    core = make_core("comm_fading-v0", 2)
+    L = core.layout
+    net = actor_net(PPOConfig("comm_fading-v0", ages=(1, 4), comm_fields_only=True), core)
+    assert isinstance(net, CommFieldsActor)
+    kept = {i for f in CommFieldsActor.FIELDS if getattr(L, f) is not None
+            for i in range(L.size)[getattr(L, f)]}
+    assert set(torch.nonzero(net.keep).flatten().tolist()) == kept
+    assert set(range(L.size)[L.acks]) <= kept and L.time.start in kept
+    obs, _ = core.reset([1, 2])
+    o = torch.as_tensor(obs)
+    with torch.no_grad():
+        base = net(o)
+        other = o.clone()
+        other[..., L.y] += 5.0
+        other[..., L.slot_omega] += 3.0
+        assert torch.equal(net(other), base)
+        for field, value in ((L.acks, -1.0), (L.silence, 7 / core.horizon)):
+            changed = o.clone()
+            changed[..., field] = value
+            assert not torch.equal(net(changed), base)
+    with pytest.raises(ValueError, match="communication-only"):
+        actor_net(PPOConfig("comm_substates-v0", comm_fields_only=True, control="substates"),
+                  make_core("comm_substates-v0", 1, control="full"))
+
+
 @pytest.mark.parametrize("inputs", [{"clock": (2, 5), "memory": 8},
                                     {"ages": (1, 4), "clock": (2,)}],
                          ids=["clock-memory", "ages-clock"])

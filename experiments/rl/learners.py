@@ -1526,7 +1526,7 @@ def cmd_credit(args, cfg: dict) -> None:
 
 #: PPOConfig fields that restrict the policy class (docs/rl.md): a learner that sets one
 #: is task-specific in the standing table; inputs (clock, ages, memory) are not.
-RESTRICTIONS = ("news_gate", "clock_only")
+RESTRICTIONS = ("news_gate", "clock_only", "comm_fields_only")
 
 
 def restriction(table: dict) -> str:

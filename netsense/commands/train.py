@@ -114,6 +114,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                     help="with --clock: the actor reads only the clock, the time entry and "
                          "its own substate, a learned schedule blind to the state (default: "
                          "the whole observation)")
+    tr.add_argument("--comm-fields-only", action="store_const", const=True, default=None,
+                    help="MLP actor, communication-only modes: read only the observation's "
+                         "communication fields (news, silence, acks, ...) and the time entry, "
+                         "the measurements and estimates held at 0 (default: the whole "
+                         "observation)")
     tr.add_argument("--ages", type=positive_int, nargs="+", default=None, metavar="TAU",
                     help="MLP actor, communication-only modes: also read exp(-a / TAU) for "
                          "each scale TAU (steps) of every age a in the observation's news "
@@ -174,8 +179,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: ``--backend sb3`` is refused instead of ignored; what is not given takes
 #: :class:`netsense.rl.config.PPOConfig`'s default).
 TORCHRL_ONLY = ("network", "set_slots", "control", "reward", "critic", "memory", "clock",
-                "clock_shift", "clock_only", "ages", "news_gate", "epochs", "eval_interval",
-                "eval_envs", "bc", "device", "precision", "overlap", "seeds")
+                "clock_shift", "clock_only", "comm_fields_only", "ages", "news_gate", "epochs",
+                "eval_interval", "eval_envs", "bc", "device", "precision", "overlap", "seeds")
 #: Flags both backends take, as ``(PPOConfig field, TrainConfig field)``; what is not given
 #: takes the backend's config default (``--help`` names both).
 SHARED = {"steps": ("steps", "steps"), "num_envs": ("num_envs", "num_vec_envs"),

@@ -131,6 +131,14 @@ class PPOConfig:
         channel's feedback. A restriction of the policy class, not of the task (the
         environment and its observation are unchanged); default ``False``; needs
         ``clock``.
+    comm_fields_only : bool
+        The MLP actor reads only what the communication-only modes add to the agent's
+        observation (``news``, ``silence``, ``channel_load``, ``collided``, ``agent_id``,
+        ``next_out``, ``acks``, where the scenario has them) and the time entry, every other
+        entry (the measurements and the estimator's slots) held at 0
+        (:class:`netsense.rl.policy.CommFieldsActor`); the own-substate one-hot, the clock
+        and the ages are read as configured. A restriction of the policy class, not of
+        the task; default ``False``. Not with the set network or full control.
     news_gate : bool
         Send only what is news (:class:`netsense.rl.policy.NewsGateActor`): in the
         communication-only control modes, the choice to send a substate (``"substates"``)
@@ -244,6 +252,7 @@ class PPOConfig:
     clock: tuple[int, ...] = ()
     clock_shift: bool = False
     clock_only: bool = False
+    comm_fields_only: bool = False
     ages: tuple[int, ...] = ()
     news_gate: bool = False
     value_norm: bool = True
@@ -307,6 +316,10 @@ class PPOConfig:
             raise ValueError(f"PPOConfig.set_slots=False leaves the message slots out of the "
                              f"set network in a communication-only mode; got network="
                              f"{self.network!r}, control={self.control!r}")
+        if self.comm_fields_only and (self.network == "set" or explicit_mode == "full"):
+            raise ValueError("PPOConfig.comm_fields_only keeps the communication-only fields "
+                             "of the MLP actor's observation; not with network='set' or "
+                             "control mode 'full'")
         if self.ages and explicit_mode == "full":
             raise ValueError("PPOConfig.ages reads the news and silence fields of the "
                              "communication-only control modes; got control 'full'")
@@ -421,6 +434,7 @@ CONFIG_CHECKS: dict[str, tuple] = {
     "clock": ("ints", 2, checks.MAX_STEPS),
     "clock_shift": ("choice", (True, False), None),
     "clock_only": ("choice", (True, False), None),
+    "comm_fields_only": ("choice", (True, False), None),
     "ages": ("ints", 1, checks.MAX_STEPS),
     "news_gate": ("choice", (True, False), None),
     "value_norm": ("choice", (True, False), None),

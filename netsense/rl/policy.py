@@ -24,8 +24,8 @@ from netsense.rl.memory import RecurrentActor, is_recurrent, unroll
 from netsense.rl.networks import activation_class, critic_net, mlp_actor_net
 from netsense.rl.set_network import SetPolicyNet
 
-__all__ = ["AgeActor", "ClockActor", "NewsGateActor", "ObsNormActor", "OwnSubstateActor",
-           "SequenceLogits", "actor_net", "build_actor", "critic_module"]
+__all__ = ["AgeActor", "ClockActor", "CommFieldsActor", "NewsGateActor", "ObsNormActor",
+           "OwnSubstateActor", "SequenceLogits", "actor_net", "build_actor", "critic_module"]
 
 #: Logit given to a send choice the news gate closes: its probability is exactly 0 in
 #: float32 and its log-probability finite, so the entropy stays finite (``0 * -1e9``).
@@ -179,6 +179,35 @@ class AgeActor(nn.Module):
         return self.body(torch.cat([obs, self.features(obs)], -1), *h)
 
 
+class CommFieldsActor(nn.Module):
+    """An actor whose body reads only the communication fields of the observation
+    (``comm_fields_only``): ``news``, ``silence``, ``channel_load``, ``collided``,
+    ``agent_id``, ``next_out`` and ``acks`` where the layout has them, and the time entry;
+    every other entry (the measurements, the estimator's slots) is held at 0 before the
+    wrappers inside it read the observation (the ages read ``news`` and ``silence``, the
+    clock the time entry, which stay). A restriction of the policy class: the scripted
+    rules of the communication tasks read only these fields (on ``comm_fading-v0``,
+    ``acked(sources:0)`` is a function of the agent's ``acks``, ``silence`` and whether it
+    owns a substate)."""
+
+    FIELDS = ("time", "news", "silence", "channel_load", "collided", "agent_id",
+              "next_out", "acks")
+
+    def __init__(self, net: nn.Module, layout) -> None:
+        super().__init__()
+        keep = torch.zeros(layout.size)
+        for name in self.FIELDS:
+            field = getattr(layout, name)
+            if field is not None:
+                keep[field] = 1.0
+        self.register_buffer("keep", keep)
+        self.body = net
+        self.memory = int(getattr(net, "memory", 0) or 0)
+
+    def forward(self, obs: torch.Tensor, *h: torch.Tensor):
+        return self.body(obs * self.keep.to(obs.dtype), *h)
+
+
 class NewsGateActor(nn.Module):
     """An actor that sends only what is news (``news_gate``): the choice "send substate
     ``j``" (control mode ``"substates"``) is closed where the observation's ``news[j]`` is
@@ -225,7 +254,8 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
     the recurrent MLP (``config.memory > 0``) or TorchRL's ``MultiAgentMLP``; the MLPs read
     the own-substate one-hot when ``config.agent_features``, the clock of
     ``config.clock`` (:class:`ClockActor`) and the age decays of ``config.ages``
-    (:class:`AgeActor`), and sit behind a running
+    (:class:`AgeActor`), read only the communication fields when
+    ``config.comm_fields_only`` (:class:`CommFieldsActor`), and sit behind a running
     observation normaliser when ``config.obs_norm``; either network sits behind the news
     gate when ``config.news_gate`` (:class:`NewsGateActor`)."""
     if config.network == "set":
@@ -251,6 +281,12 @@ def actor_net(config: PPOConfig, core, device=None) -> nn.Module:
                          shift=config.clock_shift, clock_only=config.clock_only)
     if config.ages:
         net = AgeActor(net, core.layout.news, core.layout.silence, core.horizon, config.ages)
+    if config.comm_fields_only:
+        if core.layout.news is None:
+            raise ValueError("PPOConfig.comm_fields_only keeps the communication-only "
+                             "fields; the core's observation has none (control mode "
+                             f"{core.control.mode!r})")
+        net = CommFieldsActor(net, core.layout)
     net = ObsNormActor(net, core.layout.size) if config.obs_norm else net
     return _gated(config, core, net).to(device)
 
