@@ -17,6 +17,7 @@ from netsense.benchmark.protocol import eval_seeds, evaluate  # noqa: E402
 from netsense.rl import es as es_mod  # noqa: E402
 from netsense.rl.checkpoint import (  # noqa: E402
     load_policy,
+    policy_config,
     policy_state,
     read_policy,
     write_policy,
@@ -103,6 +104,10 @@ def test_a_run_folder(tmp_path, monkeypatch):
     assert "critic" not in state
     assert state["trainer"]["algorithm"] == "sep-cma-es" and state["trainer"]["popsize"] == 4
     assert json.loads((tmp_path / "run.json").read_text())["status"] == "finished"
+    # config.json is the actor's PPOConfig, as a PPO run folder's (read back the same way)
+    stored = policy_config({"config": json.loads((tmp_path / "config.json").read_text())})
+    assert stored == config
+    assert json.loads((tmp_path / "summary.json").read_text())["es"]["popsize"] == 4
     with pytest.raises(ValueError, match="already holds a training run"):
         train_es(config, es, tmp_path, progress=False)
     # the policy file plays on the protocol's episodes

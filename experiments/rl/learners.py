@@ -1286,6 +1286,91 @@ def reaction_use(task: str, spec: str, seeds: list[int]) -> dict:
     return out
 
 
+#: The parts of ``acked(sources:0)``'s reaction to an owner's row (:func:`acked_twin`) that
+#: :func:`hybrid_use` imposes on a policy, each a map from row class to the rule's choice:
+#: ``quiet``, silent after a loss and for 1 to 5 steps of silence; ``probe``, send after
+#: six steps of silence or more; ``no_link``, send after a message that had no out-link.
+#: (After a delivery the learners measured send already; the twin's variant adds it.)
+HYBRID_PARTS = ("quiet", "probe", "no_link")
+
+
+def _imposed(parts, cls: np.ndarray) -> np.ndarray:
+    """The rule's choice (1 send, 0 silent) where one of ``parts`` covers the row class
+    ``cls`` (:func:`row_classes`), else -1 (the policy's own choice)."""
+    names = np.asarray(ROW_CLASSES)[cls]
+    sil = np.where(cls >= 3, cls - 2, 0)  # steps of silence; the 9+ class counts as 9
+    out = np.full(cls.shape, -1, dtype=np.int64)
+    if "quiet" in parts:
+        out[(names == "lost") | ((sil >= 1) & (sil < TWIN_PROBE))] = 0
+    if "probe" in parts:
+        out[sil >= TWIN_PROBE] = 1
+    if "no_link" in parts:
+        out[names == "no_link"] = 1
+    if "delivered" in parts:
+        out[names == "delivered"] = 1
+    return out
+
+
+def hybrid_use(task: str, spec: str, seeds: list[int]) -> dict:
+    """The return of the policy ``spec`` on ``task`` (``comm_fading-v0``) with the parts of
+    :data:`HYBRID_PARTS` in every subset imposed on the owners' rows (the rest of its
+    choices its own); with the agents that own no substate silent
+    (``return_others_silent``); and (``return_quiet_probe_no_link_twin``) with all three,
+    sending after a delivery, and the other agents silent, which is the twin of
+    ``acked(sources:0)`` whatever the policy: which changes of its reaction, alone and
+    together, take a policy to the rule."""
+    from itertools import combinations
+
+    from netsense.benchmark.protocol import evaluate
+
+    over, actions = probed_policy(task, spec)
+    subsets = [c for k in range(len(HYBRID_PARTS) + 1)
+               for c in combinations(HYBRID_PARTS, k)]
+    out = {}
+    for parts, silence_others in ([(c, False) for c in subsets]
+                                  + [((), True), ((*HYBRID_PARTS, "delivered"), True)]):
+        def actor(core, _seeds, parts=parts, silence_others=silence_others):
+            act0 = actions(core)
+            owner = np.asarray(core.layout.own) >= 0
+
+            def act(obs, mask):
+                a = np.array(act0(obs, mask))
+                forced = _imposed(parts, row_classes(obs, core.layout, core.horizon))
+                sel = (forced >= 0) & owner[None, :]
+                a[..., 0][sel] = forced[sel]
+                if silence_others:
+                    a[:, ~owner] = 0
+                return a
+
+            return act
+
+        key = ("return_others_silent" if silence_others and not parts else
+               "return_" + ("_".join(parts[:len(HYBRID_PARTS)]) or "own")
+               + ("_twin" if silence_others else ""))
+        out[key] = float(evaluate(task, "never", seeds, over, actor=actor)["reward"].mean())
+    return out
+
+
+def cmd_hybrids(args, cfg: dict) -> None:
+    """Which changes of the learners' reaction to their row reach ``acked(sources:0)`` on
+    ``comm_fading-v0`` (:func:`hybrid_use`), beside ``never`` and the rule; writes
+    ``hybrids_fading.{csv,md}``."""
+    from functools import partial
+
+    task = "comm_fading-v0"
+    columns = [("return_own", "own", 1, 1, "")]
+    from itertools import combinations
+
+    for k in range(1, len(HYBRID_PARTS) + 1):
+        for c in combinations(HYBRID_PARTS, k):
+            columns.append(("return_" + "_".join(c), " + ".join(c).replace("_", " "), 1, 1,
+                            ""))
+    columns.append(("return_others_silent", "non-owners silent", 1, 1, ""))
+    columns.append(("return_quiet_probe_no_link_twin", "all, others silent", 1, 1, ""))
+    policy_use(args, task, partial(hybrid_use, task), ["acked(sources:0)", "never"],
+               columns, "hybrids_fading")
+
+
 #: Steps between the states :func:`decision_values` forks at (offset ``every // 2``).
 VALUE_EVERY = 10
 
@@ -1698,7 +1783,7 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
-                                       "substates", "memory", "reaction",
+                                       "substates", "memory", "reaction", "hybrids",
                                        "values", "credit", "standing", "time-to-rule"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
@@ -1723,7 +1808,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = load_config(args.config)
     commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
                 "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
-                "memory": cmd_memory, "reaction": cmd_reaction, "values": cmd_values,
+                "memory": cmd_memory, "reaction": cmd_reaction, "hybrids": cmd_hybrids,
+                "values": cmd_values,
                 "credit": cmd_credit,
                 "standing": cmd_standing,
                 "time-to-rule": cmd_time}

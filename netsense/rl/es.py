@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from netsense.rl.atomic import write_json
 from netsense.rl.checkpoint import policy_state, write_policy
 from netsense.rl.config import PPOConfig
 from netsense.rl.distributions import MaskedMultiCategorical
@@ -169,13 +170,14 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
              progress: bool = True, overwrite: bool = False) -> dict:
     """Search the actor's weights with separable CMA-ES for ``config.steps`` agent-steps.
 
-    Writes into ``folder``: ``config.json`` (both configs), ``log.csv`` (one row per
+    Writes into ``folder``: ``config.json`` (the ``PPOConfig``), ``log.csv`` (one row per
     generation: ``iteration``, ``agent_steps``, ``wall_s``, the population's mean and best
     training return, its share of transmitting agent-steps, the step size, and every
     ``config.eval_interval`` generations ``eval_return`` / ``eval_error`` /
     ``eval_messages`` of the search's mean on the validation episodes),
     ``checkpoint_<generation + 1>.pt`` at those generations, ``policy.pt`` (the final mean)
-    and ``summary.json``. Policy files hold the actor only (no critic). ``run.json`` says
+    and ``summary.json`` (with the ``ESConfig`` under ``es``). Policy files hold the actor
+    only (no critic). ``run.json`` says
     ``running`` until the last file is written, then ``finished``
     (:mod:`netsense.rl.run_folder`): a folder that holds a run is refused unless
     ``overwrite``.
@@ -196,9 +198,9 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
     population = _Population(actor_net(config, core, torch.device("cpu")), es.popsize)
     per_gen = es.popsize * es.episodes * core.N * core.horizon
     generations = max(1, math.ceil(config.steps / per_gen))
-    (folder / "config.json").write_text(json.dumps(
-        {"algorithm": "sep-cma-es", "config": asdict(config), "es": asdict(es),
-         "weights": population.dim, "generations": generations}, indent=2, default=str))
+    # config.json holds the actor's PPOConfig, as a PPO run's does (what reads a run
+    # folder rebuilds the network from it); the search's settings go to summary.json
+    write_json(folder / "config.json", asdict(config), default=list)
     bc = None
     if config.bc:  # warm start: the search starts from a clone of the scripted policy
         from netsense.rl.cloning import behaviour_clone
@@ -254,10 +256,10 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
     wall = time.perf_counter() - t0
     summary = {"wall_s": round(wall, 2), "agent_steps": steps,
                "agent_steps_per_s": round(steps / wall, 1), "device": "cpu",
-               "algorithm": "sep-cma-es", "generations": generations,
+               "algorithm": "sep-cma-es", "es": asdict(es), "generations": generations,
                "weights": population.dim, "torch_threads": int(config.torch_threads or 1),
                "bc": None if bc is None else json.loads(json.dumps(bc, default=float))}
-    (folder / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_json(folder / "summary.json", summary)
     mark(folder, FINISHED, backend="es", seed=config.seed)  # the last write
     return summary
 
