@@ -81,8 +81,8 @@ def test_a_run_folder(tmp_path, monkeypatch):
     """Two generations: the log, checkpoints at the evaluation interval, a policy file
     with the trainer's record and no critic, agent-steps counted from the population, and
     every training episode drawn from the run's own training seeds."""
-    config = _config(steps=2 * 4 * 2 * 10 * 200)  # popsize x episodes x N x H, twice
-    es = ESConfig(popsize=4, episodes=2, sigma=0.3)
+    config = _config(steps=2 * 3 * 2 * 10 * 200)  # popsize x episodes x N x H, twice
+    es = ESConfig(popsize=3, episodes=2, sigma=0.3)
     drawn = []
     real = es_mod.greedy_returns
 
@@ -97,17 +97,17 @@ def test_a_run_folder(tmp_path, monkeypatch):
     assert len(drawn) == 4 and len(set(drawn[:2])) == 2  # without replacement in a generation
     with (tmp_path / "log.csv").open() as fh:
         rows = list(csv.DictReader(fh))
-    assert [int(r["agent_steps"]) for r in rows] == [16000, 32000]
+    assert [int(r["agent_steps"]) for r in rows] == [12000, 24000]
     assert all(r["eval_return"] for r in rows)  # eval_interval 1
     assert (tmp_path / "checkpoint_00001.pt").exists()
     state = read_policy(tmp_path / "policy.pt")
     assert "critic" not in state
-    assert state["trainer"]["algorithm"] == "sep-cma-es" and state["trainer"]["popsize"] == 4
+    assert state["trainer"]["algorithm"] == "sep-cma-es" and state["trainer"]["popsize"] == 3
     assert json.loads((tmp_path / "run.json").read_text())["status"] == "finished"
     # config.json is the actor's PPOConfig, as a PPO run folder's (read back the same way)
     stored = policy_config({"config": json.loads((tmp_path / "config.json").read_text())})
     assert stored == config
-    assert json.loads((tmp_path / "summary.json").read_text())["es"]["popsize"] == 4
+    assert json.loads((tmp_path / "summary.json").read_text())["es"]["popsize"] == 3
     with pytest.raises(ValueError, match="already holds a training run"):
         train_es(config, es, tmp_path, progress=False)
     # the policy file plays on the protocol's episodes
@@ -116,7 +116,7 @@ def test_a_run_folder(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("kw, match", [
-    (dict(popsize=3), "popsize"), (dict(popsize=4.0), "popsize"),
+    (dict(popsize=2), "popsize"), (dict(popsize=4.0), "popsize"),
     (dict(episodes=0), "episodes"), (dict(sigma=0.0), "sigma"),
     (dict(sigma=float("nan")), "sigma")])
 def test_es_config_refuses(kw, match):

@@ -55,7 +55,7 @@ class ESConfig:
     Parameters
     ----------
     popsize : int
-        Candidates per generation (>= 4).
+        Candidates per generation (>= 3).
     episodes : int
         Training episodes each candidate plays per generation, the same for all of them;
         at most the config's ``num_envs`` (the pool of training seeds).
@@ -72,9 +72,10 @@ class ESConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.popsize, int) or isinstance(self.popsize, bool) \
-                or self.popsize < 4:
-            raise ValueError(f"ESConfig.popsize must be an integer >= 4 (pycma's step-size "
-                             f"adaptation needs 4), got {self.popsize!r}")
+                or self.popsize < 3:
+            raise ValueError(f"ESConfig.popsize must be an integer >= 3 (pycma mirrors the "
+                             f"samples of small populations, which fails with 2), got "
+                             f"{self.popsize!r}")
         if not isinstance(self.episodes, int) or isinstance(self.episodes, bool) \
                 or self.episodes < 1:
             raise ValueError(f"ESConfig.episodes must be an integer >= 1, got "
@@ -231,9 +232,9 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
                    unit="gen")
     for g in range(generations):
         seeds = base + rng.choice(config.num_envs, es.episodes, replace=False)
-        cand = np.asarray(search.ask())
-        returns, sends = greedy_returns(population, core, cand, seeds)
-        search.tell(list(cand), list(-returns))
+        cand = search.ask()
+        returns, sends = greedy_returns(population, core, np.asarray(cand), seeds)
+        search.tell(cand, list(-returns))
         steps += per_gen
         row = {"iteration": g, "agent_steps": steps,
                "wall_s": round(time.perf_counter() - t0, 3),
