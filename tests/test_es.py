@@ -168,3 +168,31 @@ def test_a_warm_start_begins_the_search_at_the_clone(tmp_path, monkeypatch):
     net = load_policy(tmp_path / "policy.pt").net
     weights = torch.nn.utils.parameters_to_vector(net.parameters())
     assert torch.allclose(weights, torch.tensor(0.125), atol=1e-6)
+
+
+def test_a_run_continues_another_from_its_policy_file(tmp_path):
+    """``ESConfig.init``: the search starts from the weights of a policy file (``{seed}``
+    replaced), and its agent-steps count first in the log; a file of another actor, a
+    missing file, and init with a warm start are refused before anything is written."""
+    config = _config(steps=3 * 2 * 10 * 200)
+    core = make_core(TASK, 1)
+    net = actor_net(config, core, torch.device("cpu"))
+    with torch.no_grad():
+        for p in net.parameters():
+            p.fill_(0.25)
+    write_policy(tmp_path / "start_1.pt", policy_state(config, net, 9, 5000, core))
+    es = ESConfig(popsize=3, episodes=2, sigma=1e-9, init=str(tmp_path / "start_{seed}.pt"))
+    summary = train_es(config, es, tmp_path / "run", progress=False)
+    assert summary["init_agent_steps"] == 5000
+    assert summary["agent_steps"] == 5000 + config.steps
+    weights = torch.nn.utils.parameters_to_vector(
+        load_policy(tmp_path / "run" / "policy.pt").net.parameters())
+    assert torch.allclose(weights, torch.tensor(0.25), atol=1e-6)
+    other = _config(hidden=(8,))
+    with pytest.raises(ValueError, match="another actor"):
+        train_es(other, es, tmp_path / "a", progress=False)
+    with pytest.raises(ValueError, match="no policy file"):
+        train_es(_config(seed=2), es, tmp_path / "b", progress=False)
+    with pytest.raises(ValueError, match="give one"):
+        train_es(_config(bc="acked(sources:0)"), es, tmp_path / "c", progress=False)
+    assert not any((tmp_path / d).exists() for d in "abc")

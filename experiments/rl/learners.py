@@ -146,7 +146,7 @@ def _fields(*tables: dict) -> dict:
 
 #: Keys of a learner table that configure the evolution strategy (``algorithm =
 #: "es"``, :class:`netsense.rl.es.ESConfig`) rather than the actor's PPOConfig.
-ES_KEYS = ("popsize", "episodes", "sigma")
+ES_KEYS = ("popsize", "episodes", "sigma", "init")
 
 
 def es_config(fields: dict):

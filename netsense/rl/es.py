@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 from netsense.rl.atomic import write_json
-from netsense.rl.checkpoint import policy_state, write_policy
+from netsense.rl.checkpoint import policy_state, read_policy, write_policy
 from netsense.rl.config import PPOConfig
 from netsense.rl.distributions import MaskedMultiCategorical
 from netsense.rl.envs import make_core
@@ -64,11 +64,17 @@ class ESConfig:
         starts from all weights zero, or (``PPOConfig.bc``) from the weights of a
         behaviour clone of a scripted policy (:func:`~netsense.rl.cloning.
         behaviour_clone`): a warm start.
+    init : str or None
+        A policy file of the same actor (the same network and inputs) whose weights the
+        search starts from instead, ``{seed}`` replaced by the run's seed: the
+        continuation of another run (a PPO run from scratch, say). Its agent-steps count
+        in this run's budget and log. Not with ``PPOConfig.bc``.
     """
 
     popsize: int = 32
     episodes: int = 16
     sigma: float = 0.5
+    init: str | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.popsize, int) or isinstance(self.popsize, bool) \
@@ -83,12 +89,21 @@ class ESConfig:
         if not isinstance(self.sigma, (int, float)) or isinstance(self.sigma, bool) \
                 or not math.isfinite(self.sigma) or self.sigma <= 0:
             raise ValueError(f"ESConfig.sigma must be a finite number > 0, got {self.sigma!r}")
+        if self.init is not None and (not isinstance(self.init, str) or not self.init):
+            raise ValueError(f"ESConfig.init must be a path (a string) or None, got "
+                             f"{self.init!r}")
 
 
 def _check(config: PPOConfig, es: ESConfig) -> None:
     if config.memory:
         raise ValueError("train_es: a recurrent actor (PPOConfig.memory) is not supported; "
                          "the evolution strategy searches feed-forward actors")
+    if es.init is not None and config.bc:
+        raise ValueError("ESConfig.init and PPOConfig.bc both set the search's start; "
+                         "give one")
+    if es.init is not None and not Path(es.init.format(seed=config.seed)).is_file():
+        raise ValueError(f"ESConfig.init: no policy file at "
+                         f"{es.init.format(seed=config.seed)}")
     if es.episodes > config.num_envs:
         raise ValueError(f"ESConfig.episodes ({es.episodes}) exceeds the pool of training "
                          f"seeds, PPOConfig.num_envs ({config.num_envs})")
@@ -169,7 +184,9 @@ def greedy_returns(population: _Population, core, weights: np.ndarray,
 
 def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
              progress: bool = True, overwrite: bool = False) -> dict:
-    """Search the actor's weights with separable CMA-ES for ``config.steps`` agent-steps.
+    """Search the actor's weights with separable CMA-ES for ``config.steps`` agent-steps
+    (after those of ``es.init``'s run, when it continues one: the log and summary count
+    both).
 
     Writes into ``folder``: ``config.json`` (the ``PPOConfig``), ``log.csv`` (one row per
     generation: ``iteration``, ``agent_steps``, ``wall_s``, the population's mean and best
@@ -189,9 +206,7 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
 
     _check(config, es)
     folder = Path(folder)
-    claim(folder, overwrite=overwrite)
-    folder.mkdir(parents=True, exist_ok=True)
-    mark(folder, RUNNING, backend="es", seed=config.seed)
+    claim(folder, overwrite=overwrite)  # (checks only; nothing is written yet)
     torch.set_num_threads(int(config.torch_threads or 1))
     torch.manual_seed(config.seed)
     core = make_core(config.scenario, es.popsize * es.episodes, control=config.control,
@@ -199,10 +214,26 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
     population = _Population(actor_net(config, core, torch.device("cpu")), es.popsize)
     per_gen = es.popsize * es.episodes * core.N * core.horizon
     generations = max(1, math.ceil(config.steps / per_gen))
+    bc, start_steps = None, 0
+    x0 = np.zeros(population.dim)
+    if es.init is not None:  # continue another run from its final weights
+        path = Path(es.init.format(seed=config.seed))
+        state = read_policy(path)
+        want = {k: tuple(v.shape) for k, v in population.net.state_dict().items()}
+        have = {k: tuple(v.shape) for k, v in state["actor"].items()}
+        if want != have:
+            diff = sorted(k for k in set(want) | set(have) if want.get(k) != have.get(k))
+            raise ValueError(f"ESConfig.init: {path} holds another actor than this "
+                             f"config's (weights that differ in name or shape: {diff[:4]})")
+        population.net.load_state_dict(state["actor"])
+        start_steps = int(state.get("agent_steps", 0))
+        x0 = torch.nn.utils.parameters_to_vector(population.net.parameters())
+        x0 = x0.detach().numpy().astype(float)
+    folder.mkdir(parents=True, exist_ok=True)
+    mark(folder, RUNNING, backend="es", seed=config.seed)
     # config.json holds the actor's PPOConfig, as a PPO run's does (what reads a run
     # folder rebuilds the network from it); the search's settings go to summary.json
     write_json(folder / "config.json", asdict(config), default=list)
-    bc = None
     if config.bc:  # warm start: the search starts from a clone of the scripted policy
         from netsense.rl.cloning import behaviour_clone
 
@@ -210,8 +241,6 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
                              progress=progress)
         x0 = torch.nn.utils.parameters_to_vector(population.net.parameters())
         x0 = x0.detach().numpy().astype(float)
-    else:
-        x0 = np.zeros(population.dim)
     search = cma.CMAEvolutionStrategy(x0, es.sigma, {
         "popsize": es.popsize, "CMA_diagonal": True, "seed": config.seed + 1,
         "verbose": -9, "tolfun": 0, "tolflatfitness": 10**9, "tolstagnation": 10**9})
@@ -223,7 +252,7 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
         write_policy(path, dict(policy_state(config, population.load(vector), it, steps,
                                              core), trainer=trainer))
 
-    rows, t0, steps = [], time.perf_counter(), 0
+    rows, t0, steps = [], time.perf_counter(), start_steps
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -256,7 +285,8 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
     save(folder / "policy.pt", search.mean, generations - 1, steps)
     wall = time.perf_counter() - t0
     summary = {"wall_s": round(wall, 2), "agent_steps": steps,
-               "agent_steps_per_s": round(steps / wall, 1), "device": "cpu",
+               "agent_steps_per_s": round((steps - start_steps) / wall, 1), "device": "cpu",
+               "init_agent_steps": start_steps,
                "algorithm": "sep-cma-es", "es": asdict(es), "generations": generations,
                "weights": population.dim, "torch_threads": int(config.torch_threads or 1),
                "bc": None if bc is None else json.loads(json.dumps(bc, default=float))}
