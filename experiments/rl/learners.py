@@ -1356,11 +1356,10 @@ def cmd_hybrids(args, cfg: dict) -> None:
     ``comm_fading-v0`` (:func:`hybrid_use`), beside ``never`` and the rule; writes
     ``hybrids_fading.{csv,md}``."""
     from functools import partial
+    from itertools import combinations
 
     task = "comm_fading-v0"
     columns = [("return_own", "own", 1, 1, "")]
-    from itertools import combinations
-
     for k in range(1, len(HYBRID_PARTS) + 1):
         for c in combinations(HYBRID_PARTS, k):
             columns.append(("return_" + "_".join(c), " + ".join(c).replace("_", " "), 1, 1,
