@@ -21,7 +21,7 @@ this trainer reads like one of :func:`~netsense.rl.ppo.train_ppo` (``log.csv``,
 A recurrent actor is refused (a generation would have to carry one memory per candidate).
 
 Imports: torch, pycma, and the stages below (run_folder, config, envs, distributions,
-policy, cloning, evaluation, checkpoint).
+policy, cloning, evaluation, runlog, checkpoint).
 """
 
 from __future__ import annotations
@@ -36,13 +36,14 @@ import numpy as np
 import torch
 
 from netsense.rl.atomic import write_json
-from netsense.rl.checkpoint import policy_state, read_policy, write_policy
+from netsense.rl.checkpoint import _fit, policy_state, read_policy, write_policy
 from netsense.rl.config import PPOConfig
 from netsense.rl.distributions import MaskedMultiCategorical
 from netsense.rl.envs import make_core
 from netsense.rl.evaluation import evaluate
 from netsense.rl.policy import actor_net
 from netsense.rl.run_folder import FINISHED, RUNNING, claim, mark
+from netsense.rl.runlog import RunLog
 
 __all__ = ["ESConfig", "greedy_returns", "train_es"]
 
@@ -215,20 +216,12 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
     per_gen = es.popsize * es.episodes * core.N * core.horizon
     generations = max(1, math.ceil(config.steps / per_gen))
     bc, start_steps = None, 0
-    x0 = np.zeros(population.dim)
     if es.init is not None:  # continue another run from its final weights
         path = Path(es.init.format(seed=config.seed))
         state = read_policy(path)
-        want = {k: tuple(v.shape) for k, v in population.net.state_dict().items()}
-        have = {k: tuple(v.shape) for k, v in state["actor"].items()}
-        if want != have:
-            diff = sorted(k for k in set(want) | set(have) if want.get(k) != have.get(k))
-            raise ValueError(f"ESConfig.init: {path} holds another actor than this "
-                             f"config's (weights that differ in name or shape: {diff[:4]})")
-        population.net.load_state_dict(state["actor"])
+        _fit(population.net, state["actor"], path, "the actor of this run's config "
+             "(ESConfig.init names another actor)")
         start_steps = int(state.get("agent_steps", 0))
-        x0 = torch.nn.utils.parameters_to_vector(population.net.parameters())
-        x0 = x0.detach().numpy().astype(float)
     folder.mkdir(parents=True, exist_ok=True)
     mark(folder, RUNNING, backend="es", seed=config.seed)
     # config.json holds the actor's PPOConfig, as a PPO run's does (what reads a run
@@ -239,8 +232,9 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
 
         bc = behaviour_clone(population.net, config, config.bc, device=torch.device("cpu"),
                              progress=progress)
-        x0 = torch.nn.utils.parameters_to_vector(population.net.parameters())
-        x0 = x0.detach().numpy().astype(float)
+    x0 = (torch.nn.utils.parameters_to_vector(population.net.parameters()).detach()
+          .numpy().astype(float) if es.init is not None or config.bc
+          else np.zeros(population.dim))
     search = cma.CMAEvolutionStrategy(x0, es.sigma, {
         "popsize": es.popsize, "CMA_diagonal": True, "seed": config.seed + 1,
         "verbose": -9, "tolfun": 0, "tolflatfitness": 10**9, "tolstagnation": 10**9})
@@ -252,7 +246,7 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
         write_policy(path, dict(policy_state(config, population.load(vector), it, steps,
                                              core), trainer=trainer))
 
-    rows, t0, steps = [], time.perf_counter(), start_steps
+    log, t0, steps = RunLog(folder), time.perf_counter(), start_steps
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -275,11 +269,11 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
             row.update(eval_return=m["return"], eval_error=m["error"],
                        eval_messages=m["messages"])
             save(folder / f"checkpoint_{g + 1:05d}.pt", search.mean, g, steps)
-        rows.append(row)
-        _write_log(folder / "log.csv", rows)
+        log.add(row)
         if bar is not None:
             bar.update(1)
             bar.set_postfix(ret=f"{row['train_return']:.1f}", sigma=f"{search.sigma:.3f}")
+    log.close()
     if bar is not None:
         bar.close()
     save(folder / "policy.pt", search.mean, generations - 1, steps)
@@ -294,13 +288,3 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
     mark(folder, FINISHED, backend="es", seed=config.seed)  # the last write
     return summary
 
-
-def _write_log(path: Path, rows: list[dict]) -> None:
-    import csv
-
-    from netsense.rl.atomic import atomic_path
-
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
