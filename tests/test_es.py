@@ -4,6 +4,7 @@ training seeds, and a run folder reads like one of the PPO trainer."""
 
 import csv
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -196,3 +197,36 @@ def test_a_run_continues_another_from_its_policy_file(tmp_path):
     with pytest.raises(ValueError, match="give one"):
         train_es(_config(bc="acked(sources:0)"), es, tmp_path / "c", progress=False)
     assert not any((tmp_path / d).exists() for d in "abc")
+
+
+def test_launch_trains_es_runs_as_train_es_does(tmp_path):
+    """An ES run through the launcher (in this process and in worker processes) writes
+    the weights a direct ``train_es`` call writes, and a summary entry with its budget; an
+    unfinished ES run of a resumed launch starts again and ends at the same weights."""
+    from netsense.rl.launch import Run, launch, make_runs
+
+    config = _config(steps=3 * 2 * 10 * 200)  # one generation
+    es = ESConfig(popsize=3, episodes=2, sigma=0.3)
+    train_es(replace(config, seed=0), es, tmp_path / "direct", progress=False)
+    want = read_policy(tmp_path / "direct" / "policy.pt")["actor"]
+    runs = make_runs({"es": config}, [0, 1], es=es)
+    assert all(r.es == es for r in runs)
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        entries = launch(runs, out, workers=workers, progress=False)
+        assert [e["status"] for e in entries] == ["ok", "ok"]
+        assert entries[0]["agent_steps"] == config.steps and entries[0]["eval_return"] < 0
+        got = read_policy(out / "es" / "seed_0" / "policy.pt")
+        assert got["trainer"]["algorithm"] == "sep-cma-es"
+        for k, v in want.items():
+            assert torch.equal(got["actor"][k], v), k
+    # interrupted: the run's folder says running, its policy is stale
+    folder = tmp_path / "w1" / "es" / "seed_0"
+    (folder / "policy.pt").write_bytes(b"stale")
+    (folder / "run.json").write_text(json.dumps({"status": "running"}))
+    entries = launch(runs, tmp_path / "w1", resume=True, progress=False)
+    assert [e["status"] for e in entries] == ["ok", "ok"]
+    got = read_policy(folder / "policy.pt")["actor"]
+    assert all(torch.equal(got[k], v) for k, v in want.items())
+    with pytest.raises(TypeError, match="Run.es"):
+        Run(config, "es", es={"popsize": 3})

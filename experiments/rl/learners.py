@@ -211,23 +211,18 @@ def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
                progress: bool = True, workers: int = 1) -> list[Path]:
     """Train every ``(task, name, seed, fields)`` into ``out/runs/<task>/<name>/seed_<s>``
     unless its ``policy.pt`` exists, through :func:`netsense.rl.launch.launch` (``workers``
-    > 1: that many spawned processes with one-thread pools), one launch per task; returns
+    > 1: that many spawned processes with one-thread pools; a learner with ``algorithm =
+    "es"`` searches with :func:`netsense.rl.es.train_es`), one launch per task; returns
     the run folders. A failed run raises once the task's other runs have finished."""
     from netsense.rl.launch import Run, launch
 
     folders = [out / "runs" / t / n / f"seed_{s}" for t, n, s, _ in runs]
     by_task: dict[str, list] = {}
-    es_runs = []
     for (t, n, s, f), d in zip(runs, folders, strict=True):
         if retrain or not (d / "policy.pt").exists():
             es = es_config(f)  # (checked before any folder is removed)
             shutil.rmtree(d, ignore_errors=True)
-            if es is None:
-                by_task.setdefault(t, []).append(Run(ppo_config(t, s, f), n))
-            else:
-                es_runs.append((ppo_config(t, s, f), es, d))
-    if es_runs:
-        train_es_runs(es_runs, workers, progress)
+            by_task.setdefault(t, []).append(Run(ppo_config(t, s, f), n, es))
     for task, todo in by_task.items():
         entries = launch(todo, out / "runs" / task, workers=workers, progress=progress)
         failed = [f"{e['folder']}: {e['error']}" for e in entries if e["status"] != "ok"]
@@ -236,43 +231,6 @@ def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
         for e in entries:
             _finish(out / "runs" / task / e["folder"])
     return folders
-
-
-def train_es_runs(runs: list, workers: int, progress: bool) -> None:
-    """Train ``(PPOConfig, ESConfig, folder)`` runs with :func:`netsense.rl.es.train_es`,
-    ``workers`` at a time in spawned processes (one torch thread each), then
-    :func:`_finish` each folder. A failed run raises once the others have finished."""
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from multiprocessing import get_context
-
-    from netsense.rl.es import train_es
-
-    if workers <= 1:
-        for config, es, folder in runs:
-            train_es(config, es, folder, progress=progress)
-            _finish(folder)
-        return
-    failed = []
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-        jobs = {pool.submit(train_es, c, e, d, progress=False): d for c, e, d in runs}
-        bar = None
-        if progress:
-            from tqdm.auto import tqdm
-
-            bar = tqdm(total=len(jobs), desc="es runs", unit="run")
-        for job in as_completed(jobs):
-            folder = jobs[job]
-            try:
-                job.result()
-                _finish(folder)
-            except Exception as exc:  # noqa: BLE001 -- reported with the others below
-                failed.append(f"{folder}: {exc}")
-            if bar is not None:
-                bar.update(1)
-        if bar is not None:
-            bar.close()
-    if failed:
-        raise RuntimeError(f"es runs failed: {'; '.join(failed)}")
 
 
 def read_log(folder: Path) -> list[dict]:

@@ -1,7 +1,9 @@
 """Training pipeline, stage *launch*: many runs (seeds x configurations) at once.
 
-:func:`launch` trains a list of :class:`Run` (a :class:`PPOConfig` and an optional name;
-:func:`make_runs` builds seeds x configurations) with :func:`netsense.rl.ppo.train_ppo`
+:func:`launch` trains a list of :class:`Run` (a :class:`PPOConfig`, an optional name and,
+for the evolution strategy, an :class:`~netsense.rl.es.ESConfig`; :func:`make_runs` builds
+seeds x configurations) with :func:`netsense.rl.ppo.train_ppo`, or
+:func:`netsense.rl.es.train_es` for a run with ``es``,
 
 * in this process, one run after another (``workers=1``, the default);
 * in ``workers`` processes on this machine (spawned, not forked), each started with its
@@ -14,19 +16,21 @@
   them. So ``out`` need only exist where :func:`launch` runs: no shared filesystem.
 
 Every way writes the same files: each run's folder ``OUT/seed_<s>`` (unnamed runs) or
-``OUT/<name>/seed_<s>`` with what :func:`train_ppo` writes (``config.json``,
+``OUT/<name>/seed_<s>`` with what its trainer writes (``config.json``,
 ``log.csv``, checkpoints, ``policy.pt``, the run's ``summary.json``), and
 ``OUT/summary.json``: one entry per run, in the order given, with its status, and
 ``OUT/run.json`` (:mod:`netsense.rl.run_folder`): ``running`` while the runs train,
 ``finished`` when all of them have, ``failed`` when one failed. ``resume=True`` continues
 an interrupted launch: finished runs are kept, unfinished ones resume from their last
-checkpoint (a Ray task receives the files it resumes from). Seeded
+checkpoint (a Ray task receives the files it resumes from); the evolution strategy keeps
+no resume state, so an unfinished ES run starts again from its first generation. Seeded
 training on the CPU is deterministic, so the weights and the log's non-timing columns
 are the same too (``tests/test_rl_launch.py``). A run that raises is recorded
 (``status: "failed"``, its error, traceback and config) and the others go on; one tqdm bar
 counts finished runs (the runs' own bars only in this process).
 
-Imports: :mod:`netsense.rl.config` and :mod:`netsense.rl.ppo`; Ray on demand.
+Imports: :mod:`netsense.rl.config`, :mod:`netsense.rl.ppo` and :mod:`netsense.rl.es`; Ray
+on demand.
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from pathlib import Path
 
 from netsense.rl.atomic import write_atomic, write_json
 from netsense.rl.config import PPOConfig
+from netsense.rl.es import ESConfig, train_es
 from netsense.rl.ppo import train_ppo
 from netsense.rl.resume import RESUME_FILE
 from netsense.rl.run_folder import FINISHED, RUN_FILE, RUNNING, mark, run_status
@@ -65,15 +70,20 @@ _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
 
 @dataclass(frozen=True)
 class Run:
-    """One training run: ``config`` (its ``seed`` included) and an optional ``name``
-    (the configuration's folder: letters, digits, ``_`` and ``-``, not ``seed_...``)."""
+    """One training run: ``config`` (its ``seed`` included), an optional ``name`` (the
+    configuration's folder: letters, digits, ``_`` and ``-``, not ``seed_...``) and an
+    optional ``es``: the run searches ``config``'s actor with the evolution strategy
+    (:func:`~netsense.rl.es.train_es`) instead of training it with PPO."""
 
     config: PPOConfig
     name: str | None = None
+    es: ESConfig | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.config, PPOConfig):
             raise TypeError(f"Run.config must be a PPOConfig, got {type(self.config).__name__}")
+        if self.es is not None and not isinstance(self.es, ESConfig):
+            raise TypeError(f"Run.es must be an ESConfig or None, got {type(self.es).__name__}")
         if self.name is not None and (not isinstance(self.name, str)
                                       or not _NAME.fullmatch(self.name)
                                       or self.name.startswith("seed_")):
@@ -87,20 +97,21 @@ class Run:
         return leaf if self.name is None else f"{self.name}/{leaf}"
 
 
-def make_runs(configs: PPOConfig | Mapping[str, PPOConfig], seeds: Sequence[int]) -> list[Run]:
+def make_runs(configs: PPOConfig | Mapping[str, PPOConfig], seeds: Sequence[int], *,
+              es: ESConfig | None = None) -> list[Run]:
     """Seeds x configurations: one :class:`Run` per (configuration, seed), configurations
     outer. A single :class:`PPOConfig` gives unnamed runs (``OUT/seed_<s>``); a mapping
     ``{name: config}`` named ones (``OUT/<name>/seed_<s>``). The configs' own seeds are
-    replaced."""
+    replaced. ``es``: every run searches with the evolution strategy (:class:`Run`)."""
     seeds = list(seeds)
     if not seeds:
         raise ValueError("make_runs: seeds must name at least one seed")
     if isinstance(configs, PPOConfig):
-        return [Run(replace(configs, seed=s)) for s in seeds]
+        return [Run(replace(configs, seed=s), es=es) for s in seeds]
     if not isinstance(configs, Mapping) or not configs:
         raise TypeError("make_runs: configs must be a PPOConfig or a non-empty mapping "
                         f"name -> PPOConfig, got {configs!r}")
-    return [Run(replace(cfg, seed=s), name) for name, cfg in configs.items() for s in seeds]
+    return [Run(replace(cfg, seed=s), name, es) for name, cfg in configs.items() for s in seeds]
 
 
 def _final(entry: dict, rows: list[dict]) -> None:
@@ -113,7 +124,8 @@ def _train_one(run: Run, folder: str | None, progress: bool = False, resume: boo
     """Train ``run`` into ``folder``; ``None``: into a temporary folder whose files come
     back in the entry's ``files`` (relative path -> bytes), after ``given`` (the files a
     resumed run continues from) is written there. ``resume``: continue the run in the
-    folder (:func:`train_ppo`'s ``resume``). Never raises for a failed run: the entry
+    folder (:func:`train_ppo`'s ``resume``; an ES run starts again). Never raises for a
+    failed run: the entry
     says ``status: "failed"`` with the error. Module level: worker processes and Ray
     tasks import it by name."""
     entry: dict = {"name": run.name, "seed": run.config.seed, "folder": run.folder,
@@ -123,12 +135,19 @@ def _train_one(run: Run, folder: str | None, progress: bool = False, resume: boo
     try:
         if given:
             _write_files(target, given)
-        res = train_ppo(run.config, target, progress=progress, resume=resume)
-        entry["status"] = "ok"
-        _final(entry, res.rows)
-        entry.update({"agent_steps": res.agent_steps, "wall_s": round(res.wall_s, 2),
-                      "agent_steps_per_s": round(res.agent_steps_per_s, 1),
-                      "mask_violations": res.mask_violations})
+        if run.es is not None:  # no resume state: an interrupted search starts again
+            res = train_es(run.config, run.es, target, progress=progress, overwrite=resume)
+            entry["status"] = "ok"
+            _final(entry, read_log(target / "log.csv")[0])
+            entry.update({k: res[k] for k in ("agent_steps", "wall_s", "agent_steps_per_s")})
+            entry["mask_violations"] = None  # (a greedy search plays allowed actions only)
+        else:
+            res = train_ppo(run.config, target, progress=progress, resume=resume)
+            entry["status"] = "ok"
+            _final(entry, res.rows)
+            entry.update({"agent_steps": res.agent_steps, "wall_s": round(res.wall_s, 2),
+                          "agent_steps_per_s": round(res.agent_steps_per_s, 1),
+                          "mask_violations": res.mask_violations})
     except Exception as exc:  # noqa: BLE001 - a failed run is reported, the others go on
         entry.update({"status": "failed", "error": f"{type(exc).__name__}: {exc}",
                       "traceback": traceback.format_exc(),
@@ -251,7 +270,8 @@ def launch(runs: Sequence[Run], out: str | Path, *, workers: int = 1,
     resume : bool
         Continue a launch that was interrupted: a run whose folder holds a finished run
         is not trained again (its entry is kept), an unfinished one continues from its
-        last checkpoint (:func:`train_ppo`'s ``resume``), one not started starts.
+        last checkpoint (:func:`train_ppo`'s ``resume``; an unfinished ES run starts
+        again), one not started starts.
 
     Returns
     -------
