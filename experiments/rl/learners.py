@@ -1454,8 +1454,11 @@ def cmd_values(args, cfg: dict) -> None:
         steps = json.loads((pol.parent / "summary.json").read_text())["agent_steps"]
         specs.append((f"learned:{pol}", f"{pol.parent.parent.name}, "
                       f"{round(steps / 1e6)}M agent-steps", str(pol.relative_to(args.out))))
+    from tqdm.auto import tqdm
+
     rows = []
-    for spec, label, run in specs:
+    for spec, label, run in tqdm(specs, desc="values", unit="policy",
+                                 disable=args.no_progress):
         v = decision_values(task, spec, seeds)
         rows += [{"key": f"{label} / {c}", "policy": label, "run": run, "class": c,
                   "visits": v[f"visits_{c}"], "send": v[f"send_{c}"],
@@ -1702,9 +1705,9 @@ def cmd_time(args, cfg: dict) -> None:
 def policy_use(args, task: str, measure, scripted: list[str], columns, name: str) -> None:
     """``measure(spec, seeds)`` for the ``scripted`` specs and every final policy of
     ``task`` under ``--out`` (all its results folders), on the protocol's evaluation
-    episodes; writes ``name.csv`` (one row per policy, a learned one's ``run`` its file
-    relative to ``--out``) and ``name.md`` (learned runs grouped by learner and budget:
-    mean over the seeds [min, max])."""
+    episodes (a progress bar over the policies); writes ``name.csv`` (one row per policy,
+    a learned one's ``run`` its file relative to ``--out``) and ``name.md`` (learned runs
+    grouped by learner and budget: mean over the seeds [min, max])."""
     from netsense.benchmark.protocol import eval_seeds
 
     seeds = eval_seeds(args.episodes)
@@ -1713,8 +1716,10 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
         steps = json.loads((pol.parent / "summary.json").read_text())["agent_steps"]
         specs.append((f"learned:{pol}", f"{pol.parent.parent.name}, "
                       f"{round(steps / 1e6)}M agent-steps"))
+    from tqdm.auto import tqdm
+
     rows = []
-    for spec, label in specs:
+    for spec, label in tqdm(specs, desc=name, unit="policy", disable=args.no_progress):
         run = Path(spec.partition(":")[2]).relative_to(args.out) if label != "scripted" else ""
         rows.append({"policy": spec if label == "scripted" else label, "run": str(run),
                      **measure(spec, seeds)})
