@@ -9,8 +9,7 @@ from __future__ import annotations
 
 import numbers
 import os
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import asdict
 
 import numpy as np
@@ -18,6 +17,7 @@ import numpy as np
 from netsense.benchmark.metrics import episode_metrics
 from netsense.benchmark.records import EpisodeRecord, Job
 from netsense.benchmark.rollouts import NotApplicable, rollout, rollout_oracle
+from netsense.kernels.threads import spawn_environment, thread_env
 
 
 def _result(job: Job, rec: EpisodeRecord) -> dict:
@@ -188,7 +188,7 @@ def execute(jobs: Sequence[Job], *, backend: str = "batched", workers: int | Non
 
             n = workers or min(len(jobs), os.cpu_count() or 1)
             ctx = mp.get_context("spawn")
-            with _one_thread_per_worker(), ProcessPoolExecutor(
+            with spawn_environment(thread_env(1)), ProcessPoolExecutor(
                     max_workers=max(n, 1), mp_context=ctx) as pool:
                 futs = {pool.submit(runner, job): i for i, job in enumerate(jobs)}
                 for fut in as_completed(futs):
@@ -213,25 +213,3 @@ def execute(jobs: Sequence[Job], *, backend: str = "batched", workers: int | Non
     return [r for r in results if r is not None]
 
 
-#: Thread-count variables set to 1 for the process backend's workers (unless the user set
-#: them): BLAS, OpenMP (torch too) and numba read them when they load.
-_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                "NUMBA_NUM_THREADS")
-
-
-@contextmanager
-def _one_thread_per_worker() -> Iterator[None]:
-    """One thread per worker process: the variables are set in this process while the
-    pool spawns its workers (which inherit them; a worker's initializer would run after
-    it has imported numpy and numba), then restored."""
-    old = {k: os.environ.get(k) for k in _THREAD_VARS}
-    for k in _THREAD_VARS:
-        os.environ.setdefault(k, "1")
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v

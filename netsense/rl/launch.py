@@ -7,9 +7,10 @@ seeds x configurations) with :func:`netsense.rl.ppo.train_ppo`, or
 
 * in this process, one run after another (``workers=1``, the default);
 * in ``workers`` processes on this machine (spawned, not forked), each started with its
-  thread pools sized to ``threads`` (:data:`THREAD_VARS`, read by OpenBLAS, MKL,
-  OpenMP, numba and netsense's compiled passes when they load, so they are set in the
-  environment the process starts with, before it imports numpy, numba or torch);
+  thread pools sized to ``threads`` (:data:`~netsense.kernels.threads.THREAD_VARS`, read
+  by OpenBLAS, MKL, OpenMP, numba and netsense's compiled passes when they load, so they
+  are set in the environment the process starts with, before it imports numpy, numba or
+  torch);
 * or as Ray tasks (``ray_address``; each asks for ``resources``, one CPU by default, and
   starts with the same thread variables). A task trains into a temporary folder on the
   node that runs it and sends the run's files back with its result; this process writes
@@ -41,11 +42,11 @@ import re
 import shutil
 import tempfile
 import traceback
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from netsense.kernels.threads import THREAD_VARS, spawn_environment, thread_env
 from netsense.rl.atomic import write_atomic, write_json
 from netsense.rl.config import PPOConfig
 from netsense.rl.es import ESConfig, train_es
@@ -57,11 +58,6 @@ from netsense.rl.runlog import read_log
 __all__ = ["FINAL_COLUMNS", "THREAD_VARS", "Run", "launch", "make_runs", "spawn_environment",
            "thread_env"]
 
-#: Environment variables that size a process's thread pools when their library loads
-#: (BLAS, OpenMP (torch's intra-op pool too), numba, netsense's compiled passes). Worker
-#: processes and Ray tasks start with each set to ``threads`` unless the user set it.
-THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-               "NUMBA_NUM_THREADS", "NETSENSE_NUM_THREADS")
 #: Last-row columns of a run's log copied into ``OUT/summary.json``.
 FINAL_COLUMNS = ("eval_return", "eval_error", "eval_messages", "eval_sampled_return",
                  "eval_sampled_error", "eval_sampled_messages")
@@ -203,30 +199,6 @@ def _finished_entry(run: Run, folder: Path, before: dict | None) -> dict:
     entry.update({k: meta.get(k) for k in ("agent_steps", "wall_s", "agent_steps_per_s",
                                            "mask_violations")})
     return entry
-
-
-def thread_env(threads: int | None) -> dict[str, str]:
-    """The :data:`THREAD_VARS` a worker starts with: each ``str(threads)`` unless this
-    process's environment sets it (then that value); ``{}`` for ``threads=None``."""
-    if threads is None:
-        return {}
-    return {k: os.environ.get(k, str(threads)) for k in THREAD_VARS}
-
-
-@contextmanager
-def spawn_environment(env: dict[str, str]) -> Iterator[None]:
-    """``env`` in ``os.environ`` while worker processes are spawned (they copy it when
-    they start, before they import anything), then restored."""
-    old = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
 
 
 def _positive_int(value, what: str) -> int:
