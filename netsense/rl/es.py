@@ -95,6 +95,11 @@ class ESConfig:
                              f"{self.init!r}")
 
 
+def _init_path(config: PPOConfig, es: ESConfig) -> Path:
+    """The policy file ``es.init`` names for this run's seed."""
+    return Path(es.init.format(seed=config.seed))
+
+
 def _check(config: PPOConfig, es: ESConfig) -> None:
     if config.memory:
         raise ValueError("train_es: a recurrent actor (PPOConfig.memory) is not supported; "
@@ -102,9 +107,8 @@ def _check(config: PPOConfig, es: ESConfig) -> None:
     if es.init is not None and config.bc:
         raise ValueError("ESConfig.init and PPOConfig.bc both set the search's start; "
                          "give one")
-    if es.init is not None and not Path(es.init.format(seed=config.seed)).is_file():
-        raise ValueError(f"ESConfig.init: no policy file at "
-                         f"{es.init.format(seed=config.seed)}")
+    if es.init is not None and not _init_path(config, es).is_file():
+        raise ValueError(f"ESConfig.init: no policy file at {_init_path(config, es)}")
     if es.episodes > config.num_envs:
         raise ValueError(f"ESConfig.episodes ({es.episodes}) exceeds the pool of training "
                          f"seeds, PPOConfig.num_envs ({config.num_envs})")
@@ -217,7 +221,7 @@ def train_es(config: PPOConfig, es: ESConfig, folder: str | Path, *,
     generations = max(1, math.ceil(config.steps / per_gen))
     bc, start_steps = None, 0
     if es.init is not None:  # continue another run from its final weights
-        path = Path(es.init.format(seed=config.seed))
+        path = _init_path(config, es)
         state = read_policy(path)
         _fit(population.net, state["actor"], path, "the actor of this run's config "
              "(ESConfig.init names another actor)")

@@ -121,9 +121,8 @@ def _train_one(run: Run, folder: str | None, progress: bool = False, resume: boo
     back in the entry's ``files`` (relative path -> bytes), after ``given`` (the files a
     resumed run continues from) is written there. ``resume``: continue the run in the
     folder (:func:`train_ppo`'s ``resume``; an ES run starts again). Never raises for a
-    failed run: the entry
-    says ``status: "failed"`` with the error. Module level: worker processes and Ray
-    tasks import it by name."""
+    failed run: the entry says ``status: "failed"`` with the error. Module level: worker
+    processes and Ray tasks import it by name."""
     entry: dict = {"name": run.name, "seed": run.config.seed, "folder": run.folder,
                    "thread_env": {k: os.environ[k] for k in THREAD_VARS if k in os.environ}}
     tmp = tempfile.mkdtemp(prefix="netsense-run-") if folder is None else None
@@ -132,11 +131,8 @@ def _train_one(run: Run, folder: str | None, progress: bool = False, resume: boo
         if given:
             _write_files(target, given)
         if run.es is not None:  # no resume state: an interrupted search starts again
-            res = train_es(run.config, run.es, target, progress=progress, overwrite=resume)
-            entry["status"] = "ok"
-            _final(entry, read_log(target / "log.csv")[0])
-            entry.update({k: res[k] for k in ("agent_steps", "wall_s", "agent_steps_per_s")})
-            entry["mask_violations"] = None  # (a greedy search plays allowed actions only)
+            train_es(run.config, run.es, target, progress=progress, overwrite=resume)
+            entry.update(_finished_entry(run, target, None))  # from its log and summary
         else:
             res = train_ppo(run.config, target, progress=progress, resume=resume)
             entry["status"] = "ok"
@@ -188,7 +184,8 @@ def _given(folder: Path) -> dict[str, bytes]:
 
 def _finished_entry(run: Run, folder: Path, before: dict | None) -> dict:
     """The summary entry of a run that finished before a resumed launch: its entry in the
-    launch's earlier ``summary.json``, else one rebuilt from the run's own files."""
+    launch's earlier ``summary.json``, else (``before=None``: also an ES run just trained)
+    one rebuilt from the run's own files."""
     if before is not None and before.get("status") == "ok":
         return before
     meta = json.loads((folder / "summary.json").read_text()) \
