@@ -466,3 +466,29 @@ def test_standing_picks_the_best_reaching_learner_and_names_its_restriction(lear
     assert learners.restriction(cfg["learners"]["mlp_comm_fields"]) == "comm fields only"
     assert learners.restriction(cfg["learners"]["mlp_clock_ages"]) == ""
     assert learners.restriction(cfg["learners"]["mlp_lifetime"]) == "reward lifetime"
+
+
+def test_train_runs_trains_every_task_in_one_launch_and_keeps_finished_runs(learners,
+                                                                            tmp_path):
+    """``train_runs`` trains the runs of several tasks with one launch (one pool for all
+    of them: ``runs/summary.json`` lists every run, under ``<task>/<learner>``), writes
+    each run where the evaluation looks for it, and trains no run again whose
+    ``policy.pt`` exists."""
+    pytest.importorskip("torch")
+    import json
+
+    tiny = {"steps": 2 * 4 * 8 * 10, "num_envs": 4, "rollout": 8, "minibatch": 16,
+            "epochs": 2, "eval_interval": 1, "eval_envs": 2, "overrides": {"horizon": 12}}
+    runs = [("message_cost-v1", "mlp", 0, dict(tiny, control="transmit")),
+            ("comm_process_noise-v0", "mlp", 1, tiny)]
+    folders = learners.train_runs(runs, tmp_path, retrain=False, progress=False)
+    assert folders == [tmp_path / "runs/message_cost-v1/mlp/seed_0",
+                       tmp_path / "runs/comm_process_noise-v0/mlp/seed_1"]
+    assert all((d / "policy.pt").is_file() for d in folders)
+    entries = json.loads((tmp_path / "runs/summary.json").read_text())
+    assert [e["folder"] for e in entries] == ["message_cost-v1/mlp/seed_0",
+                                              "comm_process_noise-v0/mlp/seed_1"]
+    assert all(e["status"] == "ok" for e in entries)
+    stamp = [(d / "policy.pt").stat().st_mtime_ns for d in folders]
+    assert learners.train_runs(runs, tmp_path, retrain=False, progress=False) == folders
+    assert [(d / "policy.pt").stat().st_mtime_ns for d in folders] == stamp

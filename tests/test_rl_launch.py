@@ -145,12 +145,19 @@ def test_make_runs_folders():
     assert runs[2].config.lr == 1e-3
 
 
-@pytest.mark.parametrize("name", ["../x", "a/b", "seed_3", "", ".hidden", 3])
+@pytest.mark.parametrize("name", ["../x", "a/../b", "a//b", "/a", "a/", "a/seed_3", "seed_3",
+                                  "", ".hidden", "a/.b", 3])
 def test_run_names_are_plain_folder_names(name):
     from netsense.rl.launch import Run
 
     with pytest.raises(ValueError, match="Run.name"):
         Run(_tiny(), name)
+
+
+def test_run_names_may_be_paths_of_plain_folder_names():
+    from netsense.rl.launch import Run
+
+    assert Run(_tiny(seed=2), "comm_fading-v0/mlp").folder == "comm_fading-v0/mlp/seed_2"
 
 
 @pytest.mark.parametrize("kw, match", [

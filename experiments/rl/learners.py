@@ -29,8 +29,9 @@ the runs.
   (the checkpoint with the best greedy return in the periodic evaluation during training,
   whose episodes are seeded from 10^9: a validation set apart from the training and the
   protocol's seeds; runs trained before this option have none), ``log.csv``,
-  ``config.json``, ``summary.json``, ``training_curve.png``; ``runs/<task>/summary.json``
-  lists the runs of the task's last launch (:func:`netsense.rl.launch.launch`);
+  ``config.json``, ``summary.json``, ``training_curve.png``; ``runs/summary.json``
+  lists the runs of the last launch (:func:`netsense.rl.launch.launch`; folders trained
+  with a launch per task have a ``runs/<task>/summary.json`` instead);
 * ``episodes.csv``: every final policy on the protocol's 100 evaluation episodes (seeds
   ``10^6 .. 10^6 + 99``, disjoint from every training seed; checked), greedy and sampled,
   and the best-validated checkpoint greedy (evaluation ``best-validated``) where a run has one,
@@ -212,24 +213,26 @@ def train_runs(runs: list[tuple[str, str, int, dict]], out: Path, retrain: bool,
     """Train every ``(task, name, seed, fields)`` into ``out/runs/<task>/<name>/seed_<s>``
     unless its ``policy.pt`` exists, through :func:`netsense.rl.launch.launch` (``workers``
     > 1: that many spawned processes with one-thread pools; a learner with ``algorithm =
-    "es"`` searches with :func:`netsense.rl.es.train_es`), one launch per task; returns
-    the run folders. A failed run raises once the task's other runs have finished."""
+    "es"`` searches with :func:`netsense.rl.es.train_es`), one launch for every task (run
+    names ``<task>/<name>``: a worker that finishes a task's last seed takes the next
+    task's first, where a launch per task left workers idle); returns the run folders. A
+    failed run raises once the other runs have finished."""
     from netsense.rl.launch import Run, launch
 
     folders = [out / "runs" / t / n / f"seed_{s}" for t, n, s, _ in runs]
-    by_task: dict[str, list] = {}
+    todo = []
     for (t, n, s, f), d in zip(runs, folders, strict=True):
         if retrain or not (d / "policy.pt").exists():
             es = es_config(f)  # (checked before any folder is removed)
             shutil.rmtree(d, ignore_errors=True)
-            by_task.setdefault(t, []).append(Run(ppo_config(t, s, f), n, es))
-    for task, todo in by_task.items():
-        entries = launch(todo, out / "runs" / task, workers=workers, progress=progress)
+            todo.append(Run(ppo_config(t, s, f), f"{t}/{n}", es))
+    if todo:
+        entries = launch(todo, out / "runs", workers=workers, progress=progress)
         failed = [f"{e['folder']}: {e['error']}" for e in entries if e["status"] != "ok"]
         if failed:
-            raise RuntimeError(f"{task}: runs failed: {'; '.join(failed)}")
+            raise RuntimeError(f"runs failed: {'; '.join(failed)}")
         for e in entries:
-            _finish(out / "runs" / task / e["folder"])
+            _finish(out / "runs" / e["folder"])
     return folders
 
 

@@ -67,7 +67,9 @@ _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]*")
 @dataclass(frozen=True)
 class Run:
     """One training run: ``config`` (its ``seed`` included), an optional ``name`` (the
-    configuration's folder: letters, digits, ``_`` and ``-``, not ``seed_...``) and an
+    configuration's folder: letters, digits, ``_`` and ``-``, not ``seed_...``; or a
+    path of such folders joined by ``/``, such as ``"<task>/<learner>"``, so that one
+    launch trains the runs of several groups, one pool for all of them) and an
     optional ``es``: the run searches ``config``'s actor with the evolution strategy
     (:func:`~netsense.rl.es.train_es`) instead of training it with PPO."""
 
@@ -80,11 +82,13 @@ class Run:
             raise TypeError(f"Run.config must be a PPOConfig, got {type(self.config).__name__}")
         if self.es is not None and not isinstance(self.es, ESConfig):
             raise TypeError(f"Run.es must be an ESConfig or None, got {type(self.es).__name__}")
-        if self.name is not None and (not isinstance(self.name, str)
-                                      or not _NAME.fullmatch(self.name)
-                                      or self.name.startswith("seed_")):
+        if self.name is not None and (
+                not isinstance(self.name, str)
+                or not all(_NAME.fullmatch(part) and not part.startswith("seed_")
+                           for part in self.name.split("/"))):
             raise ValueError(f"Run.name must be letters, digits, '_' and '-' (a folder "
-                             f"name, not starting with 'seed_'), got {self.name!r}")
+                             f"name, not starting with 'seed_'), or such names joined by "
+                             f"'/', got {self.name!r}")
 
     @property
     def folder(self) -> str:
