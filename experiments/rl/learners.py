@@ -1629,10 +1629,10 @@ def standing(root: Path, cfg: dict, recipe: str) -> list[dict]:
 
 def cmd_standing(args, cfg: dict) -> None:
     """:func:`standing` of every results folder under ``--out`` (default: the learners'
-    results); ``--learners`` names the one configuration (default ``mlp_clock``, the
-    candidate that reaches the rule on the most tasks, docs/learned-results.md); writes
-    ``standing.{csv,md}`` there."""
-    recipe = (args.learners or ["mlp_clock"])[0]
+    results); ``--learners`` names the one configuration (default ``mlp_clock_news_gate``,
+    the candidate that reaches the rule on the most tasks, docs/learned-results.md);
+    writes ``standing.{csv,md}`` there."""
+    recipe = (args.learners or ["mlp_clock_news_gate"])[0]
     rows = standing(args.out, cfg, recipe)
     write_csv(args.out / "standing.csv", rows)
     lines = ["| task | | learner (folder) | seeds x agent-steps | IQM [95 % CI] | best "
