@@ -235,6 +235,53 @@ def test_substate_use_pairs_each_choice_with_the_news_it_saw(learners):
     assert never["return"] < event["return"]
 
 
+def test_news_use_measures_what_the_gate_closes_on_a_transmit_task(learners):
+    """On ``comm_process_noise-v0`` (transmit bits): ``event:1`` sends exactly when any
+    substate is news, so paired with the news it saw its send probabilities are 1 and 0
+    (off by a step they would not be); ``sources:0`` sends every source choice and no
+    relay's, all of them news; ``always`` keeps relays sending after they passed on what
+    they hold, so the gate would close some of its sends; the gated learner's class holds
+    the rules with none."""
+    seeds = [10**6, 10**6 + 1]
+    task = "comm_process_noise-v0"
+    event = learners.news_use(task, "event:1", seeds)
+    assert event["send_on_news"] == 1.0 and event["send_without_news"] == 0.0
+    assert event["without_news"] == 0.0 and 0.0 < event["news_rate"] < 1.0
+    sources = learners.news_use(task, "sources:0", seeds)
+    assert sources["send_rate_own"] == 1.0 and sources["send_rate_other"] == 0.0
+    assert sources["without_news"] == 0.0
+    always = learners.news_use(task, "always", seeds)
+    assert always["send_rate"] == 1.0 and always["without_news"] > 0.0
+    assert always["send_without_news"] == 1.0
+
+
+def test_news_use_runs_a_scripted_rule_in_the_tasks_control_mode(learners):
+    """``message_cost-v0`` is no communication-only task: its rule ``settle:0.01`` runs in
+    the config's control mode (transmit) and sends some messages without news, which
+    the gate would close; without the mode the rule is refused by name."""
+    seeds = [10**6, 10**6 + 1]
+    settle = learners.news_use("message_cost-v0", "settle:0.01", seeds, control="transmit")
+    assert 0.0 < settle["without_news"] < 1.0
+    with pytest.raises(ValueError, match="communication-only control mode"):
+        learners.news_use("message_cost-v0", "settle:0.01", seeds)
+
+
+def test_policy_table_groups_a_learners_seeds_per_task(learners):
+    """Rows of one learner on two tasks make one line per task (mean [min, max] over its
+    seeds); a scripted row stands alone; a column that is nan throughout reads as a
+    dash."""
+    rows = [{"task": t, "policy": "mlp, 20M agent-steps", "run": f"runs/{t}/{s}", "x": v,
+             "y": float("nan")} for t, vals in (("a", (1.0, 3.0)), ("b", (5.0, 7.0)))
+            for s, v in enumerate(vals)]
+    rows.append({"task": "a", "policy": "event:1", "run": "", "x": 2.0, "y": 0.5})
+    lines = learners.policy_table(rows, (("x", "x", 1, 1, ""), ("y", "y", 100, 0, " %")),
+                                  keys=("task",))
+    assert lines[0] == "| task | policy (runs: mean over seeds [min, max]) | x | y |"
+    assert lines[2:] == ["| a | mlp, 20M agent-steps (2 seeds) | 2.0 [1.0, 3.0] | – |",
+                         "| b | mlp, 20M agent-steps (2 seeds) | 6.0 [5.0, 7.0] | – |",
+                         "| a | event:1 | 2.0 | 50 % |"]
+
+
 def test_thinned_relays_keep_own_news_and_thin_only_the_relays(learners):
     """``p = 1`` is ``event:1`` to the last digit; ``p = 0`` sends own news always and
     another agent's news never; ``p = 0.5`` relays about half of it; ``q = 0.4`` adds sends

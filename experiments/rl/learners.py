@@ -15,6 +15,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py credit      # comm_fading-v0: what a message earns
     python experiments/rl/learners.py standing    # per task: one configuration, best learner
     python experiments/rl/learners.py time-to-rule   # when training reaches the rule
+    python experiments/rl/learners.py news-sends  # what the news gate closes, per task
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
 again where a run's ``policy.pt`` exists (by default an existing run is evaluated as it is,
@@ -101,6 +102,13 @@ during training and stay there to the end of the run (the monitoring evaluation'
 return against the rule's on the same episodes, ``curve_refs.csv``), with the median
 agent-steps and wall-clock minutes they took (the runs' own clocks: on the machine and
 with the workers they trained with).
+
+**news-sends** writes ``news_sends.csv`` / ``news_sends.md`` into ``--out``: on every task
+(``--tasks``), its best decentralised rule and every final policy of the task under
+``--out``, each send choice paired with the news its agent saw (:func:`news_use`): sends
+per choice (of sources and of relays, or of the agent's own substate and of another's),
+how often a choice has news, the send probability with news and without, and the share of
+the sends made without news, the sends the news gate (``PPOConfig.news_gate``) closes.
 """
 
 # %%
@@ -941,36 +949,86 @@ def channel_rules(args) -> None:
 SUBSTATES_TASK = "comm_substates-v0"
 
 
+def news_pairs(task: str, spec: str, seeds: list[int], actor=None,
+               control: str | None = None):
+    """Each send choice of ``spec`` on ``task``'s episodes ``seeds`` paired with the news
+    its agent saw when it chose (the protocol's rollout; the observation is the core's own,
+    read after every step, so a choice is paired from the episode's second step on).
+
+    A choice is what :class:`netsense.rl.policy.NewsGateActor` gates: in control mode
+    ``"substates"`` the bit of substate ``j`` (substates with an empty block, which no
+    agent can send, left out), news where the observation's ``news[j] > 0``; in
+    ``"transmit"`` the agent's transmit bit, news where any ``news`` entry is positive.
+
+    Returns ``(returns, news, sent, own)``: the episodes' returns, and per choice (flat
+    over members, steps, agents and, per substate, substates) whether it had news, whether
+    it was sent, and whether it is the agent's own substate (``"transmit"``: whether the
+    agent is a source). ``control``: the control mode a scripted ``spec`` runs in on a
+    task that is not communication-only (the config's ``[tasks]`` field; a learned policy
+    runs in the mode it was trained in)."""
+    from netsense.benchmark.protocol import evaluate
+
+    seen, pairs, meta = [], [], []
+
+    def record(core, live):
+        per_substate = core.comm.per_substate
+        if seen:
+            sent = core.comm.sent if per_substate else core.transmit
+            pairs.append((seen[-1][live], sent[live]))
+        else:
+            own = core.layout.own
+            meta.append((per_substate, ~core.comm.empty,
+                         own[:, None] == np.arange(core.M)[None, :] if per_substate
+                         else own >= 0))
+        fresh = core.observe()[0][..., core.layout.news] > 0
+        seen.append(fresh if per_substate else fresh.any(-1))
+
+    over = {"control": {"mode": control}} if control else {}
+    ret = evaluate(task, spec, seeds, over, on_step=record, actor=actor)["reward"]
+    per_substate, open_, own = meta[0]
+    news = np.concatenate([n for n, _ in pairs])
+    sent = np.concatenate([a for _, a in pairs])
+    own = np.broadcast_to(own, news.shape)
+    if per_substate:
+        news, sent, own = news[..., open_], sent[..., open_], own[..., open_]
+    return ret, news.ravel(), sent.ravel(), own.ravel()
+
+
 def substate_use(spec: str, seeds: list[int], actor=None) -> dict:
     """Which substates a policy sends on :data:`SUBSTATES_TASK`, against the observation's
     ``news`` (steps by which the next message of a substate would be fresher than the last
-    one sent, ``round(news * H)``), on the episodes ``seeds``: mean return, substates sent
+    one sent), on the episodes ``seeds`` (:func:`news_pairs`): mean return, substates sent
     per agent-step and substate, and the probability of sending a substate without news,
-    with news of the agent's own substate and with news of another agent's substate. Each
-    step's choice is paired with the observation it was made on, from the second step on
-    (the protocol's rollout; the observation is the core's own, read after every step).
+    with news of the agent's own substate and with news of another agent's substate.
     ``actor``: a rule that is no registered policy (``spec`` is then its label), as
     :func:`netsense.benchmark.protocol.evaluate` takes it."""
-    from netsense.benchmark.protocol import evaluate
-
-    news_seen, own, pairs = [], [], []
-
-    def record(core, live):
-        if news_seen:
-            pairs.append((news_seen[-1][live], core.comm.sent[live]))
-        else:
-            own.append(core.layout.own[:, None] == np.arange(core.M)[None, :])
-        obs, _ = core.observe()
-        news_seen.append(np.rint(obs[..., core.layout.news] * core.horizon))
-
-    ret = evaluate(SUBSTATES_TASK, spec, seeds, on_step=record, actor=actor)["reward"]
-    news = np.concatenate([n for n, _ in pairs]) >= 1
-    sent = np.concatenate([a for _, a in pairs])
-    mine = np.broadcast_to(own[0], news.shape)
+    ret, news, sent, mine = news_pairs(SUBSTATES_TASK, spec, seeds, actor)
     return {"return": float(ret.mean()), "sent_rate": float(sent.mean()),
             "send_without_news": float(sent[~news].mean()),
             "send_own_news": float(sent[news & mine].mean()),
             "send_others_news": float(sent[news & ~mine].mean())}
+
+
+def news_use(task: str, spec: str, seeds: list[int], actor=None,
+             control: str | None = None) -> dict:
+    """What the news gate (:class:`netsense.rl.policy.NewsGateActor`) would close of
+    ``spec``'s sends on ``task``, on the episodes ``seeds`` (:func:`news_pairs`): mean
+    return, sends per choice (also over the choices of the agent's own substate and of
+    another's; in control mode ``"transmit"``, of sources and of relays), the share of
+    choices with news, the probability of a send
+    with news and without it, and ``without_news``, the share of the sends made without
+    news (those the gate closes; 0 for a policy the gated class contains). ``nan`` where a
+    conditioning set is empty. ``control``: as :func:`news_pairs` takes it."""
+    ret, news, sent, own = news_pairs(task, spec, seeds, actor, control)
+
+    def share(num, den) -> float:
+        return float(num.sum() / den.sum()) if den.any() else math.nan
+
+    return {"return": float(ret.mean()), "send_rate": float(sent.mean()),
+            "send_rate_own": share(sent & own, own), "send_rate_other": share(sent & ~own, ~own),
+            "news_rate": float(news.mean()), "send_on_news": share(sent & news, news),
+            "send_without_news": share(sent & ~news, ~news),
+            "without_news": share(sent & ~news, sent)}
 
 
 #: Columns of the substates table: (key, header, scale, decimals, unit).
@@ -1709,9 +1767,21 @@ def cmd_time(args, cfg: dict) -> None:
 def policy_use(args, task: str, measure, scripted: list[str], columns, name: str) -> None:
     """``measure(spec, seeds)`` for the ``scripted`` specs and every final policy of
     ``task`` under ``--out`` (all its results folders), on the protocol's evaluation
-    episodes (a progress bar over the policies); writes ``name.csv`` (one row per policy,
-    a learned one's ``run`` its file relative to ``--out``) and ``name.md`` (learned runs
-    grouped by learner and budget: mean over the seeds [min, max])."""
+    episodes (:func:`policy_rows`); writes ``name.csv`` (one row per policy, a learned
+    one's ``run`` its file relative to ``--out``) and ``name.md`` (:func:`policy_table`)."""
+    rows = policy_rows(args, task, measure, scripted, name)
+    write_csv(args.out / f"{name}.csv", rows)
+    lines = policy_table(rows, columns)
+    _write(args.out / f"{name}.md", "\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def policy_rows(args, task: str, measure, scripted: list[str], name: str) -> list[dict]:
+    """``measure(spec, seeds)`` for the ``scripted`` specs and every final policy of
+    ``task`` under ``--out`` (all its results folders), on the protocol's evaluation
+    episodes (a progress bar ``name`` over the policies): one row per policy, ``policy``
+    the spec of a scripted one and ``"<learner>, <budget>M agent-steps"`` of a learned one,
+    whose ``run`` is its file relative to ``--out``."""
     from netsense.benchmark.protocol import eval_seeds
 
     seeds = eval_seeds(args.episodes)
@@ -1727,22 +1797,63 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
         run = Path(spec.partition(":")[2]).relative_to(args.out) if label != "scripted" else ""
         rows.append({"policy": spec if label == "scripted" else label, "run": str(run),
                      **measure(spec, seeds)})
-    write_csv(args.out / f"{name}.csv", rows)
+    return rows
+
+
+def policy_table(rows: list[dict], columns, keys: tuple[str, ...] = ()) -> list[str]:
+    """Markdown lines of :func:`policy_rows`' ``rows``: one line per scripted policy and
+    per learner (its runs grouped: mean over the seeds [min, max]), the ``columns``
+    ``(key, header, scale, decimals, unit)``; ``keys``: row fields to group by and lead
+    the line with (the task, say) before the policy."""
     groups = {}
     for r in rows:
-        groups.setdefault(r["policy"], []).append(r)
-    lines = ["| policy (runs: mean over seeds [min, max]) | "
-             + " | ".join(c[1] for c in columns) + " |", "|---" * (len(columns) + 1) + "|"]
-    for label, rs in groups.items():
+        groups.setdefault((*(r[k] for k in keys), r["policy"]), []).append(r)
+    lines = ["| " + "".join(f"{k} | " for k in keys) + "policy (runs: mean over seeds "
+             "[min, max]) | " + " | ".join(c[1] for c in columns) + " |",
+             "|---" * (len(keys) + len(columns) + 1) + "|"]
+    for (*lead, label), rs in groups.items():
         cells = []
         for key, _, scale, d, unit in columns:
-            v = np.array([r[key] for r in rs]) * scale
-            cells.append(f"{v.mean():.{d}f}" + (f" [{v.min():.{d}f}, {v.max():.{d}f}]"
-                                               if len(v) > 1 else "") + unit)
+            v = np.array([r[key] for r in rs], dtype=float) * scale
+            if np.isnan(v).all():
+                cells.append("–")
+                continue
+            cells.append(f"{np.nanmean(v):.{d}f}" + (
+                f" [{np.nanmin(v):.{d}f}, {np.nanmax(v):.{d}f}]" if len(v) > 1 else "")
+                + unit)
         if rs[0]["run"]:
             label += f" ({len(rs)} seed" + "s" * (len(rs) > 1) + ")"
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
-    _write(args.out / f"{name}.md", "\n".join(lines) + "\n")
+        lines.append("| " + "".join(f"{x} | " for x in lead) + f"{label} | "
+                     + " | ".join(cells) + " |")
+    return lines
+
+
+#: Columns of the news table: (key, header, scale, decimals, unit).
+NEWS_COLUMNS = (("return", "return", 1, 1, ""),
+                ("send_rate", "sends per choice", 1, 3, ""),
+                ("send_rate_own", "own substate (transmit: source)", 1, 3, ""),
+                ("send_rate_other", "another's (transmit: relay)", 1, 3, ""),
+                ("news_rate", "choices with news", 100, 1, " %"),
+                ("send_on_news", "P(send) on news", 1, 2, ""),
+                ("send_without_news", "P(send) without news", 1, 2, ""),
+                ("without_news", "sends without news (closed by the gate)", 100, 1, " %"))
+
+
+def cmd_news(args, cfg: dict) -> None:
+    """What the news gate closes: on every task (``--tasks``, default the config's), the
+    task's best decentralised rule and every final policy of the task under ``--out``,
+    measured by :func:`news_use` on the protocol's evaluation episodes (``--episodes``);
+    writes ``news_sends.{csv,md}`` there."""
+    from functools import partial
+
+    rows = []
+    for task in args.tasks or cfg["tasks"]:
+        measure = partial(news_use, task, control=cfg["tasks"][task].get("control"))
+        rows += [{"task": task, **r} for r in policy_rows(
+            args, task, measure, [best_decentralised(task)], task)]
+    write_csv(args.out / "news_sends.csv", rows)
+    lines = policy_table(rows, NEWS_COLUMNS, keys=("task",))
+    _write(args.out / "news_sends.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -1750,7 +1861,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
                                        "substates", "memory", "reaction", "hybrids",
-                                       "values", "credit", "standing", "time-to-rule"))
+                                       "values", "credit", "standing", "time-to-rule",
+                                       "news-sends"))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -1778,7 +1890,8 @@ def main(argv: list[str] | None = None) -> int:
                 "values": cmd_values,
                 "credit": cmd_credit,
                 "standing": cmd_standing,
-                "time-to-rule": cmd_time}
+                "time-to-rule": cmd_time,
+                "news-sends": cmd_news}
     commands[args.command](args, cfg)
     return 0
 
