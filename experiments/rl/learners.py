@@ -1015,10 +1015,10 @@ def news_use(task: str, spec: str, seeds: list[int], actor=None,
     ``spec``'s sends on ``task``, on the episodes ``seeds`` (:func:`news_pairs`): mean
     return, sends per choice (also over the choices of the agent's own substate and of
     another's; in control mode ``"transmit"``, of sources and of relays), the share of
-    choices with news, the probability of a send
-    with news and without it, and ``without_news``, the share of the sends made without
-    news (those the gate closes; 0 for a policy the gated class contains). ``nan`` where a
-    conditioning set is empty. ``control``: as :func:`news_pairs` takes it."""
+    choices with news, the probability of a send with news and without it, and
+    ``without_news``, the share of the sends made without news (those the gate closes; 0
+    for a policy the gated class contains). ``nan`` where a conditioning set is empty.
+    ``control``: as :func:`news_pairs` takes it."""
     ret, news, sent, own = news_pairs(task, spec, seeds, actor, control)
 
     def share(num, den) -> float:
