@@ -1769,10 +1769,17 @@ def policy_use(args, task: str, measure, scripted: list[str], columns, name: str
     ``task`` under ``--out`` (all its results folders), on the protocol's evaluation
     episodes (:func:`policy_rows`); writes ``name.csv`` (one row per policy, a learned
     one's ``run`` its file relative to ``--out``) and ``name.md`` (:func:`policy_table`)."""
-    rows = policy_rows(args, task, measure, scripted, name)
-    write_csv(args.out / f"{name}.csv", rows)
-    lines = policy_table(rows, columns)
-    _write(args.out / f"{name}.md", "\n".join(lines) + "\n")
+    write_policy_table(args.out, name, policy_rows(args, task, measure, scripted, name),
+                       columns)
+
+
+def write_policy_table(out: Path, name: str, rows: list[dict], columns,
+                       keys: tuple[str, ...] = ()) -> None:
+    """``name.csv`` (the ``rows``) and ``name.md`` (:func:`policy_table` of them, with
+    ``columns`` and ``keys``) in ``out``; the table is printed too."""
+    write_csv(out / f"{name}.csv", rows)
+    lines = policy_table(rows, columns, keys)
+    _write(out / f"{name}.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
 
 
@@ -1851,10 +1858,7 @@ def cmd_news(args, cfg: dict) -> None:
         measure = partial(news_use, task, control=cfg["tasks"][task].get("control"))
         rows += [{"task": task, **r} for r in policy_rows(
             args, task, measure, [best_decentralised(task)], task)]
-    write_csv(args.out / "news_sends.csv", rows)
-    lines = policy_table(rows, NEWS_COLUMNS, keys=("task",))
-    _write(args.out / "news_sends.md", "\n".join(lines) + "\n")
-    print("\n".join(lines))
+    write_policy_table(args.out, "news_sends", rows, NEWS_COLUMNS, keys=("task",))
 
 
 def main(argv: list[str] | None = None) -> int:
