@@ -175,12 +175,18 @@ def main(argv: list[str] | None = None) -> int:
     try:
         while proc.poll() is None:
             steps = logged_steps(log)
-            rows.append({"wall_s": round(time.perf_counter() - t0, 2), "agent_steps": steps,
-                         "rss_mib": round(rss_mib(proc.pid), 1)})
+            sample = {"wall_s": round(time.perf_counter() - t0, 2), "agent_steps": steps,
+                      "rss_mib": round(rss_mib(proc.pid), 1)}
+            if sample["rss_mib"] <= 0 or proc.poll() is not None:
+                # it exited while being sampled: an exiting or exited, unreaped process
+                # reads as 0 MiB in /proc, which is not its memory, so the sample is dropped
+                break
+            rows.append(sample)
             bar.update(steps - bar.n)
             bar.set_postfix(rss=f"{rows[-1]['rss_mib']:.0f} MiB")
             time.sleep(args.interval)
         text = proc.stdout.read()
+        proc.wait()
     finally:
         bar.close()
         if proc.poll() is None:
