@@ -104,6 +104,9 @@ def test_smoke_run_writes_csv_md_and_png(tmp_path):
         rows = list(csv.DictReader(fh))
     assert [int(r["N"]) for r in rows] == [6, 12]
     assert all(float(r["core_agent_steps_per_s"]) > 0 for r in rows)
+    # the smoke's smaller num_envs sizes its iterations: two of them, not two of the
+    # defaults' (which would be 64 of the smoke's)
+    assert [int(r["train_iterations"]) for r in rows] == [2, 2]
     assert "Targets" in (tmp_path / "scale_smoke.md").read_text()
     assert (tmp_path / "scale_smoke.png").stat().st_size > 0
 

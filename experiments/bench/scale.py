@@ -320,7 +320,9 @@ def measure_train(N: int, iters: int, **fields) -> dict:
     from netsense.rl.ppo import train_ppo
 
     over = scale_overrides(N)
-    base = PPOConfig(BASE, overrides=over)
+    base = PPOConfig(BASE, overrides=over, **fields)
+    # one iteration is num_envs x rollout x N agent-steps of *this* configuration (fields
+    # may change num_envs or rollout), so the run is ``iters`` iterations long
     cfg = PPOConfig(BASE, overrides=over, steps=base.num_envs * base.rollout * N * iters,
                     **fields)
     res = train_ppo(cfg, None, evaluate_every=False)
