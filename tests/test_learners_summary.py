@@ -539,3 +539,51 @@ def test_train_runs_trains_every_task_in_one_launch_and_keeps_finished_runs(lear
     stamp = [(d / "policy.pt").stat().st_mtime_ns for d in folders]
     assert learners.train_runs(runs, tmp_path, retrain=False, progress=False) == folders
     assert [(d / "policy.pt").stat().st_mtime_ns for d in folders] == stamp
+
+
+def test_level_points_find_the_last_visit_below_and_the_first_above(learners):
+    x = np.array([1, 2, 3, 4, 5, 6])
+    y = np.array([-190, -180, -188, -175, -160, -150])  # above -185 at 2, back below at 3
+    assert learners.level_points(x, y, -185) == (3.0, 2.0)
+    assert learners.level_points(x, y, -170) == (4.0, 5.0)
+    last, first = learners.level_points(x, y, -100)  # never above
+    assert last == 6.0 and np.isnan(first)
+    last, first = learners.level_points(x, y, -200)  # never at or below
+    assert np.isnan(last) and first == 1.0
+    with pytest.raises(ValueError, match="equal length"):
+        learners.level_points(x, y[:-1], -185)
+
+
+def test_seed_points_read_the_last_evaluation_at_or_before_each_step(learners):
+    log = [{"agent_steps": "100", "eval_return": "-5"}, {"agent_steps": "200", "eval_return": ""},
+           {"agent_steps": "300", "eval_return": "-3"}, {"agent_steps": "400", "eval_return": ""}]
+    got = learners.seed_points(log, [50, 100, 299, 300, 1000])
+    assert np.isnan(got[0]) and got[1:] == [-5.0, -5.0, -3.0, -3.0]
+
+
+def test_curve_points_command_counts_the_seeds_that_rise(learners, tmp_path):
+    import csv
+
+    rows = [{"task": "t", "learner": "m", "agent_steps": s, "iqm": v, "ci_low": v,
+             "ci_high": v} for s, v in [(100, -190), (200, -170), (300, -160)]]
+    learners.write_csv(tmp_path / "curves.csv", rows)
+    for seed, (a, b) in enumerate([(-10, -9), (-8, -9), (-7, -6)]):
+        d = tmp_path / "runs" / "t" / "m" / f"seed_{seed}"
+        d.mkdir(parents=True)
+        learners.write_csv(d / "log.csv", [{"agent_steps": 100, "eval_return": a},
+                                           {"agent_steps": 300, "eval_return": b}])
+    learners.main(["curve-points", "--out", str(tmp_path), "--levels", "-180",
+                   "--at", "150", "300"])
+    md = (tmp_path / "curve_points.md").read_text()
+    assert "| t | m | -180 | 0.0M | 0.0M |" in md  # 100 at or below, 200 above: 0.0M each
+    assert "| 2 of 3 |" in md
+    with (tmp_path / "curve_points.csv").open() as fh:
+        out = list(csv.DictReader(fh))
+    level = next(r for r in out if r["what"] == "validation IQM")
+    assert (float(level["last_at_or_below"]), float(level["first_above"])) == (100.0, 200.0)
+    assert [float(r["return_at_300"]) for r in out if r["what"] == "seed validation"] == \
+        [-9.0, -9.0, -6.0]
+    with pytest.raises(SystemExit, match="increasing"):
+        learners.main(["curve-points", "--out", str(tmp_path), "--at", "300", "150"])
+    with pytest.raises(SystemExit, match="does not exist"):
+        learners.main(["curve-points", "--out", str(tmp_path / "nowhere"), "--levels", "0"])

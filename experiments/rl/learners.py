@@ -16,6 +16,7 @@ The commands (``experiments/rl/configs/learners.toml`` holds every setting)::
     python experiments/rl/learners.py standing    # per task: one configuration, best learner
     python experiments/rl/learners.py time-to-rule   # when training reaches the rule
     python experiments/rl/learners.py news-sends  # what the news gate closes, per task
+    python experiments/rl/learners.py curve-points  # where the validation curves cross
 
 ``--tasks``, ``--learners``, ``--seeds``, ``--steps`` shrink either; ``--retrain`` trains
 again where a run's ``policy.pt`` exists (by default an existing run is evaluated as it is,
@@ -109,6 +110,14 @@ with the workers they trained with).
 per choice (of sources and of relays, or of the agent's own substate and of another's),
 how often a choice has news, the send probability with news and without, and the share of
 the sends made without news, the sends the news gate (``PPOConfig.news_gate``) closes.
+
+**curve-points** writes ``curve_points.csv`` / ``curve_points.md`` into ``--out`` (a
+results folder) and prints them: from its ``curves.csv`` (the validation IQM over the
+seeds), per task and learner and per ``--levels`` value, the last evaluation at or below
+the level and the first above it (:func:`level_points`); and with ``--at``, from each
+run's ``log.csv``, every seed's validation return at the last evaluation at or before each
+of those agent-steps, and on how many seeds it is higher at the later one
+(:func:`seed_points`).
 """
 
 # %%
@@ -1861,12 +1870,109 @@ def cmd_news(args, cfg: dict) -> None:
     write_policy_table(args.out, "news_sends", rows, NEWS_COLUMNS, keys=("task",))
 
 
+# %% where the curves cross
+def level_points(x: np.ndarray, y: np.ndarray, level: float) -> tuple[float, float]:
+    """``(last x where y <= level, first x where y > level)`` of a curve, nan where there
+    is none: where a validation curve was last at or below a return and first above it
+    (the two differ where the curve crosses the level more than once)."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    if x.shape != y.shape or x.ndim != 1:
+        raise ValueError(f"x and y must be one curve of equal length, got shapes "
+                         f"{x.shape} and {y.shape}")
+    low, high = np.flatnonzero(y <= level), np.flatnonzero(y > level)
+    return (float(x[low[-1]]) if low.size else math.nan,
+            float(x[high[0]]) if high.size else math.nan)
+
+
+def seed_points(log: list[dict], at: list[int]) -> list[float]:
+    """A run's validation (greedy evaluation) return at the last evaluation at or before
+    each of ``at`` (agent-steps), from its ``log.csv`` rows; nan before the first."""
+    ev = [(int(r["agent_steps"]), float(r["eval_return"])) for r in log
+          if r.get("eval_return")]
+    return [next((v for s, v in reversed(ev) if s <= a), math.nan) for a in at]
+
+
+def cmd_curve_points(args, cfg: dict) -> None:
+    """Where the validation curves of ``--out`` cross ``--levels`` and, with ``--at``,
+    each seed's validation return at those agent-steps (``curve_points.{csv,md}``)."""
+    path = args.out / "curves.csv"
+    if not path.is_file():
+        raise SystemExit(f"curve-points: {path} does not exist (the results or summary "
+                         f"command writes it)")
+    if not args.levels and not args.at:
+        raise SystemExit("curve-points: give --levels (returns) or --at (agent-steps)")
+    if args.at and sorted(args.at) != list(args.at):
+        raise SystemExit(f"curve-points: --at must be increasing agent-steps, got {args.at}")
+    with path.open() as fh:
+        curve_rows = list(csv.DictReader(fh))
+    keys = list(dict.fromkeys((r["task"], r["learner"]) for r in curve_rows))
+    if args.tasks:
+        keys = [k for k in keys if k[0] in args.tasks]
+    if args.learners:
+        keys = [k for k in keys if k[1] in args.learners]
+    if not keys:
+        raise SystemExit(f"curve-points: no curve of the given --tasks/--learners in {path}")
+    rows, lines = [], []
+    for task, learner in keys:
+        c = [r for r in curve_rows if (r["task"], r["learner"]) == (task, learner)]
+        x = np.array([float(r["agent_steps"]) for r in c])
+        y = np.array([float(r["iqm"]) for r in c])
+        for level in args.levels or []:
+            last, first = level_points(x, y, level)
+            rows.append({"task": task, "learner": learner, "what": "validation IQM",
+                         "level": level, "last_at_or_below": last, "first_above": first})
+            lines.append(f"| {task} | {learner} | {level:g} | {_msteps(last)} | "
+                         f"{_msteps(first)} |")
+    seed_lines = []
+    for task, learner in keys if args.at else []:
+        runs = sorted((args.out / "runs" / task / learner).glob("seed_*"),
+                      key=lambda d: int(d.name.removeprefix("seed_")))
+        values = [seed_points(read_log(d), args.at) for d in runs if (d / "log.csv").exists()]
+        for d, v in zip(runs, values, strict=True):
+            rows.append({"task": task, "learner": learner, "what": "seed validation",
+                         "seed": int(d.name.removeprefix("seed_")),
+                         **{f"return_at_{a}": r for a, r in zip(args.at, v, strict=True)}})
+        higher = [sum(v[j + 1] > v[j] for v in values) for j in range(len(args.at) - 1)]
+        seed_lines.append(
+            f"| {task} | {learner} | "
+            + " | ".join(", ".join(f"{v[j]:.2f}" for v in values)
+                         for j in range(len(args.at)))
+            + "".join(f" | {h} of {len(values)}" for h in higher) + " |")
+    md = []
+    if lines:
+        md += ["Validation IQM over the seeds (`curves.csv`): the last evaluation at or "
+               "below each level and the first above it (agent-steps).", "",
+               "| task | learner | level | last at or below | first above |",
+               "|---|---|---|---|---|", *lines, ""]
+    if seed_lines:
+        at = [_msteps(a) for a in args.at]
+        md += ["Each seed's validation return at the last evaluation at or before "
+               "each step (`log.csv` of its run), seeds in order.", "",
+               "| task | learner | " + " | ".join(f"at {a}" for a in at)
+               + "".join(f" | higher at {b} than at {a}" for a, b in zip(at, at[1:], strict=False))
+               + " |",
+               "|---|---|" + "---|" * (2 * len(at) - 1), *seed_lines, ""]
+    write_csv(args.out / "curve_points.csv", rows)
+    _write(args.out / "curve_points.md", "\n".join(md))
+    print("\n".join(md))
+    print(f"wrote {args.out / 'curve_points.csv'} and curve_points.md")
+
+
+def _msteps(steps: float) -> str:
+    return "-" if math.isnan(steps) else f"{steps / 1e6:.1f}M"
+
+
+COMMANDS = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
+            "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
+            "memory": cmd_memory, "reaction": cmd_reaction, "hybrids": cmd_hybrids,
+            "values": cmd_values, "credit": cmd_credit, "standing": cmd_standing,
+            "time-to-rule": cmd_time, "news-sends": cmd_news,
+            "curve-points": cmd_curve_points}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("command", choices=("results", "summary", "ablation", "diagnose", "channel",
-                                       "substates", "memory", "reaction", "hybrids",
-                                       "values", "credit", "standing", "time-to-rule",
-                                       "news-sends"))
+    p.add_argument("command", choices=tuple(COMMANDS))
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--tasks", nargs="+")
     p.add_argument("--learners", nargs="+", help="learners (results) or variants (ablation)")
@@ -1886,17 +1992,14 @@ def main(argv: list[str] | None = None) -> int:
                    help="summary: evaluate the references again (the suite's best "
                         "decentralised rule, the lookaheads, the upper bound) and rewrite "
                         "them into episodes.csv before summarising")
+    p.add_argument("--levels", type=float, nargs="+",
+                   help="curve-points: returns whose crossing by the validation IQM to find")
+    p.add_argument("--at", type=int, nargs="+",
+                   help="curve-points: agent-steps at which to read each seed's validation "
+                        "return (increasing)")
     args = p.parse_args(argv)
     cfg = load_config(args.config)
-    commands = {"results": cmd_results, "summary": cmd_summary, "ablation": cmd_ablation,
-                "diagnose": cmd_diagnose, "channel": cmd_channel, "substates": cmd_substates,
-                "memory": cmd_memory, "reaction": cmd_reaction, "hybrids": cmd_hybrids,
-                "values": cmd_values,
-                "credit": cmd_credit,
-                "standing": cmd_standing,
-                "time-to-rule": cmd_time,
-                "news-sends": cmd_news}
-    commands[args.command](args, cfg)
+    COMMANDS[args.command](args, cfg)
     return 0
 
 
