@@ -559,6 +559,9 @@ def test_seed_points_read_the_last_evaluation_at_or_before_each_step(learners):
            {"agent_steps": "300", "eval_return": "-3"}, {"agent_steps": "400", "eval_return": ""}]
     got = learners.seed_points(log, [50, 100, 299, 300, 1000])
     assert np.isnan(got[0]) and got[1:] == [-5.0, -5.0, -3.0, -3.0]
+    for r, m in zip(log, ["0.5", "", "0.25", ""], strict=True):
+        r["eval_messages"] = m
+    assert learners.seed_points(log, [100, 400], "eval_messages") == [0.5, 0.25]
 
 
 def test_curve_points_command_counts_the_seeds_that_rise(learners, tmp_path):
@@ -581,8 +584,11 @@ def test_curve_points_command_counts_the_seeds_that_rise(learners, tmp_path):
         out = list(csv.DictReader(fh))
     level = next(r for r in out if r["what"] == "validation IQM")
     assert (float(level["last_at_or_below"]), float(level["first_above"])) == (100.0, 200.0)
-    assert [float(r["return_at_300"]) for r in out if r["what"] == "seed validation"] == \
+    assert [float(r["at_300"]) for r in out if r["what"] == "seed validation"] == \
         [-9.0, -9.0, -6.0]
+    with pytest.raises(ValueError, match="no column 'eval_messages'"):
+        learners.main(["curve-points", "--out", str(tmp_path), "--at", "150",
+                       "--column", "eval_messages"])
     with pytest.raises(SystemExit, match="increasing"):
         learners.main(["curve-points", "--out", str(tmp_path), "--at", "300", "150"])
     with pytest.raises(SystemExit, match="does not exist"):

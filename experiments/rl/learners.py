@@ -115,8 +115,9 @@ the sends made without news, the sends the news gate (``PPOConfig.news_gate``) c
 results folder) and prints them: from its ``curves.csv`` (the validation IQM over the
 seeds), per task and learner and per ``--levels`` value, the last evaluation at or below
 the level and the first above it (:func:`level_points`); and with ``--at``, from each
-run's ``log.csv``, every seed's validation return at the last evaluation at or before each
-of those agent-steps, and on how many seeds it is higher at the later one
+run's ``log.csv``, every seed's validation return (or another ``--column`` of the log,
+then into ``curve_points_<column>.{csv,md}``) at the last evaluation at or before each of
+those agent-steps, and on how many seeds it is higher at the later one
 (:func:`seed_points`).
 """
 
@@ -1884,11 +1885,13 @@ def level_points(x: np.ndarray, y: np.ndarray, level: float) -> tuple[float, flo
             float(x[high[0]]) if high.size else math.nan)
 
 
-def seed_points(log: list[dict], at: list[int]) -> list[float]:
-    """A run's validation (greedy evaluation) return at the last evaluation at or before
-    each of ``at`` (agent-steps), from its ``log.csv`` rows; nan before the first."""
-    ev = [(int(r["agent_steps"]), float(r["eval_return"])) for r in log
-          if r.get("eval_return")]
+def seed_points(log: list[dict], at: list[int], column: str = "eval_return") -> list[float]:
+    """A run's ``column`` (by default its validation, greedy evaluation, return) at the
+    last row at or before each of ``at`` (agent-steps) where the column has a value, from
+    its ``log.csv`` rows; nan before the first."""
+    if log and column not in log[0]:
+        raise ValueError(f"log.csv has no column {column!r}; it has {', '.join(log[0])}")
+    ev = [(int(r["agent_steps"]), float(r[column])) for r in log if r.get(column)]
     return [next((v for s, v in reversed(ev) if s <= a), math.nan) for a in at]
 
 
@@ -1927,11 +1930,13 @@ def cmd_curve_points(args, cfg: dict) -> None:
     for task, learner in keys if args.at else []:
         runs = sorted((args.out / "runs" / task / learner).glob("seed_*"),
                       key=lambda d: int(d.name.removeprefix("seed_")))
-        values = [seed_points(read_log(d), args.at) for d in runs if (d / "log.csv").exists()]
+        values = [seed_points(read_log(d), args.at, args.column) for d in runs
+                  if (d / "log.csv").exists()]
         for d, v in zip(runs, values, strict=True):
             rows.append({"task": task, "learner": learner, "what": "seed validation",
                          "seed": int(d.name.removeprefix("seed_")),
-                         **{f"return_at_{a}": r for a, r in zip(args.at, v, strict=True)}})
+                         "column": args.column,
+                         **{f"at_{a}": r for a, r in zip(args.at, v, strict=True)}})
         higher = [sum(v[j + 1] > v[j] for v in values) for j in range(len(args.at) - 1)]
         seed_lines.append(
             f"| {task} | {learner} | "
@@ -1946,16 +1951,17 @@ def cmd_curve_points(args, cfg: dict) -> None:
                "|---|---|---|---|---|", *lines, ""]
     if seed_lines:
         at = [_msteps(a) for a in args.at]
-        md += ["Each seed's validation return at the last evaluation at or before "
-               "each step (`log.csv` of its run), seeds in order.", "",
+        md += [f"Each seed's `{args.column}` at the last row at or before each step that "
+               "has one (`log.csv` of its run), seeds in order.", "",
                "| task | learner | " + " | ".join(f"at {a}" for a in at)
                + "".join(f" | higher at {b} than at {a}" for a, b in zip(at, at[1:], strict=False))
                + " |",
                "|---|---|" + "---|" * (2 * len(at) - 1), *seed_lines, ""]
-    write_csv(args.out / "curve_points.csv", rows)
-    _write(args.out / "curve_points.md", "\n".join(md))
+    stem = "curve_points" if args.column == "eval_return" else f"curve_points_{args.column}"
+    write_csv(args.out / f"{stem}.csv", rows)
+    _write(args.out / f"{stem}.md", "\n".join(md))
     print("\n".join(md))
-    print(f"wrote {args.out / 'curve_points.csv'} and curve_points.md")
+    print(f"wrote {args.out / stem}.csv and {stem}.md")
 
 
 def _msteps(steps: float) -> str:
@@ -1995,8 +2001,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--levels", type=float, nargs="+",
                    help="curve-points: returns whose crossing by the validation IQM to find")
     p.add_argument("--at", type=int, nargs="+",
-                   help="curve-points: agent-steps at which to read each seed's validation "
-                        "return (increasing)")
+                   help="curve-points: agent-steps at which to read each seed's --column "
+                        "(increasing)")
+    p.add_argument("--column", default="eval_return",
+                   help="curve-points: the log.csv column --at reads (default eval_return, "
+                        "the validation return)")
     args = p.parse_args(argv)
     cfg = load_config(args.config)
     COMMANDS[args.command](args, cfg)
