@@ -99,6 +99,7 @@ def test_dual_bound_is_weak_duality():
             assert _dual_bound(A, b, c, lo, hi, rng.random(6) * 3) >= opt - 1e-12
 
 
+@pytest.mark.slow  # 20-50 s each: the enumeration of every joint policy
 @pytest.mark.parametrize("name", ["base", "channel", "fading", "schedule", "coupled",
                                   "substates"])
 def test_bound_holds_the_enumerated_optimum(name):
