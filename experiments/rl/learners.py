@@ -1928,10 +1928,10 @@ def cmd_curve_points(args, cfg: dict) -> None:
                          f"{_msteps(first)} |")
     seed_lines = []
     for task, learner in keys if args.at else []:
-        runs = sorted((args.out / "runs" / task / learner).glob("seed_*"),
+        runs = sorted((d for d in (args.out / "runs" / task / learner).glob("seed_*")
+                       if (d / "log.csv").exists()),
                       key=lambda d: int(d.name.removeprefix("seed_")))
-        values = [seed_points(read_log(d), args.at, args.column) for d in runs
-                  if (d / "log.csv").exists()]
+        values = [seed_points(read_log(d), args.at, args.column) for d in runs]
         for d, v in zip(runs, values, strict=True):
             rows.append({"task": task, "learner": learner, "what": "seed validation",
                          "seed": int(d.name.removeprefix("seed_")),
