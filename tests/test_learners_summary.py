@@ -584,7 +584,7 @@ def test_curve_points_command_counts_the_seeds_that_rise(learners, tmp_path):
         out = list(csv.DictReader(fh))
     level = next(r for r in out if r["what"] == "validation IQM")
     assert (float(level["last_at_or_below"]), float(level["first_above"])) == (100.0, 200.0)
-    assert [float(r["at_300"]) for r in out if r["what"] == "seed validation"] == \
+    assert [float(r["at_300"]) for r in out if r["what"] == "per seed"] == \
         [-9.0, -9.0, -6.0]
     with pytest.raises(ValueError, match="no column 'eval_messages'"):
         learners.main(["curve-points", "--out", str(tmp_path), "--at", "150",

@@ -259,6 +259,13 @@ def read_log(folder: Path) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
+def seed_runs(folder: Path) -> list[Path]:
+    """The ``seed_<s>`` runs of a ``runs/<task>/<learner>`` folder that have a
+    ``log.csv``, in the order of their seeds."""
+    return sorted((d for d in folder.glob("seed_*") if (d / "log.csv").exists()),
+                  key=lambda d: int(d.name.removeprefix("seed_")))
+
+
 # %% references and evaluation
 def best_decentralised(task: str) -> str:
     """The spec of the task's best decentralised rule: the benchmark suite's reference
@@ -1746,7 +1753,7 @@ def cmd_time(args, cfg: dict) -> None:
             continue
         spec, rule = refs[task.name]
         for learner in sorted(d for d in task.iterdir() if d.is_dir()):
-            runs = sorted(r for r in learner.glob("seed_*") if (r / "log.csv").exists())
+            runs = seed_runs(learner)
             if not runs:
                 continue
             got = [h for h in (time_to_rule(read_log(r), rule) for r in runs) if h]
@@ -1928,12 +1935,10 @@ def cmd_curve_points(args, cfg: dict) -> None:
                          f"{_msteps(first)} |")
     seed_lines = []
     for task, learner in keys if args.at else []:
-        runs = sorted((d for d in (args.out / "runs" / task / learner).glob("seed_*")
-                       if (d / "log.csv").exists()),
-                      key=lambda d: int(d.name.removeprefix("seed_")))
+        runs = seed_runs(args.out / "runs" / task / learner)
         values = [seed_points(read_log(d), args.at, args.column) for d in runs]
         for d, v in zip(runs, values, strict=True):
-            rows.append({"task": task, "learner": learner, "what": "seed validation",
+            rows.append({"task": task, "learner": learner, "what": "per seed",
                          "seed": int(d.name.removeprefix("seed_")),
                          "column": args.column,
                          **{f"at_{a}": r for a, r in zip(args.at, v, strict=True)}})
