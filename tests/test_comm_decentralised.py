@@ -159,7 +159,8 @@ def test_tdma_is_a_collision_free_cyclic_schedule_of_the_sources():
         assert pol3.act(obs, mask).any() == ((k + 1) % 3 == 0)
 
 
-@pytest.mark.parametrize("spec", NEW + ("event:2", "periodic:3", "sources:2", "bernoulli:0.5"))
+@pytest.mark.parametrize("spec", NEW + ("event:2", "periodic:3", "sources:2", "bernoulli:0.5",
+                                         "settled:0.3(always)", "settled(settle:0.03)"))
 def test_every_decentralised_family_reads_only_its_own_row(spec):
     """Two batch members that share agent 0's observations step after step but differ in
     every other agent's row: agent 0 decides the same in both (memory included)."""
@@ -204,7 +205,8 @@ def test_memory_restarts_with_the_member():
 
 @pytest.mark.parametrize("sid,policy", [(s, p) for s in ("comm_channel_k2-v0",
                                                           "comm_substates-v0")
-                                        for p in NEW[::2] + NEW[1::4]])
+                                        for p in NEW[::2] + NEW[1::4]
+                                        + ("settled:0.3(event:2)",)])
 def test_env_batched_and_benchmark_agree(sid, policy):
     """The same episodes through the PettingZoo env (serial backend) and as one batch,
     in transmit mode on a channel and in substates mode."""
@@ -255,3 +257,58 @@ def test_actor_scores_a_rule_exactly_like_its_spec():
                  actor=lambda core, s: make_comm_policy("tdma:2", core).act)
     for m in a:
         np.testing.assert_array_equal(a[m], b[m])
+
+
+SETTLED_SID = "comm_schedule-v1"
+
+
+@pytest.mark.parametrize("eps", [0.3, 0.03])
+def test_settled_opens_at_the_first_small_own_block_correction(eps):
+    """``settled:e(always)`` on ``comm_schedule-v1`` against the gate computed from the
+    core's own estimates (not the observation the rule decodes): agent ``i`` sends
+    from the first step ``s >= 1`` with ``||P_i (z_i[s] - A_bar z_i[s-1])|| /
+    max(||z_i[s]||, 1e-3) < e`` on, where ``P_i`` keeps its block's coordinates, and
+    throughout if it owns no block. At both thresholds the owners open at steps at least
+    5 apart (checked), so the comparison is not vacuous."""
+    core, obs, mask = _core(SETTLED_SID, B=4, seed=[11, 12, 13, 14])
+    pol = make_comm_policy(f"settled:{eps}(always)", core)
+    A_T = core.model.design.decomposition.A_bar.T
+    own = np.zeros((core.N, core.n), bool)
+    own[core.block_of, np.arange(core.n)] = True
+    opened = np.broadcast_to(~own.any(1), (4, core.N)).copy()
+    first = np.full((4, core.N), -1)
+    z_prev = None
+    for k in range(60):
+        z = core.Z.copy()
+        if z_prev is not None:
+            d = np.linalg.norm(np.where(own, z - z_prev @ A_T, 0.0), axis=-1)
+            opened |= d / np.maximum(np.linalg.norm(z, axis=-1), 1e-3) < eps
+        first[(first < 0) & opened] = k
+        bits = pol.act(obs, mask)
+        allowed = mask[..., 1::2] > 0
+        np.testing.assert_array_equal(bits.astype(bool), allowed & opened[..., None])
+        z_prev = z
+        out = core.step(bits)
+        obs, mask = out.obs, out.action_mask
+    owners = own.any(1)
+    spread = first[:, owners].max() - first[:, owners].min()
+    assert (first[:, owners] >= 1).all() and spread >= 5
+    assert (first[:, ~owners] == 0).all()
+
+
+def test_settled_knob_and_base_are_checked_by_name():
+    core, *_ = _core("message_cost-v1")
+    for bad in ("settled:0(always)", "settled:-0.1(always)", "settled:nan(always)",
+                "settled:inf(always)"):
+        with pytest.raises(ValueError, match="settled: the threshold e"):
+            make_comm_policy(bad, core)
+    with pytest.raises(ValueError, match="knob of settled"):
+        parse_spec("settled:abc(always)")
+    with pytest.raises(ValueError, match="plain rule"):
+        parse_spec("settled(phased(until:40))")
+    with pytest.raises(ValueError, match="decentralised"):
+        parse_spec("settled(oldest:2)")
+    assert parse_spec("settled(settle:0.03)") == ("settled", (0.1, "settle:0.03"))
+    from netsense.benchmark.kinds import family_kind
+
+    assert family_kind("settled:0.3(until:40)") == "decentralised"

@@ -21,6 +21,13 @@ spec              knobs         rule (``k`` the step whose action is taken)
                                 max(||z_i[k]||, 1e-3)`` stayed below ``e`` for ``W``
                                 consecutive steps (counted once it has an estimate of every
                                 substate); silent from then on (default ``W = 5``)
+``settled[:e](BASE)``          the base rule's bits once the agent's estimate of its *own*
+                  e > 0         block has settled: silent until the first step ``k >= 1`` at
+                                which ``||P_i (z_i[k] - A_bar z_i[k-1])|| / max(||z_i[k]||,
+                                1e-3) < e`` (``P_i`` keeps the coordinates of agent ``i``'s
+                                block of Lemma 1), the base's bits from then on; agents that
+                                own no block send the base's bits throughout (default
+                                ``e = 0.1``; the base is a plain decentralised rule)
 ``aloha:g,q``     g >= 0,       threshold ALOHA on the age gain: active iff
                   q > 0         ``a_i = max_j (H news_i^{(j)} + carry_i^{(j)}) >= g N / K``,
                                 an active agent transmits with probability
@@ -43,6 +50,15 @@ spec              knobs         rule (``k`` the step whose action is taken)
   variance-based triggering", and the send-on-delta rule of Miskowicz, Sensors 2006),
   turned into a stopping rule: the correction the agent's estimate still receives is its
   own measure of how much the network is still telling it.
+* ``settled`` is the reverse of ``settle``: *wait* until the own estimate is worth
+  sending. With freshness fusion a receiver adopts the freshest estimate of a substate,
+  however wrong; a source whose own observer is still in its transient sends the freshest
+  and, there, the worst estimate of its block. On ``message_cost-v0``/``-v1`` and
+  ``comm_schedule-v1`` one source's own-block error is several times the whole state's
+  norm for its first steps, and its early messages raise every receiver's error (numbers
+  in docs/frontier.md). The correction of the own block comes from the agent's own
+  measurements only (an agent keeps its own substate), so the gate reads nothing of the
+  network.
 * ``aloha`` is threshold ALOHA with the age gain of Chen, Gatsis, Hassani and Saeedi
   Bidokhti, "Age of Information in Random Access Channels", IEEE Trans. Inf. Theory 68(10),
   2022 (a packet is sent only if the age reduction it would bring exceeds a threshold, then
@@ -66,7 +82,8 @@ import numpy as np
 
 from netsense.env.policies import CommPolicy, _seed
 
-__all__ = ["MemberUniforms", "Settle", "Tdma", "ThresholdAloha", "Until", "int_knob"]
+__all__ = ["MemberUniforms", "Settle", "Settled", "Tdma", "ThresholdAloha", "Until",
+           "decoded_estimate", "int_knob"]
 
 
 class _MemberState:
@@ -122,6 +139,13 @@ def _news_steps(policy: CommPolicy, obs: np.ndarray) -> np.ndarray:
     return np.rint(obs[..., policy.layout.news] * policy.horizon)
 
 
+def decoded_estimate(layout, obs: np.ndarray) -> np.ndarray:
+    """``(B, N, n)`` each agent's estimate ``z_i`` decoded from its observation,
+    ``z_dir expm1(z_lognorm)``."""
+    return (obs[..., layout.z_dir].astype(float)
+            * np.expm1(obs[..., layout.z_lognorm].astype(float)))
+
+
 class Until(CommPolicy):
     """Talk until step ``stop``, then stop: ``t_i[k+1] = 1{k + 1 < T}`` (times
     ``1{news >= d}`` per substate when ``threshold = d >= 1``)."""
@@ -169,9 +193,7 @@ class Settle(CommPolicy):
 
     def estimate(self, obs: np.ndarray) -> np.ndarray:
         """``(B, N, n)`` own estimates ``z_i`` decoded from the observation."""
-        L = self.layout
-        return (obs[..., L.z_dir].astype(float)
-                * np.expm1(obs[..., L.z_lognorm].astype(float)))
+        return decoded_estimate(self.layout, obs)
 
     def corrections(self, z: np.ndarray, z_prev: np.ndarray) -> np.ndarray:
         """``(B, N)``: ``||z - A_bar z_prev|| / max(||z||, 1e-3)``."""
@@ -193,6 +215,78 @@ class Settle(CommPolicy):
         done |= calm >= self.window
         self.mem["z"][...] = z
         return self._send(mask, ~done)
+
+
+class Settled(CommPolicy):
+    """The base rule's bits once the agent's estimate of its own block has settled
+    (module docstring, ``settled[:e](BASE)``).
+
+    Parameters
+    ----------
+    layout, width, horizon
+        As :class:`netsense.env.policies.CommPolicy`.
+    base : CommPolicy
+        The decentralised base rule (same layout, width and horizon).
+    A_bar : ndarray, shape (n, n)
+        The plant of Lemma 1's coordinates (a design-time constant, as in
+        :class:`Settle`).
+    block_of : ndarray of int, shape (n,)
+        The agent whose block holds each coordinate of Lemma 1 (a design-time constant).
+    eps : float
+        The threshold ``e > 0`` on the own block's relative correction.
+
+    Memory per member and agent: the previous estimate and whether the gate is open.
+    """
+
+    name = "settled"
+    floor = Settle.floor
+
+    def __init__(self, layout, width, horizon, base: CommPolicy, A_bar: np.ndarray,
+                 block_of: np.ndarray, eps: float = 0.1) -> None:
+        super().__init__(layout, width, horizon)
+        if not isinstance(base, CommPolicy):
+            raise ValueError(f"settled: base must be a communication policy, got "
+                             f"{type(base).__name__}")
+        eps = float(eps)
+        if not (np.isfinite(eps) and eps > 0):
+            raise ValueError(f"settled: the threshold e must be a number > 0, got {eps!r}")
+        n = layout.n
+        self.A_bar_T = np.ascontiguousarray(np.asarray(A_bar, dtype=float).T)
+        if self.A_bar_T.shape != (n, n):
+            raise ValueError(f"A_bar must have shape ({n}, {n})")
+        block_of = np.asarray(block_of)
+        if block_of.shape != (n,) or not np.issubdtype(block_of.dtype, np.integer) or (
+                block_of.size and (block_of.min() < 0 or block_of.max() >= self.N)):
+            raise ValueError(f"block_of must be {n} agent indices in [0, {self.N}), got "
+                             f"{block_of!r}")
+        self.base, self.eps = base, eps
+        #: (N, n) bool: the coordinates of each agent's own block
+        self.own_block = np.zeros((self.N, n), bool)
+        self.own_block[block_of, np.arange(n)] = True
+        self.owner = self.own_block.any(1)
+        self.mem = _MemberState()
+
+    def corrections(self, z: np.ndarray, z_prev: np.ndarray) -> np.ndarray:
+        """``(B, N)``: ``||P_i (z - A_bar z_prev)|| / max(||z||, 1e-3)``."""
+        d = np.where(self.own_block, z - z_prev @ self.A_bar_T, 0.0)
+        return (np.linalg.norm(d, axis=-1)
+                / np.maximum(np.linalg.norm(z, axis=-1), self.floor))
+
+    def gate(self, obs: np.ndarray) -> np.ndarray:
+        """``(B, N)`` bool: where the base rule's bits may pass."""
+        new = self.mem.restart(self.steps(obs), {"z": ((self.N, self.layout.n), 0.0),
+                                                 "open": ((self.N,), False)})
+        z = decoded_estimate(self.layout, obs)
+        small = self.corrections(z, self.mem["z"]) < self.eps
+        small[new] = False  # no previous estimate yet
+        self.mem["open"][...] |= small | ~self.owner[None]
+        self.mem["z"][...] = z
+        return self.mem["open"].copy()
+
+    def act(self, obs, mask):
+        obs = np.asarray(obs)
+        bits = self.base.act(obs, mask)
+        return bits * self.gate(obs)[..., None]
 
 
 class ThresholdAloha(CommPolicy):

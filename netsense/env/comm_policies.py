@@ -47,6 +47,9 @@ spec                       knob     rule
                                     gives the agent an out-neighbour (field ``next_out``)
 ``acked[:T](BASE)``        T >= 1   informed: silent while the last transmission that had
                                     out-links was lost, probing after ``T`` steps (``acks``)
+``settled[:e](BASE)``      e > 0    decentralised: the base's bits once the agent's own-block
+                                    estimate has settled (relative correction below ``e``;
+                                    :class:`~netsense.env.comm_decentralised.Settled`)
 ``phased[:P](BASE)``       P >= 1   informed: the base's bits where the last transmission at
                                     the phase ``(k + 1) mod P`` had out-links (``acks``; ``P``
                                     defaults to the period of a periodic link schedule)
@@ -84,6 +87,7 @@ import numpy as np
 from netsense.env.comm_decentralised import (
     MemberUniforms,
     Settle,
+    Settled,
     Tdma,
     ThresholdAloha,
     Until,
@@ -234,9 +238,10 @@ COMM_POLICIES = {"always": (None, None), "never": (None, None), "periodic": (int
 #: decentralised policy).
 CENTRALISED = ("oldest", "whittle")
 #: Rules that wrap a decentralised base rule, ``name[:knob](BASE)``: the informed ones
-#: (decentralised) and the privileged ones (read the core). A knob default ``None`` of
-#: ``phased`` means the scenario's schedule period.
-WRAPPERS = {**INFORMED, **PRIVILEGED}
+#: (decentralised, reading optional observation fields), ``settled`` (decentralised,
+#: reading the agent's own estimate) and the privileged ones (read the core). A knob
+#: default ``None`` of ``phased`` means the scenario's schedule period.
+WRAPPERS = {**INFORMED, "settled": (float, 0.1), **PRIVILEGED}
 COMM_POLICIES.update(WRAPPERS)
 
 
@@ -393,4 +398,7 @@ def _wrapped(name: str, knob: tuple, core, seed) -> CommPolicy:
         return Acked(*args, base=base, probe=value)
     if name == "phased":
         return Phased(*args, base=base, period=value)
+    if name == "settled":
+        return Settled(*args, base=base, A_bar=core.model.design.decomposition.A_bar,
+                       block_of=core.block_of, eps=value)
     return Oracle(core, base, channel=name == "oracle_channel")
