@@ -168,7 +168,10 @@ def main(argv: list[str] | None = None) -> int:
     print(" ".join(cmd[1:]), flush=True)
     rows: list[dict] = []
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # the child's output goes to a file, not a pipe: a pipe read only after the exit would
+    # block a child that printed more than the pipe's buffer
+    out_file = (run / "train.out").open("w+")
+    proc = subprocess.Popen(cmd, stdout=out_file, stderr=subprocess.STDOUT, text=True)
     log = run / "seed_0" / "log.csv"
     bar = tqdm(total=args.steps, unit="agent-step", unit_scale=True, desc="soak",
                mininterval=5.0)
@@ -185,12 +188,15 @@ def main(argv: list[str] | None = None) -> int:
             bar.update(steps - bar.n)
             bar.set_postfix(rss=f"{rows[-1]['rss_mib']:.0f} MiB")
             time.sleep(args.interval)
-        text = proc.stdout.read()
         proc.wait()
+        out_file.seek(0)
+        text = out_file.read()
     finally:
         bar.close()
         if proc.poll() is None:
             proc.kill()
+            proc.wait()
+        out_file.close()
         shutil.rmtree(run, ignore_errors=True)
     print(text)
     if proc.returncode != 0:
