@@ -274,9 +274,12 @@ def test_frontier_kinds_best_decentralised_and_pareto():
     privileged ones as their own kind, never a candidate for best decentralised or the
     Pareto front."""
     rows = frontier(FAD, episodes=3, families={"periodic": (2,)}, progress=False,
-                    overrides={"horizon": 30}, informed_bases=("always", "event:2"))
+                    overrides={"horizon": 30}, informed_bases=("always", "event:2"),
+                    settled_bases=("event:2",), settled_knobs=(0.3, 1))
     kinds = {r["policy"]: (r["kind"], r["family"], r["knob"]) for r in rows}
     assert kinds["acked(event:2)"] == ("decentralised", "acked", "event:2")
+    assert kinds["settled:0.3(event:2)"] == ("decentralised", "settled", "event:2")
+    assert kinds["settled:1.0(event:2)"] == ("decentralised", "settled", "event:2")
     assert kinds["oracle(always)"][0] == kinds["oracle_channel(event:2)"][0] == "privileged"
     assert not any(p.startswith(("gated", "phased")) for p in kinds)
     assert all(r["pareto"] == "" for r in rows if r["kind"] == "privileged")
@@ -285,10 +288,15 @@ def test_frontier_kinds_best_decentralised_and_pareto():
     assert best["reward_mean"] == max(r["reward_mean"] for r in dec)
     assert best_scripted(rows)["kind"] != "privileged"
     none = frontier(FAD, episodes=2, families={}, progress=False, overrides={"horizon": 10},
-                    informed_bases=(), privileged=False)
+                    informed_bases=(), privileged=False, settled_bases=())
     assert [r["policy"] for r in none] == ["always", "never"]
     with pytest.raises(ValueError, match="centralised"):
         frontier(FAD, episodes=2, families={}, progress=False, informed_bases=("whittle:1",))
+    for bad in (0, -1.0, float("nan"), "0.3", True):
+        with pytest.raises(ValueError, match="settled_knobs must be numbers > 0"):
+            frontier(FAD, episodes=2, families={}, progress=False, settled_knobs=(bad,))
+    with pytest.raises(ValueError, match="settled_bases must be a sequence"):
+        frontier(FAD, episodes=2, families={}, progress=False, settled_bases="always")
 
 
 def test_benchmark_command_runs_a_wrapped_rule(tmp_path, capsys):

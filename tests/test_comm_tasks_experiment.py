@@ -31,6 +31,7 @@ def test_smoke_run_writes_the_frontier_and_the_summary(tmp_path):
                key=lambda r: float(r["reward_mean"]))
     assert whats["comm_fading-v0", "best decentralised"]["policy"] == best["policy"]
     assert {r["kind"] for r in fading} == {"decentralised", "privileged", "centralised"}
+    assert {r["kind"] for r in fading if r["family"] == "settled"} == {"decentralised"}
     # the gain is the paired mean difference of the two rows' episodes
     pick = whats["comm_fading-v0", "best privileged"]
     assert pick["gain_over"] == whats["comm_fading-v0", "best decentralised"]["policy"]

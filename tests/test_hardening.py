@@ -1397,7 +1397,7 @@ PT_LOADERS = {
     .protocol.evaluate(COMM, f"learned:{f}", [1_000_000], COMM_SHORT),
     "protocol.frontier": lambda f: __import__("netsense.benchmark.protocol").benchmark
     .protocol.frontier(COMM, episodes=1, families={}, learned=[str(f)],
-                       overrides=COMM_SHORT, progress=False),
+                       overrides=COMM_SHORT, progress=False, settled_bases=()),
 }
 
 

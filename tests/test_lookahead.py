@@ -345,7 +345,7 @@ def test_paired_intervals():
 
 def test_frontier_with_references_rows_headroom_and_plot(tmp_path):
     fams = {"periodic": (1, 3), "whittle": (1,)}
-    rows = pr.run_frontier([SID], tmp_path, episodes=4, families=fams,
+    rows = pr.run_frontier([SID], tmp_path, episodes=4, families=fams, settled_bases=(),
                            overrides={"horizon": 10, **TINY}, progress=False,
                            references=("causal", "clairvoyant"), reference_episodes=2,
                            reference_config=LookaheadConfig(horizon=3, futures=2))

@@ -80,7 +80,8 @@ def test_smoke_frontier_writes_png_and_csv(tmp_path):
     fams = {"periodic": (1, 5), "whittle": (2,)}
     rows = pr.run_frontier(["comm_channel_k2-v0", "fig1_scalar-v0"], tmp_path, episodes=3,
                            families=fams, overrides={"horizon": 12}, progress=False,
-                           informed_bases=())  # (the wrapped rules: test_comm_informed.py)
+                           informed_bases=(), settled_bases=())  # (the wrapped rules:
+    # test_comm_informed.py)
     for sc in ("comm_channel_k2-v0", "fig1_scalar-v0"):
         png, table = tmp_path / f"frontier_{sc}.png", tmp_path / f"frontier_{sc}.csv"
         assert png.stat().st_size > 10_000
@@ -123,7 +124,7 @@ def test_learned_points_greedy_and_sampled(tmp_path):
                  "--no-progress"]) == 0
     path = str(run / "policy.zip")
     rows = pr.frontier("comm_channel_k2-v0", episodes=3, families={}, learned=[path],
-                       overrides={"horizon": 10}, progress=False)
+                       overrides={"horizon": 10}, progress=False, settled_bases=())
     learned = [r for r in rows if r["family"] == "learned"]
     assert [r["evaluation"] for r in learned] == ["greedy", "sampled"]
     assert all(r["control"] == "transmit" for r in learned)

@@ -830,7 +830,7 @@ def test_protocol_evaluates_pt_policies_in_their_control_mode(tiny_policies):
     # on a full-control scenario the stored control puts it in its transmit mode; the set
     # network runs there although M differs (10 substates, trained on 5)
     rows = pr.frontier("message_cost-v1", episodes=2, families={}, learned=[str(path)],
-                       overrides=SHORT, progress=False)
+                       overrides=SHORT, progress=False, settled_bases=())
     learned = [r for r in rows if r["family"] == "learned"]
     assert [r["evaluation"] for r in learned] == ["greedy", "sampled"]
     assert {r["control"] for r in learned} == {"transmit"}

@@ -31,16 +31,19 @@ Parts of a run can come from elsewhere: ``--frontier-rows`` takes the frontier r
 ``--keep-references DIR ...`` the reference rows, episodes and trade-off of earlier runs
 (relabelled; each row's continuation is in its ``knob`` column), and references are run
 for the tasks no such folder holds. The committed results: the frontier of all nine
-tasks, the references rerun on the four tasks whose best decentralised rule changed (an
-informed rule, hence a new continuation), those of the five older tasks (whose
-continuation did not change) and the trade-off (``comm_process_noise-v0``) kept::
+tasks; the references of the three tasks whose best decentralised rule became a
+``settled`` rule (hence a new continuation) run again; those of the other six (whose
+continuation did not change) and the trade-off (``comm_process_noise-v0``) kept; then
+the upper bounds' policy table and the suite's references again::
 
-    NUMBA_NUM_THREADS=1 python experiments/rl/comm_tasks.py --workers 5 --save-rows rows.pkl
+    NUMBA_NUM_THREADS=1 python experiments/rl/comm_tasks.py --workers 2 --save-rows rows.pkl
     NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py --frontier-rows rows.pkl \\
-        --tasks comm_announced-v0 comm_fading-v0 comm_schedule-v0 comm_schedule-v1 \\
-        --tradeoff-task "" --workers 4 --out new
+        --tasks message_cost-v0 message_cost-v1 comm_schedule-v1 \\
+        --tradeoff-task "" --workers 2 --out new
     NUMBA_NUM_THREADS=1 python experiments/rl/comm_bounds.py --frontier-rows rows.pkl \\
         --keep-references experiments/results/rl/comm_bounds new
+    NUMBA_NUM_THREADS=1 python experiments/rl/upper_bounds.py --workers 2
+    python experiments/rl/suite_references.py
 """
 
 # %%

@@ -316,7 +316,7 @@ def transfer(defaults: dict, tr: dict, out: Path, args) -> None:
     rows_all = []
     for n in tr["eval_sizes"]:
         rows = protocol.frontier(scenario, episodes=args.episodes, learned=[str(policy)],
-                                 overrides=size(n), progress=True)
+                                 overrides=size(n), progress=True, settled_bases=())
         for r in rows:
             r["N"] = n
         rows_all += rows
@@ -391,7 +391,7 @@ def main(argv: list[str] | None = None) -> Path:
         return out / "summary.md"
     for sc in names:
         scripted = protocol.frontier(sc, episodes=args.episodes, families=families,
-                                     progress=True)
+                                     progress=True, settled_bases=())
         best = best_decentralised(scripted)
         policies = []
         for variant, vfields in variants.items():
@@ -403,7 +403,8 @@ def main(argv: list[str] | None = None) -> Path:
                           args.retrain)
                 policies.append(str(run / "policy.pt"))
         learned = [r for r in protocol.frontier(sc, episodes=args.episodes, families={},
-                                                learned=policies, progress=True)
+                                                learned=policies, progress=True,
+                                                settled_bases=())
                    if r["family"] == "learned"]
         for r in learned:
             r["label"] = Path(r["knob"]).parent.parent.name

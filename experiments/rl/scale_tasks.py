@@ -15,7 +15,9 @@ spatial tasks at N = 50, 200 and 1000 agents.
    schedulers of :func:`scheduler_families` (``oldest:K``, ``whittle:K``) on the first
    :data:`SCHEDULER_EPISODES` of the same seeds (their cost grows as ``N^2``; the
    ``episodes`` column says how many); no informed rule applies (the tasks' observations
-   carry neither ``next_out`` nor ``acks``): ``frontier_<task>.csv/.png``,
+   carry neither ``next_out`` nor ``acks``), and ``settled`` is not run at scale (its
+   gain is the transient of a source's own observer, measured on the tasks of
+   ``experiments/rl/settled_rule.py``): ``frontier_<task>.csv/.png``,
    ``frontier.csv``, ``frontier.md``.
 2. **Summary** (``summary.csv``, ``summary.md``): per task, ``always``, ``never``, the best
    decentralised rule, the best privileged rule and the best centralised scheduler, the
@@ -119,10 +121,11 @@ def run_task(scenario: str, episodes: int, scheduler_episodes: int,
     over = {} if horizon is None else {"horizon": horizon}
     rows = frontier(scenario, episodes=episodes, families=scale_families(scenario),
                     informed_bases=ORACLE_BASES, privileged=True, overrides=over,
-                    progress=progress)
+                    progress=progress, settled_bases=())
     sched = frontier(scenario, episodes=min(scheduler_episodes, episodes),
                      families=scheduler_families(scenario), informed_bases=(),
-                     privileged=False, overrides=over, progress=progress)
+                     privileged=False, overrides=over, progress=progress,
+                     settled_bases=())
     rows += [r for r in sched if r["kind"] == "centralised"]
     front = [r for r in rows if r["kind"] in ("decentralised", "centralised")]
     for r, p in zip(front, pareto_front(front), strict=True):

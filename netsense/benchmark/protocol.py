@@ -39,6 +39,11 @@ What a number from ``netsense benchmark --frontier`` means (cite this module's d
   link schedule), and the privileged rules of :mod:`netsense.env.comm_privileged`
   (``oracle`` everywhere, ``oracle_channel`` where messages can be dropped) over the
   same bases. Their rows have ``family`` = the rule, ``knob`` = the base spec.
+* **Settled rules.** ``settled:e(BASE)``
+  (:class:`netsense.env.comm_decentralised.Settled`: the base's bits once the agent's
+  estimate of its own block has settled) at each ``e`` of :data:`SETTLED_KNOBS` over each
+  base of :data:`SETTLED_BASES`, on every scenario (kind ``decentralised``; ``family`` =
+  ``settled``, ``knob`` = the base spec).
 * **Kinds.** Every row has a ``kind`` (:data:`~netsense.benchmark.kinds.KINDS`, the score
   ladder): ``decentralised`` (what an agent could run from its own observation history:
   every scripted family but the schedulers and the privileged rules, the informed rules
@@ -114,6 +119,12 @@ ENDPOINTS = ("always", "never")
 #: families' points: the frontier stays affordable).
 INFORMED_BASES = ("always", "sources:0", "event:1", "event:2", "event:3", "event:4",
                   "until:40")
+#: Base rules and thresholds of the ``settled`` rows of the frontier: the informed rules'
+#: bases and the talk-then-stop rule ``settle`` at the two knobs that lead
+#: ``message_cost-v0``/``-v1``; ``e`` from opening at a correction as large as the
+#: estimate itself down to a tenth of it.
+SETTLED_BASES = INFORMED_BASES + ("settle:0.01", "settle:0.03")
+SETTLED_KNOBS = (1.0, 0.3, 0.1)
 CSV_COLUMNS = (("scenario", "control", "kind", "family", "policy", "knob", "evaluation",
                 "episodes", "seed_first", "seed_last", "pareto", "seconds")
                + tuple(f"{m}_{s}" for m in PROTOCOL_METRICS
@@ -326,6 +337,8 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
              families: dict[str, Sequence] | None = None, learned: Sequence[str] = (),
              overrides: dict | None = None, progress: bool = True,
              informed_bases: Sequence[str] = INFORMED_BASES, privileged: bool = True,
+             settled_bases: Sequence[str] = SETTLED_BASES,
+             settled_knobs: Sequence[float] = SETTLED_KNOBS,
              references: Sequence[str] = (), reference_episodes: int | None = None,
              reference_config=None, reference_continuation: str | Sequence[str] = "best"
              ) -> list[dict]:
@@ -355,6 +368,9 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
     privileged : bool
         Run the privileged rules that apply (:func:`netsense.env.comm_privileged.
         applicable`) over ``informed_bases`` (kind ``privileged``).
+    settled_bases, settled_knobs : sequence
+        ``settled:e(BASE)`` for every ``e`` and base (default :data:`SETTLED_KNOBS`,
+        :data:`SETTLED_BASES`; either empty: none).
     references : sequence of {"causal", "clairvoyant"}
         Full-information reference schedulers to run (:mod:`netsense.benchmark.lookahead`).
     reference_episodes : int, optional
@@ -397,6 +413,16 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
         raise ValueError(f"informed_bases must be a sequence of specs, got {informed_bases!r}")
     for base in informed_bases:  # a bad base fails before minutes of runs
         parse_spec(f"gated({base})")
+    if isinstance(settled_bases, str):
+        raise ValueError(f"settled_bases must be a sequence of specs, got {settled_bases!r}")
+    for e in settled_knobs:
+        if (isinstance(e, bool) or not isinstance(e, (int, float, np.integer, np.floating))
+                or not (math.isfinite(e) and e > 0)):
+            raise ValueError(f"settled_knobs must be numbers > 0, got {e!r}")
+    settled = [f"settled:{float(e)!r}({base})" for base in settled_bases
+               for e in settled_knobs]
+    for spec in settled:  # a bad base fails here, before the runs
+        parse_spec(spec)
     for path in learned:  # a missing or refused file, or training seeds among the
         # evaluation seeds, fail before the scripted runs (minutes) rather than after
         check_disjoint(_train_seeds(Path(path.replace("{scenario}", scenario))), seeds)
@@ -412,6 +438,8 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
              for fam, knobs in fams.items() for knob in knobs]
     runs += [(rule, base, f"{rule}({base})", "scripted", comm_over)
              for rule in wrappers for base in informed_bases]
+    runs += [("settled", parse_spec(spec)[1][1], spec, "scripted", comm_over)
+             for spec in settled]
     for path in learned:
         path = path.replace("{scenario}", scenario)
         runs += [("learned", path, f"learned:{path}", "greedy", dict(overrides or {})),
