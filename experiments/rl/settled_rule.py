@@ -11,7 +11,8 @@ transient, and which agents the learners keep quiet.
    freshness fusion an agent keeps its own substate, so messages never change it) and
    the step at which ``settled:0.3`` opens the agent's gate (median). A receiver adopts
    the freshest estimate of a substate, so a source that sends while this error is above
-   1 hands its receivers a worse estimate of its block than none (relative error 1).
+   1 hands its receivers an estimate of its block that errs by more than holding 0 for
+   it would (at most the state's norm).
 2. ``sends.csv``/``.md``: per agent, the share of the steps 1 to 40 at which it
    transmits, on each task of :data:`SENDS`: its best rule before and after ``settled``
    and the final greedy policies of the five seeds of a committed learner (20M
@@ -169,7 +170,7 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.set_xlabel("step k")
     np.atleast_1d(axes)[0].set_ylabel("own-block error / ||z|| (median)")
     np.atleast_1d(axes)[-1].legend(title="source (block size)", fontsize=8)
-    fig.suptitle("sources' own-block error with no messages (1: no better than no estimate)")
+    fig.suptitle("sources' own-block error with no messages (dashed: the whole state's norm)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
