@@ -1,7 +1,7 @@
 """Why ``settled:e(BASE)`` belongs in the frontier: the sources' own observers in their
 transient, and which agents the learners keep quiet.
 
-``python experiments/rl/settled_rule.py`` (about a minute) writes into
+``python experiments/rl/settled_rule.py`` (about 30 s) writes into
 ``experiments/results/rl/settled_rule/``:
 
 1. ``transient.csv``/``.md``/``.png``: on each task of :data:`TASKS`, every source's
