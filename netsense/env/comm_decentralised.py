@@ -219,7 +219,8 @@ class Settle(CommPolicy):
 
 class Settled(CommPolicy):
     """The base rule's bits once the agent's estimate of its own block has settled
-    (module docstring, ``settled[:e](BASE)``).
+    (module docstring, ``settled[:e](BASE)``). Memory per member and agent: the previous
+    estimate and whether the gate is open.
 
     Parameters
     ----------
@@ -234,8 +235,6 @@ class Settled(CommPolicy):
         The agent whose block holds each coordinate of Lemma 1 (a design-time constant).
     eps : float
         The threshold ``e > 0`` on the own block's relative correction.
-
-    Memory per member and agent: the previous estimate and whether the gate is open.
     """
 
     name = "settled"
