@@ -82,8 +82,8 @@ import numpy as np
 
 from netsense.env.policies import CommPolicy, _seed
 
-__all__ = ["MemberUniforms", "Settle", "Settled", "Tdma", "ThresholdAloha", "Until",
-           "decoded_estimate", "int_knob"]
+__all__ = ["GatedRule", "MemberUniforms", "Settle", "Settled", "Tdma", "ThresholdAloha",
+           "Until", "decoded_estimate", "int_knob"]
 
 
 class _MemberState:
@@ -217,7 +217,39 @@ class Settle(CommPolicy):
         return self._send(mask, ~done)
 
 
-class Settled(CommPolicy):
+class GatedRule(CommPolicy):
+    """A decentralised base rule whose bits pass only where :meth:`gate` is open (it can
+    stay silent where the base would talk, never the reverse): the frame of ``settled``
+    here and of the informed rules (:class:`netsense.env.comm_informed.InformedRule`).
+
+    Parameters
+    ----------
+    layout, width, horizon
+        As :class:`netsense.env.policies.CommPolicy`.
+    base : CommPolicy
+        The decentralised base rule (same layout, width and horizon).
+    """
+
+    name = "gated rule"
+
+    def __init__(self, layout, width, horizon, base: CommPolicy) -> None:
+        super().__init__(layout, width, horizon)
+        if not isinstance(base, CommPolicy):
+            raise ValueError(f"{self.name}: base must be a communication policy, got "
+                             f"{type(base).__name__}")
+        self.base = base
+
+    def gate(self, obs: np.ndarray) -> np.ndarray:
+        """``(B, N)`` bool: where the base rule's bits may pass."""
+        raise NotImplementedError
+
+    def act(self, obs, mask):
+        obs = np.asarray(obs)
+        bits = self.base.act(obs, mask)
+        return bits * self.gate(obs)[..., None]
+
+
+class Settled(GatedRule):
     """The base rule's bits once the agent's estimate of its own block has settled
     (module docstring, ``settled[:e](BASE)``). Memory per member and agent: the previous
     estimate and whether the gate is open.
@@ -242,10 +274,7 @@ class Settled(CommPolicy):
 
     def __init__(self, layout, width, horizon, base: CommPolicy, A_bar: np.ndarray,
                  block_of: np.ndarray, eps: float = 0.1) -> None:
-        super().__init__(layout, width, horizon)
-        if not isinstance(base, CommPolicy):
-            raise ValueError(f"settled: base must be a communication policy, got "
-                             f"{type(base).__name__}")
+        super().__init__(layout, width, horizon, base)
         eps = float(eps)
         if not (np.isfinite(eps) and eps > 0):
             raise ValueError(f"settled: the threshold e must be a number > 0, got {eps!r}")
@@ -258,7 +287,7 @@ class Settled(CommPolicy):
                 block_of.size and (block_of.min() < 0 or block_of.max() >= self.N)):
             raise ValueError(f"block_of must be {n} agent indices in [0, {self.N}), got "
                              f"{block_of!r}")
-        self.base, self.eps = base, eps
+        self.eps = eps
         #: (N, n) bool: the coordinates of each agent's own block
         self.own_block = np.zeros((self.N, n), bool)
         self.own_block[block_of, np.arange(n)] = True
@@ -281,11 +310,6 @@ class Settled(CommPolicy):
         self.mem["open"][...] |= small | ~self.owner[None]
         self.mem["z"][...] = z
         return self.mem["open"].copy()
-
-    def act(self, obs, mask):
-        obs = np.asarray(obs)
-        bits = self.base.act(obs, mask)
-        return bits * self.gate(obs)[..., None]
 
 
 class ThresholdAloha(CommPolicy):
