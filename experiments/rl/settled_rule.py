@@ -58,11 +58,12 @@ def own_block_errors(task: str, episodes: int = 100, eps: float = 0.3) -> list[d
 
     seeds = eval_seeds(episodes)
     over = frontier_overrides(task)
-    Z, z, opened = [], [], []
+    Z, z, opened, blocks = [], [], [], []
 
     def actor(core, _seeds):
         gate = make_comm_policy(f"settled:{eps}(always)", core)
         T = core.model.design.decomposition.T  # z = T^T x (Lemma 1's coordinates)
+        blocks.append(np.asarray(core.block_of))
 
         def act(obs, mask):
             Z.append(core.Z.copy())
@@ -75,10 +76,7 @@ def own_block_errors(task: str, episodes: int = 100, eps: float = 0.3) -> list[d
     evaluate(task, "never", seeds, over, actor=actor)
     Z, z, opened = np.stack(Z), np.stack(z), np.stack(opened)  # (K, B, N, n), (K, B, n)
     norm = np.linalg.norm(z, axis=-1)
-    from netsense.env.vector import load_model
-
-    model, _ = load_model(task, **over)
-    block_of = np.asarray(model.design.decomposition.block_of)
+    block_of = blocks[0]
     rows = []
     for i in np.unique(block_of):
         cols = block_of == i

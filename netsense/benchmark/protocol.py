@@ -419,9 +419,9 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
         if (isinstance(e, bool) or not isinstance(e, (int, float, np.integer, np.floating))
                 or not (math.isfinite(e) and e > 0)):
             raise ValueError(f"settled_knobs must be numbers > 0, got {e!r}")
-    settled = [f"settled:{float(e)!r}({base})" for base in settled_bases
+    settled = [(base, f"settled:{float(e)!r}({base})") for base in settled_bases
                for e in settled_knobs]
-    for spec in settled:  # a bad base fails here, before the runs
+    for _, spec in settled:  # a bad base fails here, before the runs
         parse_spec(spec)
     for path in learned:  # a missing or refused file, or training seeds among the
         # evaluation seeds, fail before the scripted runs (minutes) rather than after
@@ -438,8 +438,7 @@ def frontier(scenario: str, *, episodes: int = DEFAULT_EPISODES, seed0: int = EV
              for fam, knobs in fams.items() for knob in knobs]
     runs += [(rule, base, f"{rule}({base})", "scripted", comm_over)
              for rule in wrappers for base in informed_bases]
-    runs += [("settled", parse_spec(spec)[1][1], spec, "scripted", comm_over)
-             for spec in settled]
+    runs += [("settled", base, spec, "scripted", comm_over) for base, spec in settled]
     for path in learned:
         path = path.replace("{scenario}", scenario)
         runs += [("learned", path, f"learned:{path}", "greedy", dict(overrides or {})),
